@@ -1,0 +1,39 @@
+"""Errors raised by ``cadio``: one base class, small subclasses that say whose fault it is."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+
+class CadioError(Exception):
+    """Base class of every error raised by the CAD and capture I/O package."""
+
+
+class InputFileError(CadioError):
+    """An input file cannot be used; ``reason`` is a short human sentence."""
+
+    def __init__(self, path: Path | str, reason: str) -> None:
+        self.path = str(path)
+        self.reason = reason
+        super().__init__(f"{self.path}: {reason}")
+
+
+class StepReadError(InputFileError):
+    """A STEP file could not be read into solids."""
+
+
+class WorkerError(InputFileError):
+    """The isolated worker process handling a file timed out, ran out of memory or crashed."""
+
+
+class GeometryError(CadioError):
+    """A shape could not be tessellated, voxelized or measured."""
+
+    def __init__(self, what: str, reason: str) -> None:
+        self.what = what
+        self.reason = reason
+        super().__init__(f"{what}: {reason}")
+
+
+class CaptureError(InputFileError):
+    """A capture (MCAP) file is truncated, corrupt, or has the wrong schema or topics."""

@@ -1,0 +1,47 @@
+"""Every geometric tolerance of mateqa, in one place, each with the reason for its value.
+
+Tests import these objects rather than repeating numbers; reports print them next to results
+so that a figure is never separated from the rule that produced it.
+"""
+
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass
+
+
+@dataclass(frozen=True)
+class Tolerances:
+    """Tolerances for tessellation, face recognition and the ten spatial relations.
+
+    Lengths are millimetres, angles degrees unless the name says radians.
+    """
+
+    # Tessellation: chordal deviation 0.1 mm keeps the mesh volume within ~1% of the B-rep for
+    # parts of a few millimetres and up; 0.5 rad angular deflection bounds the triangle count
+    # on small fillets (it drives the count far more than the linear value).
+    mesh_linear_mm: float = 0.1
+    mesh_angular_rad: float = 0.5
+    # A freeform (B-spline) face is recognised as a plane, cylinder or cone when it fits within
+    # 1 micrometre: real files (CAx-IF AS1) store every cylinder as a B-spline.
+    freeform_fit_mm: float = 1e-3
+    # Directional relations: centre-to-centre direction within 15 degrees of the axis (paper).
+    direction_cone_deg: float = 15.0
+    # Parallel / perpendicular principal plane directions (within 1 degree of 0 or 90).
+    parallel_deg: float = 1.0
+    # Concentric principal axes: angle and distance between the axis lines.
+    coaxial_deg: float = 0.5
+    coaxial_mm: float = 0.1
+    # Coincident / coplanar faces: offset between the planes.
+    coplanar_mm: float = 0.1
+    # Face-level mates: opposite normals within 0.5 degree, contact within 0.1 mm.
+    mate_angle_deg: float = 0.5
+    contact_mm: float = 0.1
+    # Groups of planar faces by normal direction: directions within this angle are one group.
+    group_angle_deg: float = 0.5
+
+    def as_dict(self) -> dict[str, float]:
+        """The tolerances as a flat dict, for reports and parquet metadata."""
+        return asdict(self)
+
+
+DEFAULT_TOLERANCES = Tolerances()

@@ -1,0 +1,1 @@
+"""Learned stages of mateqa (PyTorch only): shape completion and relation networks."""

@@ -1,0 +1,1 @@
+"""Reports of mateqa: metrics (pure numpy), per-category tables, files and artefacts."""
