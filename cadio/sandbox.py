@@ -1,0 +1,234 @@
+"""Run CAD work in separate worker processes with a time limit and a memory limit.
+
+OpenCascade can hang on a pathological file, exhaust memory, or crash the whole process with a
+segmentation fault. None of that may stop a batch: each job runs in a long-lived worker process
+(spawned, never forked, so OCP state is not shared) with an address-space limit; the supervisor
+waits on results and process deaths together, turns a timeout, a memory error or a crash into a
+``WorkerError`` naming the input, replaces the dead worker and carries on with the next job.
+"""
+
+from __future__ import annotations
+
+import importlib
+import logging
+import multiprocessing as mp
+import os
+import resource
+import signal
+import time
+from collections import deque
+from collections.abc import Callable, Iterable, Iterator
+from dataclasses import dataclass
+from multiprocessing.connection import Connection, wait
+from pathlib import Path
+from typing import Any
+
+from cadio.errors import CadioError, InputFileError, WorkerError
+
+log = logging.getLogger(__name__)
+
+
+@dataclass(frozen=True)
+class Limits:
+    """Resource limits of one worker process.
+
+    seconds: wall-clock limit per job (a 10 MB STEP reads in seconds; minutes mean a hang).
+    memory_mb: address-space limit; OCP + open3d + numpy map ~1.5 GB of address space at idle,
+    so limits under ~2 GB make every job fail.
+    workers: processes running jobs at once.
+    """
+
+    seconds: float = 300.0
+    memory_mb: int = 6144
+    workers: int = 2
+
+
+@dataclass(frozen=True)
+class Job:
+    """One unit of work: ``key`` names the input (a file path) in errors."""
+
+    key: str
+    payload: Any
+
+
+@dataclass(frozen=True)
+class Outcome:
+    """The result of a job, or the error that ended it."""
+
+    job: Job
+    result: Any = None
+    error: InputFileError | None = None
+    seconds: float = 0.0
+
+
+def run_isolated(target: str, jobs: Iterable[Job], limits: Limits = Limits()) -> Iterator[Outcome]:
+    """Run ``target(payload)`` for every job in isolated worker processes.
+
+    Args:
+        target: "package.module:function"; the function takes a job payload and returns a
+            picklable result. It raises ``InputFileError`` for bad input.
+        jobs: the jobs; their order of completion may differ.
+        limits: time, memory and parallelism limits.
+
+    Yields:
+        One ``Outcome`` per job, as jobs finish.
+    """
+    pool = _Pool(target, limits)
+    try:
+        yield from pool.run(deque(jobs))
+    finally:
+        pool.close()
+
+
+class _Worker:
+    def __init__(self, ctx: Any, target: str, memory_mb: int) -> None:
+        self.conn, child = ctx.Pipe()
+        self.process = ctx.Process(
+            target=_worker_main, args=(child, target, memory_mb), daemon=True
+        )
+        self.process.start()
+        child.close()
+        self.job: Job | None = None
+        self.started = 0.0
+
+    def submit(self, job: Job) -> None:
+        self.job, self.started = job, time.monotonic()
+        self.conn.send(job.payload)
+
+    def kill(self) -> None:
+        if self.process.is_alive():
+            self.process.kill()
+        self.process.join(5)
+        self.conn.close()
+
+
+class _Pool:
+    def __init__(self, target: str, limits: Limits) -> None:
+        self.ctx = mp.get_context("spawn")
+        self.target, self.limits = target, limits
+        self.workers: list[_Worker] = []
+
+    def run(self, queue: deque[Job]) -> Iterator[Outcome]:
+        while queue or any(w.job for w in self.workers):
+            self._fill(queue)
+            busy = [w for w in self.workers if w.job is not None]
+            ready = wait(
+                [w.conn for w in busy] + [w.process.sentinel for w in busy],
+                timeout=self._next_deadline(busy),
+            )
+            for worker in busy:
+                outcome = self._check(worker, ready)
+                if outcome is not None:
+                    yield outcome
+
+    def _fill(self, queue: deque[Job]) -> None:
+        self.workers = [w for w in self.workers if w.process.is_alive() or w.job is not None]
+        while len(self.workers) < self.limits.workers and queue:
+            self.workers.append(_Worker(self.ctx, self.target, self.limits.memory_mb))
+        for worker in self.workers:
+            if worker.job is None and queue:
+                worker.submit(queue.popleft())
+
+    def _next_deadline(self, busy: list[_Worker]) -> float:
+        now = time.monotonic()
+        return max(0.0, min(w.started + self.limits.seconds - now for w in busy))
+
+    def _check(self, worker: _Worker, ready: list[Any]) -> Outcome | None:
+        job = worker.job
+        assert job is not None
+        elapsed = time.monotonic() - worker.started
+        if worker.conn in ready:
+            try:
+                status, value = worker.conn.recv()
+            except (EOFError, OSError):
+                status, value = "died", None
+            if status != "died":
+                worker.job = None
+                if status == "ok":
+                    return Outcome(job, result=value, seconds=elapsed)
+                return Outcome(job, error=_rebuild_error(job.key, value), seconds=elapsed)
+        if worker.process.sentinel in ready or not worker.process.is_alive():
+            worker.process.join(5)
+            reason = _death_reason(worker.process.exitcode, self.limits)
+            return self._retire(worker, reason, elapsed)
+        if elapsed >= self.limits.seconds:
+            reason = f"timed out after {self.limits.seconds:g} s (worker killed)"
+            return self._retire(worker, reason, elapsed)
+        return None
+
+    def _retire(self, worker: _Worker, reason: str, elapsed: float) -> Outcome:
+        job = worker.job
+        assert job is not None
+        worker.kill()
+        self.workers.remove(worker)
+        log.warning("%s: %s", job.key, reason)
+        return Outcome(job, error=WorkerError(job.key, reason), seconds=elapsed)
+
+    def close(self) -> None:
+        for worker in self.workers:
+            if worker.job is None and worker.process.is_alive():
+                try:
+                    worker.conn.send(None)
+                except OSError:
+                    pass
+                worker.process.join(2)
+            worker.kill()
+        self.workers = []
+
+
+def _death_reason(exitcode: int | None, limits: Limits) -> str:
+    if exitcode is not None and exitcode < 0:
+        name = signal.Signals(-exitcode).name
+        if -exitcode == signal.SIGKILL:
+            return f"worker killed ({name}), likely by the system's out-of-memory killer"
+        if -exitcode == signal.SIGABRT:
+            return f"worker aborted ({name}); often an allocation beyond {limits.memory_mb} MB"
+        return f"the reader crashed inside the CAD kernel ({name})"
+    return f"worker exited unexpectedly with code {exitcode}"
+
+
+def _rebuild_error(key: str, value: tuple[str, str]) -> InputFileError:
+    kind, reason = value
+    if kind == "memory":
+        return WorkerError(key, reason)
+    return InputFileError(key, reason)
+
+
+def _worker_main(conn: Connection, target: str, memory_mb: int) -> None:
+    """Entry point of a worker: limit memory, silence the kernel's console, serve jobs."""
+    _limit_memory(memory_mb)
+    devnull = os.open(os.devnull, os.O_WRONLY)
+    os.dup2(devnull, 1)  # OpenCascade prints parser chatter straight to fd 1
+    module, _, name = target.partition(":")
+    fn: Callable[[Any], Any] = getattr(importlib.import_module(module), name)
+    while True:
+        try:
+            payload = conn.recv()
+        except EOFError:
+            return
+        if payload is None:
+            return
+        conn.send(_serve(fn, payload, memory_mb))
+
+
+def _serve(fn: Callable[[Any], Any], payload: Any, memory_mb: int) -> tuple[str, Any]:
+    try:
+        return "ok", fn(payload)
+    except MemoryError:
+        return "error", ("memory", f"memory limit of {memory_mb} MB exceeded")
+    except InputFileError as exc:
+        return "error", ("input", exc.reason)
+    except CadioError as exc:
+        return "error", ("input", str(exc))
+    except Exception as exc:  # a kernel failure on this input must not end the worker
+        return "error", ("input", f"{type(exc).__name__}: {exc}")
+
+
+def _limit_memory(memory_mb: int) -> None:
+    limit = memory_mb * 1024 * 1024
+    resource.setrlimit(resource.RLIMIT_AS, (limit, limit))
+
+
+def path_key(path: Path) -> str:
+    """The key used for a file job: its path as given."""
+    return str(path)
