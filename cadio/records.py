@@ -19,7 +19,7 @@ import numpy.typing as npt
 FloatArray = npt.NDArray[np.float64]
 
 
-class Category(str, enum.Enum):
+class Category(enum.StrEnum):
     """The four part categories of the paper (TraceParts taxonomy), plus anything else."""
 
     BRAKES = "brakes-clutches-couplings"
@@ -33,7 +33,7 @@ class Category(str, enum.Enum):
         return tuple(c.value for c in cls)
 
 
-class Relation(str, enum.Enum):
+class Relation(enum.StrEnum):
     """The ten spatial relations, in the paper's order."""
 
     LEFT = "left"

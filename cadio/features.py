@@ -1,0 +1,241 @@
+"""Geometric features of a B-rep part: mass properties, planar face groups and coaxial axes.
+
+The ground-truth relations (parallel, perpendicular, coincident, concentric) and the face-level
+mates are decided on these features, so they come from the exact B-rep. Faces are recognised as
+planes, cylinders and cones by ``cadio.faces`` (freeform faces included, when they fit within
+``Tolerances.freeform_fit_mm``), then grouped: planes by parallel normals, cylinders and cones by
+shared axis lines. Groups are built greedily in face-id order and compared with their first face,
+so the result is the same after any rigid motion of the part. Everything is in the coordinates
+of the shape as given.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+from collections.abc import Callable, Sequence
+
+import numpy as np
+from OCP.Bnd import Bnd_Box
+from OCP.BRepBndLib import BRepBndLib
+from OCP.BRepGProp import BRepGProp
+from OCP.GProp import GProp_GProps
+from OCP.TopoDS import TopoDS_Shape
+
+from cadio.errors import GeometryError
+from cadio.faces import (
+    CONE,
+    CYLINDER,
+    PLANE,
+    FacePrimitive,
+    face_area,
+    indexed_faces,
+    recognise_faces,
+    surface_props,
+)
+from cadio.records import AxisGroup, Features, FloatArray, PlaneGroup, canonical_direction
+from cadio.tessellate import MASS_PROPS_REL_EPS
+from cadio.tolerances import DEFAULT_TOLERANCES, Tolerances
+
+# Face recognition lives in cadio.faces; its names are re-exported for existing callers.
+__all__ = [
+    "CONE", "CYLINDER", "PLANE", "FacePrimitive", "extract_features", "face_area", "group_axes",
+    "group_planes", "indexed_faces", "recognise_faces", "tight_bbox",
+]
+
+log = logging.getLogger(__name__)
+
+# A runner-up group carrying at least this fraction of the winner's area makes the principal
+# choice a tie (DESIGN.md: ties are flagged); the earliest group by face id is then chosen, so
+# the choice does not flip with rounding noise when the part moves.
+TIE_FRACTION = 0.99
+# Angles computed from dot products carry ~1e-8 rad of rounding: keep values at a tolerance in.
+_ANGLE_SLACK = 1e-9
+
+
+def extract_features(shape: TopoDS_Shape, tol: Tolerances = DEFAULT_TOLERANCES) -> Features:
+    """Compute the geometric features of one part from its exact B-rep.
+
+    Args:
+        shape: a solid (or compound of solids), mm.
+        tol: ``group_angle_deg`` groups planes, ``coaxial_deg``/``coaxial_mm`` group axes and
+            ``freeform_fit_mm`` bounds the fit of freeform faces.
+
+    Returns:
+        Features: volume centroid and volume, total area, tight axis-aligned box, plane groups
+        and cylinder/cone axis groups (ordered by their first face id, except that the
+        principal axis comes first), principal plane normal and principal cylinder axis with
+        tie flags, face counts.
+
+    Raises:
+        GeometryError: when the shape has no face or no volume.
+    """
+    faces = indexed_faces(shape)
+    if not faces:
+        raise GeometryError("features", "shape has no faces")
+    centroid, volume = _volume_properties(shape)
+    props = [surface_props(f) for f in faces]
+    prims = recognise_faces(faces, tol, props)
+    planes = group_planes([p for p in prims if p.kind == PLANE], tol.group_angle_deg)
+    axes = group_axes([p for p in prims if p.kind != PLANE], tol.coaxial_deg, tol.coaxial_mm)
+    plane_pick, plane_tie = _principal([g.area for g in planes])
+    cylinders = [a for a in axes if a.kind == CYLINDER]
+    axis_pick, axis_tie = _principal([a.area for a in cylinders])
+    if axis_pick is not None:
+        axes = _principal_first(axes, cylinders[axis_pick])
+    bbox_min, bbox_max = tight_bbox(shape)
+    log.debug("%d faces: %d planes/cylinders/cones, %d of them fitted to freeform surfaces",
+              len(faces), len(prims), sum(p.freeform for p in prims))
+    return Features(
+        centroid=centroid, bbox_min=bbox_min, bbox_max=bbox_max, volume=volume,
+        area=float(sum(a for a, _ in props)), planes=planes, axes=axes,
+        principal_plane=None if plane_pick is None else planes[plane_pick].normal,
+        principal_axis=None if axis_pick is None else cylinders[axis_pick],
+        principal_plane_tie=plane_tie, principal_axis_tie=axis_tie,
+        n_faces=len(faces), n_freeform_recognised=sum(p.freeform for p in prims),
+    )
+
+
+def tight_bbox(shape: TopoDS_Shape) -> tuple[FloatArray, FloatArray]:
+    """Axis-aligned box of the exact geometry (not the mesh, not enlarged by tolerances).
+
+    Args:
+        shape: any non-empty shape, mm.
+
+    Returns:
+        (bbox_min, bbox_max), each (3,) float64 mm.
+
+    Raises:
+        GeometryError: when the shape has no geometry to bound.
+    """
+    box = Bnd_Box()
+    BRepBndLib.AddOptimal_s(shape, box, False, False)
+    if box.IsVoid():
+        raise GeometryError("features", "shape has an empty bounding box")
+    x0, y0, z0, x1, y1, z1 = box.Get()
+    return np.array([x0, y0, z0]), np.array([x1, y1, z1])
+
+
+def _volume_properties(shape: TopoDS_Shape) -> tuple[FloatArray, float]:
+    """(volume centroid (3,) mm, volume mm^3) of a shape."""
+    props = GProp_GProps()
+    BRepGProp.VolumeProperties_s(shape, props, MASS_PROPS_REL_EPS)
+    volume = float(props.Mass())
+    if abs(volume) <= 0.0:
+        raise GeometryError("features", "shape encloses no volume")
+    c = props.CentreOfMass()
+    return np.array([c.X(), c.Y(), c.Z()]), volume
+
+
+def _parallel(a: FloatArray, b: FloatArray, angle_deg: float) -> bool:
+    """Directions a, b (unit) within ``angle_deg`` of each other, sign ignored."""
+    return abs(float(np.dot(a, b))) >= math.cos(math.radians(angle_deg)) - _ANGLE_SLACK
+
+
+def _cluster(
+    prims: Sequence[FacePrimitive], same: Callable[[FacePrimitive, FacePrimitive], bool]
+) -> list[list[FacePrimitive]]:
+    """Greedy clustering in face-id order: a face joins the first cluster whose seed matches."""
+    clusters: list[list[FacePrimitive]] = []
+    for p in prims:
+        for c in clusters:
+            if same(c[0], p):
+                c.append(p)
+                break
+        else:
+            clusters.append([p])
+    return clusters
+
+
+def _mean_direction(members: Sequence[FacePrimitive]) -> FloatArray:
+    """Area-weighted mean of the members' directions, signs aligned to the first, canonical."""
+    seed = members[0].direction
+    total = np.zeros(3)
+    for m in members:
+        total += m.area * (1.0 if np.dot(m.direction, seed) >= 0 else -1.0) * m.direction
+    return canonical_direction(total)
+
+
+def group_planes(planes: Sequence[FacePrimitive], angle_deg: float) -> tuple[PlaneGroup, ...]:
+    """Group planar faces whose normals are parallel within ``angle_deg`` (sign ignored).
+
+    Args:
+        planes: planar faces in id order.
+        angle_deg: largest angle between a face's normal and its group's first face's normal.
+
+    Returns:
+        Plane groups in order of their first face id, with a canonical area-weighted normal.
+    """
+    clusters = _cluster(planes, lambda a, b: _parallel(a.direction, b.direction, angle_deg))
+    groups = []
+    for members in clusters:
+        normal = _mean_direction(members)
+        groups.append(PlaneGroup(
+            normal=normal,
+            area=float(sum(m.area for m in members)),
+            face_ids=tuple(m.face_id for m in members),
+            face_areas=tuple(m.area for m in members),
+            offsets=tuple(float(np.dot(normal, m.point)) for m in members),
+            outward=tuple(1 if np.dot(m.outward, normal) > 0 else -1 for m in members),
+        ))
+    return tuple(groups)
+
+
+def _line_distance(a: FacePrimitive, b: FacePrimitive) -> float:
+    """Largest distance of either axis point from the other axis line, mm."""
+    def off(p: FloatArray, q: FloatArray, d: FloatArray) -> float:
+        r = p - q
+        return float(np.linalg.norm(r - np.dot(r, d) * d))
+
+    return max(off(a.point, b.point, b.direction), off(b.point, a.point, a.direction))
+
+
+def group_axes(
+    prims: Sequence[FacePrimitive], angle_deg: float, distance_mm: float
+) -> tuple[AxisGroup, ...]:
+    """Group cylindrical (and, separately, conical) faces sharing one axis line.
+
+    Args:
+        prims: cylinder and cone faces in id order.
+        angle_deg: largest angle between two axes of one group.
+        distance_mm: largest distance between two axis lines of one group.
+
+    Returns:
+        Axis groups in order of their first face id; each has one kind, a canonical direction
+        and the point of its axis line closest to the origin.
+    """
+    def same(a: FacePrimitive, b: FacePrimitive) -> bool:
+        return (a.kind == b.kind and _parallel(a.direction, b.direction, angle_deg)
+                and _line_distance(a, b) <= distance_mm)
+
+    groups = []
+    for members in _cluster(prims, same):
+        direction = _mean_direction(members)
+        total = float(sum(m.area for m in members))
+        point = sum(m.area * m.point for m in members) / total if total > 0 else members[0].point
+        point = point - np.dot(point, direction) * direction
+        groups.append(AxisGroup(
+            kind=members[0].kind, direction=direction, point=np.asarray(point, dtype=np.float64),
+            area=total, face_ids=tuple(m.face_id for m in members),
+            radii=tuple(m.radius for m in members),
+        ))
+    return tuple(groups)
+
+
+def _principal_first(axes: tuple[AxisGroup, ...], principal: AxisGroup) -> tuple[AxisGroup, ...]:
+    """Move the principal axis group to the front, keeping the others in face-id order.
+
+    ``Features.to_dict`` and ``Features.transformed`` locate it with ``tuple.index``, which
+    compares earlier groups by value, and comparing numpy fields raises; at the front it is
+    found by identity first.
+    """
+    return (principal, *(a for a in axes if a is not principal))
+
+
+def _principal(areas: Sequence[float]) -> tuple[int | None, bool]:
+    """Index of the principal group and whether the choice is a tie (see ``TIE_FRACTION``)."""
+    if not areas:
+        return None, False
+    best = max(areas)
+    near = [i for i, a in enumerate(areas) if a >= TIE_FRACTION * best]
+    return near[0], len(near) > 1

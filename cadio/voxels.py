@@ -1,0 +1,160 @@
+"""Solid voxel occupancy of parts on cubic grids, and grids from points, and their IoU.
+
+The completion models and the IoU metric of the paper work on n^3 occupancy grids (64^3 in,
+256^3 out). A part's truth grid is a cube centred on its bounding box and never stretched (see
+``VoxelGrid``); partial views of the same part are binned onto that same grid with
+``points_to_grid`` so the two compare voxel for voxel. Occupancy is decided by ray parity with
+open3d's ``RaycastingScene.compute_occupancy`` (fast, and tolerant of tiny mesh holes), in
+slabs so a 256^3 grid never holds all 16.7 M query points at once.
+"""
+
+from __future__ import annotations
+
+import logging
+
+import numpy as np
+import numpy.typing as npt
+import open3d as o3d
+
+from cadio.errors import GeometryError
+from cadio.records import FloatArray, Mesh, VoxelGrid
+
+log = logging.getLogger(__name__)
+
+BoolArray = npt.NDArray[np.bool_]
+
+# Query points per occupancy call: ~12 MB of float32 points; bounds memory at 256^3.
+CHUNK_POINTS = 1 << 20
+# Rays per query point (odd, majority vote). Three rays cost 2.5x and changed no voxel on the
+# real parts tried; raise it if grazing rays ever flip voxels.
+OCCUPANCY_RAYS = 1
+
+
+def grid_transform(
+    bbox_min: FloatArray, bbox_max: FloatArray, n: int, margin: float = 0.05
+) -> FloatArray:
+    """The grid-to-part transform of an n^3 cube around a bounding box.
+
+    Args:
+        bbox_min, bbox_max: (3,) mm, the part's axis-aligned box.
+        n: voxels along each axis.
+        margin: the cube's side is the largest extent times (1 + margin).
+
+    Returns:
+        (4, 4) float64 mapping homogeneous (i, j, k, 1) to the centre of voxel (i, j, k), mm.
+
+    Raises:
+        ValueError: when n < 1, margin < 0, or the box is empty or degenerate.
+    """
+    lo = np.asarray(bbox_min, dtype=np.float64).reshape(3)
+    hi = np.asarray(bbox_max, dtype=np.float64).reshape(3)
+    if n < 1 or margin < 0:
+        raise ValueError(f"need n >= 1 and margin >= 0, got n={n}, margin={margin}")
+    extent = float(np.max(hi - lo))
+    if not np.isfinite(extent) or extent <= 0:
+        raise ValueError(f"degenerate bounding box {lo.tolist()} .. {hi.tolist()}")
+    side = extent * (1.0 + margin)
+    size = side / n
+    transform = np.diag([size, size, size, 1.0])
+    transform[:3, 3] = (lo + hi) / 2.0 - side / 2.0 + size / 2.0
+    return transform
+
+
+def voxel_centres(grid_to_part: FloatArray, n: int, i_start: int = 0,
+                  i_stop: int | None = None) -> npt.NDArray[np.float32]:
+    """Centres of voxels [i_start:i_stop, :, :] in part coordinates.
+
+    Args:
+        grid_to_part: (4, 4) from ``grid_transform``.
+        n: voxels along each axis.
+        i_start, i_stop: the slab of x indices (all of them by default).
+
+    Returns:
+        (i_stop - i_start, n, n, 3) float32 mm (open3d's query type), indexed like the
+        occupancy.
+    """
+    i_stop = n if i_stop is None else i_stop
+    t = np.asarray(grid_to_part, dtype=np.float32)
+    i = np.arange(i_start, i_stop, dtype=np.float32)[:, None, None, None]
+    j = np.arange(n, dtype=np.float32)[None, :, None, None]
+    k = np.arange(n, dtype=np.float32)[None, None, :, None]
+    # Broadcast sums: about 10x faster than a (m, 4) @ (4, 4) product on 16.7 M centres.
+    return np.asarray(t[:3, 3] + i * t[:3, 0] + j * t[:3, 1] + k * t[:3, 2], dtype=np.float32)
+
+
+def voxelize(mesh: Mesh, n: int, margin: float = 0.05) -> VoxelGrid:
+    """Solid occupancy of a closed mesh on an n^3 grid around its bounding box.
+
+    Args:
+        mesh: closed triangle mesh, mm (small holes are tolerated).
+        n: voxels along each axis (64 and 256 are the sizes used).
+        margin: see ``grid_transform``.
+
+    Returns:
+        VoxelGrid: occupancy (n, n, n) bool, True where the voxel centre is inside the mesh.
+
+    Raises:
+        GeometryError: when the mesh has no triangles.
+        ValueError: on a bad n or margin.
+    """
+    if len(mesh.triangles) == 0:
+        raise GeometryError("voxelize", "mesh has no triangles")
+    transform = grid_transform(mesh.vertices.min(axis=0), mesh.vertices.max(axis=0), n, margin)
+    scene = o3d.t.geometry.RaycastingScene()
+    scene.add_triangles(
+        o3d.core.Tensor.from_numpy(np.ascontiguousarray(mesh.vertices, dtype=np.float32)),
+        o3d.core.Tensor.from_numpy(np.ascontiguousarray(mesh.triangles, dtype=np.uint32)),
+    )
+    occupancy = np.zeros((n, n, n), dtype=bool)
+    slab = max(1, CHUNK_POINTS // (n * n))
+    for start in range(0, n, slab):
+        stop = min(n, start + slab)
+        points = o3d.core.Tensor.from_numpy(voxel_centres(transform, n, start, stop))
+        inside = scene.compute_occupancy(points, nsamples=OCCUPANCY_RAYS)
+        occupancy[start:stop] = inside.numpy().astype(bool)
+    return VoxelGrid(occupancy=occupancy, grid_to_part=transform)
+
+
+def points_to_grid(points: FloatArray, grid_to_part: FloatArray, n: int) -> BoolArray:
+    """Mark the voxels of an existing grid that contain at least one point.
+
+    Args:
+        points: (m, 3) mm in part coordinates (e.g. a back-projected partial view).
+        grid_to_part: (4, 4), the grid of the same part's truth ``VoxelGrid``.
+        n: voxels along each axis of that grid.
+
+    Returns:
+        (n, n, n) bool; points outside the cube are ignored.
+
+    Raises:
+        ValueError: when ``points`` is not (m, 3).
+    """
+    pts = np.asarray(points, dtype=np.float64)
+    if pts.ndim != 2 or pts.shape[1] != 3:
+        raise ValueError(f"points must be (m, 3), got {pts.shape}")
+    part_to_grid = np.linalg.inv(grid_to_part)
+    ijk = np.floor(pts @ part_to_grid[:3, :3].T + part_to_grid[:3, 3] + 0.5).astype(np.int64)
+    keep = np.all((ijk >= 0) & (ijk < n), axis=1)
+    grid = np.zeros((n, n, n), dtype=bool)
+    grid[ijk[keep, 0], ijk[keep, 1], ijk[keep, 2]] = True
+    return grid
+
+
+def iou(a: BoolArray, b: BoolArray) -> float:
+    """Intersection over union of two occupancy grids.
+
+    Args:
+        a, b: boolean grids of the same shape.
+
+    Returns:
+        |a and b| / |a or b| in [0, 1]; 1.0 when both are empty (they agree everywhere).
+
+    Raises:
+        ValueError: when the shapes differ.
+    """
+    if a.shape != b.shape:
+        raise ValueError(f"grids differ in shape: {a.shape} vs {b.shape}")
+    union = int(np.count_nonzero(a | b))
+    if union == 0:
+        return 1.0
+    return float(np.count_nonzero(a & b)) / union
