@@ -13,7 +13,6 @@ from __future__ import annotations
 import hashlib
 import json
 import logging
-import time
 from collections.abc import Iterable, Sequence
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
@@ -32,7 +31,6 @@ log = logging.getLogger(__name__)
 
 # Bump when the derived artefacts change meaning, so cached rows are recomputed.
 INGEST_VERSION = "1"
-UNCATEGORISED = "uncategorised"
 
 
 @dataclass(frozen=True)
@@ -70,7 +68,8 @@ def discover(root: Path) -> list[Found]:
     """Every path under ``root`` named ``*.step``/``*.stp`` (any case), files or not.
 
     Directories and broken links with such names are returned too, so that they are reported
-    rather than silently ignored. The category is the first folder below ``root``.
+    rather than silently ignored. The category is the first folder below ``root``; files lying
+    directly in ``root`` take its own name (so pointing at one category folder works).
     """
     root = Path(root)
     if not root.is_dir():
@@ -79,7 +78,7 @@ def discover(root: Path) -> list[Found]:
     for path in sorted(root.rglob("*")):
         if path.suffix.lower() in STEP_SUFFIXES:
             rel = path.relative_to(root).parts
-            found.append(Found(path, rel[0] if len(rel) > 1 else UNCATEGORISED))
+            found.append(Found(path, rel[0] if len(rel) > 1 else root.resolve().name))
     return found
 
 

@@ -71,7 +71,8 @@ def _geometry(solid: StepSolid, pid: str, payload: dict[str, Any]) -> dict[str, 
     ws = Workspace(Path(payload["workspace"]))
     volume = brep_volume(solid.shape)
     if volume <= 0:
-        raise GeometryError("solid", f"non-positive B-rep volume {volume:.3g} mm^3 (open or inverted)")
+        reason = f"non-positive B-rep volume {volume:.3g} mm^3 (open or inverted shell)"
+        raise GeometryError("solid", reason)
     mesh = tessellate(solid.shape, tol)
     features = extract_features(solid.shape, tol)
     write_mesh(ws.mesh(pid), mesh)

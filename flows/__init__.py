@@ -1,0 +1,1 @@
+"""Orchestration of mateqa: the only package that imports Prefect. Thin tasks, flows, settings."""

@@ -1,0 +1,157 @@
+"""The ``mateqa`` command line.
+
+``ingest`` runs the library functions directly (no Prefect); ``nightly`` runs the Prefect flow,
+against ``PREFECT_API_URL`` when set, otherwise against a local Prefect server on SQLite that it
+starts (and leaves running for the UI and later runs unless ``--stop-server``).
+Exit code 0 means the run completed, even when some inputs were bad (they are in the report).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import logging
+import os
+import sys
+from pathlib import Path
+
+from flows.settings import Settings
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Entry point of the ``mateqa`` command."""
+    parser = _parser()
+    args = parser.parse_args(argv)
+    logging.basicConfig(level=logging.INFO, format="%(levelname)s %(name)s: %(message)s")
+    logging.getLogger("httpx").setLevel(logging.WARNING)  # one line per API call otherwise
+    try:
+        return int(args.func(args))
+    except KeyboardInterrupt:
+        return 130
+
+
+def _parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(prog="mateqa", description=__doc__.splitlines()[0])
+    sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
+    settings = Settings()
+
+    p = sub.add_parser("ingest", help="read STEP files into a workspace catalog (no Prefect)",
+                       description="Read every STEP file under DIR into the workspace: "
+                       "catalog.parquet, meshes, features, voxels. Bad files become rows.")
+    p.add_argument("library", type=Path, metavar="DIR", help="folder of STEP files")
+    _common(p, settings)
+    p.set_defaults(func=_cmd_ingest)
+
+    p = sub.add_parser("nightly", help="run the nightly flow (the main job) with Prefect",
+                       description="Run the nightly Prefect flow on a library (default: the "
+                       "built-in sample library) against a local Prefect server on SQLite.")
+    p.add_argument("--library", type=Path, default=None,
+                   help="folder of STEP files (default: generate the built-in sample library)")
+    _common(p, settings)
+    p.add_argument("--stop-server", action="store_true",
+                   help="stop the local Prefect server this command started when done")
+    p.set_defaults(func=_cmd_nightly)
+
+    p = sub.add_parser("samples", help="generate the built-in sample library",
+                       description="Write the built-in sample STEP library into OUT.")
+    p.add_argument("out", type=Path, metavar="OUT", help="output folder")
+    p.set_defaults(func=_cmd_samples)
+    return parser
+
+
+def _common(p: argparse.ArgumentParser, settings: Settings) -> None:
+    p.add_argument("--workspace", type=Path, default=settings.workspace,
+                   help=f"workspace folder (default {settings.workspace})")
+    p.add_argument("--voxel-sizes", type=int, nargs="+", default=None,
+                   help="occupancy grid sizes (default 32 64)")
+    p.add_argument("--workers", type=int, default=settings.workers,
+                   help="parallel CAD worker processes (0 = one per core)")
+    p.add_argument("--timeout", type=float, default=settings.file_timeout_s,
+                   help="seconds allowed per file before its worker is killed")
+    p.add_argument("--memory-mb", type=int, default=settings.file_memory_mb,
+                   help="address-space limit of each worker process, MB")
+    p.add_argument("--max-file-mb", type=float, default=settings.max_file_mb,
+                   help="files larger than this are skipped, MB")
+
+
+def _ingest_config(args: argparse.Namespace) -> object:
+    from dataclasses import replace
+
+    from cadio.ingest import IngestConfig
+    from cadio.sandbox import Limits
+
+    workers = args.workers or (os.cpu_count() or 1)
+    cfg = IngestConfig(
+        limits=Limits(seconds=args.timeout, memory_mb=args.memory_mb, workers=workers),
+        max_file_mb=args.max_file_mb,
+    )
+    return replace(cfg, voxel_sizes=tuple(args.voxel_sizes)) if args.voxel_sizes else cfg
+
+
+def _cmd_ingest(args: argparse.Namespace) -> int:
+    from cadio.errors import InputFileError
+    from cadio.ingest import IngestConfig, ingest
+    from reports.ingest import build_ingest_report
+
+    cfg = _ingest_config(args)
+    assert isinstance(cfg, IngestConfig)
+    try:
+        catalog = ingest(args.library, args.workspace, cfg)
+    except InputFileError as exc:
+        print(f"mateqa ingest: {exc}", file=sys.stderr)
+        return 2
+    print(build_ingest_report(catalog).markdown())
+    print(f"catalog: {Path(args.workspace) / 'catalog.parquet'}")
+    return 0
+
+
+def _cmd_samples(args: argparse.Namespace) -> int:
+    from cadio.samples import generate_library
+
+    paths = generate_library(args.out)
+    print(f"{len(paths)} STEP files in {args.out}")
+    return 0
+
+
+def _cmd_nightly(args: argparse.Namespace) -> int:
+    from flows.server import server_env, start_server, stop_server
+
+    settings = Settings()
+    proc = None
+    if "PREFECT_API_URL" not in os.environ:
+        home = settings.prefect_home
+        os.environ.update(server_env(home, settings.server_port))
+        print(f"starting a local Prefect server on SQLite in {home} ...", flush=True)
+        proc = start_server(home, settings.server_port)
+        print(f"Prefect API at {os.environ['PREFECT_API_URL']}", flush=True)
+    os.environ["MATEQA_WORKERS"] = str(args.workers or 1)
+    os.environ["MATEQA_FILE_TIMEOUT_S"] = str(args.timeout)
+    os.environ["MATEQA_FILE_MEMORY_MB"] = str(args.memory_mb)
+    os.environ["MATEQA_MAX_FILE_MB"] = str(args.max_file_mb)
+    try:
+        return _run_nightly(args)
+    finally:
+        if args.stop_server:
+            stop_server(proc)
+
+
+def _run_nightly(args: argparse.Namespace) -> int:
+    from flows.nightly import nightly
+
+    state = nightly(
+        library=str(args.library) if args.library else None,
+        workspace=str(args.workspace),
+        voxel_sizes=args.voxel_sizes,
+        return_state=True,
+    )
+    if not state.is_completed():
+        print(f"mateqa nightly: the run failed: {state.message}", file=sys.stderr)
+        return 1
+    summary = state.result()
+    print(Path(summary["report"]).read_text())
+    print(json.dumps(summary, indent=1))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,24 @@
+"""Environment settings of mateqa (``MATEQA_*`` variables): the one place that reads them."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from pydantic_settings import BaseSettings, SettingsConfigDict
+
+
+class Settings(BaseSettings):
+    """Where things live and how much of the machine a run may use."""
+
+    model_config = SettingsConfigDict(env_prefix="MATEQA_")
+
+    workspace: Path = Path("workspace")
+    # Worker processes for CAD work; 0 means one per CPU core.
+    workers: int = 0
+    # Per-file limits of the isolated CAD reader.
+    file_timeout_s: float = 300.0
+    file_memory_mb: int = 6144
+    max_file_mb: float = 200.0
+    # Local Prefect server used when PREFECT_API_URL is not set.
+    server_port: int = 4200
+    prefect_home: Path = Path(".prefect")

@@ -1,0 +1,162 @@
+"""Ingest: every file found is accounted for; bad input becomes a clear row, never a crash."""
+
+from __future__ import annotations
+
+import os
+import shutil
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from cadio.catalog import read_catalog
+from cadio.ingest import IngestConfig, discover, ingest
+from cadio.sandbox import Limits
+from cadio.workspace import Workspace, read_features, read_mesh, read_voxels
+
+FAST = IngestConfig(voxel_sizes=(32,), limits=Limits(seconds=120, workers=2))
+
+
+def _face_only_step(path: Path) -> None:
+    import build123d as bd
+
+    bd.export_step(bd.Rectangle(10, 10), path)
+
+
+@pytest.fixture(scope="module")
+def bad_library(tmp_path_factory: pytest.TempPathFactory, box_step: Path) -> Path:
+    """A library holding one good part and every kind of bad input of the issue."""
+    root = tmp_path_factory.mktemp("lib")
+    cat = root / "fasteners"
+    cat.mkdir()
+    good = box_step.read_bytes()
+    (cat / "good.step").write_bytes(good)
+    (cat / "écrou_ß_螺母.STP").write_bytes(good.replace(b"box", b"nut"))
+    (cat / "empty.step").write_bytes(b"")
+    (cat / "random.step").write_bytes(np.random.default_rng(0).bytes(4096))
+    (cat / "truncated.step").write_bytes(good[: len(good) // 2])
+    (cat / "not-step.step").write_text("solid cube\n  facet normal 0 0 1\nendsolid cube\n")
+    _face_only_step(cat / "no-solids.step")
+    (cat / "dir.step").mkdir()
+    (cat / "dangling.step").symlink_to(cat / "does-not-exist.step")
+    (cat / "big.step").write_bytes(good + b"\n" * 3_000_000)
+    (root / "nested" / "deeper").mkdir(parents=True)
+    shutil.copy(box_step, root / "nested" / "deeper" / "copy.Step")
+    return root
+
+
+@pytest.fixture(scope="module")
+def bad_catalog(bad_library: Path, tmp_path_factory: pytest.TempPathFactory) -> pd.DataFrame:
+    ws = tmp_path_factory.mktemp("ws")
+    return ingest(bad_library, ws, replace(FAST, max_file_mb=2.0))
+
+
+def _row(catalog: pd.DataFrame, name: str) -> pd.Series:
+    rows = catalog[catalog["source"].str.endswith(name)]
+    assert len(rows) == 1, f"{name}: {len(rows)} rows"
+    return rows.iloc[0]
+
+
+def test_every_file_found_is_accounted_for(bad_library: Path, bad_catalog: pd.DataFrame) -> None:
+    found = {str(f.path) for f in discover(bad_library)}
+    assert len(found) == 11
+    assert set(bad_catalog["source"]) == found
+    per_file = bad_catalog.groupby("source")["status"].first()
+    counts = per_file.value_counts()
+    assert counts.get("ok", 0) + counts.get("failed", 0) + counts.get("skipped", 0) == len(found)
+
+
+@pytest.mark.parametrize(
+    ("name", "status", "reason"),
+    [
+        ("empty.step", "failed", "empty file"),
+        ("random.step", "failed", "not a STEP file"),
+        ("truncated.step", "failed", "truncated"),
+        ("not-step.step", "failed", "not a STEP file"),
+        ("no-solids.step", "failed", "holds no solid"),
+        ("dir.step", "skipped", "is a directory"),
+        ("dangling.step", "failed", "cannot be read"),
+        ("big.step", "skipped", "over the 2 MB limit"),
+    ],
+)
+def test_bad_input_gets_a_clear_row(
+    bad_catalog: pd.DataFrame, name: str, status: str, reason: str
+) -> None:
+    row = _row(bad_catalog, name)
+    assert row["status"] == status
+    assert reason in row["error"]
+    assert row["category"] == "fasteners"
+
+
+def test_good_files_ingest_including_non_ascii_names_and_nesting(
+    bad_catalog: pd.DataFrame,
+) -> None:
+    for name in ("good.step", "écrou_ß_螺母.STP"):
+        row = _row(bad_catalog, name)
+        assert row["status"] == "ok" and row["error"] == ""
+        assert row["volume"] == pytest.approx(20 * 10 * 5 - np.pi * 4 * 5, rel=1e-6)
+    nested = _row(bad_catalog, "copy.Step")
+    assert nested["category"] == "nested"
+    # same bytes as good.step: reported as a duplicate rather than ingested twice
+    assert nested["status"] == "skipped" and "duplicate of" in nested["error"]
+
+
+def test_unreadable_file_without_permission(tmp_path: Path, box_step: Path) -> None:
+    if os.geteuid() == 0:
+        pytest.skip("root reads files whatever their mode; the dangling link covers this case")
+    lib = tmp_path / "lib" / "fasteners"
+    lib.mkdir(parents=True)
+    target = lib / "locked.step"
+    shutil.copy(box_step, target)
+    target.chmod(0)
+    catalog = ingest(lib.parent, tmp_path / "ws", FAST)
+    assert "cannot be read" in _row(catalog, "locked.step")["error"]
+
+
+def test_artefacts_are_written_and_consistent(tmp_path: Path, box_step: Path) -> None:
+    lib = tmp_path / "lib" / "linear-rotary-motion"
+    lib.mkdir(parents=True)
+    shutil.copy(box_step, lib / "box.step")
+    ws = Workspace(tmp_path / "ws")
+    catalog = ingest(lib.parent, ws.root, FAST)
+    row = catalog.iloc[0]
+    pid = row["part_id"]
+    mesh = read_mesh(ws.mesh(pid))
+    features = read_features(ws.features(pid))
+    grid = read_voxels(ws.voxels(pid, 32))
+    assert len(mesh.triangles) == row["n_triangles"] > 0
+    assert features.volume == pytest.approx(row["volume"])
+    assert abs(row["volume_rel_error"]) < 0.01
+    occupied = grid.occupancy.sum() * grid.voxel_size**3
+    assert occupied == pytest.approx(row["volume"], rel=0.15)
+    assert read_catalog(ws.catalog)["part_id"].tolist() == [pid]
+
+
+def test_rerun_reuses_unchanged_files(tmp_path: Path, box_step: Path) -> None:
+    lib = tmp_path / "lib" / "fasteners"
+    lib.mkdir(parents=True)
+    shutil.copy(box_step, lib / "a.step")
+    ws = tmp_path / "ws"
+    first = ingest(lib.parent, ws, FAST)
+    assert not first["cached"].any()
+    (lib / "b.step").write_bytes(box_step.read_bytes().replace(b"box", b"bbb"))
+    second = ingest(lib.parent, ws, FAST)
+    by_name = {Path(s).name: c for s, c in zip(second["source"], second["cached"], strict=True)}
+    assert by_name == {"a.step": True, "b.step": False}
+
+
+def test_a_real_reader_crash_does_not_stop_the_batch(tmp_path: Path, box_step: Path) -> None:
+    lib = tmp_path / "lib" / "fasteners"
+    lib.mkdir(parents=True)
+    shutil.copy(box_step, lib / "before.step")
+    (lib / "segfault.step").write_bytes(box_step.read_bytes().replace(b"box", b"seg"))
+    (lib / "zafter.step").write_bytes(box_step.read_bytes().replace(b"box", b"aft"))
+    cfg = replace(FAST, worker_target="sandbox_targets:process_or_crash",
+                  limits=Limits(seconds=120, workers=1))
+    catalog = ingest(lib.parent, tmp_path / "ws", cfg)
+    crashed = _row(catalog, "segfault.step")
+    assert crashed["status"] == "failed" and "SIGSEGV" in crashed["error"]
+    assert _row(catalog, "before.step")["status"] == "ok"
+    assert _row(catalog, "zafter.step")["status"] == "ok"
