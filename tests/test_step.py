@@ -1,0 +1,49 @@
+"""The XDE reader on real files: names, colours, placements, solid counts of MANIFEST.csv."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from cadio.errors import StepReadError
+from cadio.step import read_step, sniff_step
+
+
+def test_solid_counts_match_the_manifest(shared_step_dir: Path, manifest: pd.DataFrame) -> None:
+    mismatches = {}
+    for relative, row in manifest.iterrows():
+        solids = read_step(shared_step_dir / str(relative))
+        if len(solids) != int(row["n_solids"]):
+            mismatches[relative] = (len(solids), int(row["n_solids"]))
+    assert not mismatches
+
+
+def test_names_colours_and_placements_of_the_as1_assembly(shared_step_dir: Path) -> None:
+    solids = read_step(shared_step_dir / "assemblies" / "occt_as1-oc-214-mat.stp")
+    names = sorted(s.info.name for s in solids)
+    assert names.count("bolt") == 6 and names.count("nut") == 8
+    assert {"plate", "rod", "l-bracket"} <= set(names)
+    colours = {s.info.name: s.info.colour for s in solids}
+    assert colours["bolt"] == "#0000ff" and colours["nut"] == "#ff0000"
+    bolts = [s for s in solids if s.info.name == "bolt"]
+    origins = {tuple(np.round(s.info.placement[:3, 3], 3)) for s in bolts}
+    assert len(origins) == 6  # six instances of one bolt, each placed elsewhere
+    assert all("l-bracket-assembly" in s.info.path_in_assembly for s in bolts)
+    for s in solids:
+        rot = s.info.placement[:3, :3]
+        assert np.allclose(rot @ rot.T, np.eye(3), atol=1e-9)
+
+
+def test_sniff_rejects_non_step_and_truncated(tmp_path: Path, box_step: Path) -> None:
+    text = tmp_path / "a.step"
+    text.write_text("hello")
+    with pytest.raises(StepReadError, match="not a STEP file"):
+        sniff_step(text)
+    cut = tmp_path / "b.step"
+    cut.write_bytes(box_step.read_bytes()[:-200])
+    with pytest.raises(StepReadError, match="truncated"):
+        sniff_step(cut)
+    sniff_step(box_step)
