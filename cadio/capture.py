@@ -1,0 +1,405 @@
+"""Simulated RGB-D captures of CAD scenes: colour, depth and instance ids by ray casting.
+
+Follows the paper's protocol (views 2.88 degrees apart about the vertical Z axis, 125 of them,
+horizontal field of view 49.2 degrees, camera 1.6 m from the scene, 640x480), rendered with
+open3d's ``RaycastingScene`` rather than Blender: one ray per pixel, built from the intrinsic
+matrix and the camera pose in the OpenCV convention (x right, y down, z forward). Each ray's
+direction has a camera-frame z component of exactly 1, so the hit distance ``t_hit`` *is* the
+z-depth (verified in tests against an analytic box).
+
+Frames: the world frame is the scene frame scaled to metres (``scale_m_per_mm``, chosen so the
+scene's largest extent is ``target_size_m``), so a part's points in its own millimetre
+coordinates are ``inverse(pose) @ (p_world / scale)``. Colour is Lambertian shading (a
+headlight plus a key light from above) of each part's sRGB colour. An optional sensor model
+(``NoiseConfig``) adds depth-dependent noise, quantisation and the holes a real structured
+light / time-of-flight camera leaves at grazing angles and at depth discontinuities.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from collections.abc import Iterable, Iterator
+from dataclasses import asdict, dataclass, field
+from typing import Any, cast
+
+import numpy as np
+import numpy.typing as npt
+import open3d as o3d
+
+from cadio.records import CameraIntrinsics, FloatArray, Mesh, RgbdFrame, apply_pose
+
+Colour = str | tuple[float, float, float]
+_MISS = np.uint32(0xFFFFFFFF)  # open3d's geometry id for a ray that hits nothing
+# Shading goes through a table of (geometry, light level) -> sRGB: per-pixel float colour
+# arithmetic and np.power cost more than the ray cast itself.
+_LEVELS = 1024
+
+
+@dataclass(frozen=True)
+class PlacedPart:
+    """One part placed in a scene.
+
+    instance_id: >= 1 (0 means background and the support plane).
+    mesh: the part in its own coordinates, millimetres.
+    pose: (4, 4) float64, part -> scene, millimetres.
+    colour: sRGB, either "#rrggbb" or (r, g, b) in [0, 1].
+    """
+
+    instance_id: int
+    mesh: Mesh
+    pose: FloatArray
+    colour: Colour = "#b4b4b4"
+    part_id: str = ""
+    label: str = ""
+
+
+@dataclass(frozen=True)
+class NoiseConfig:
+    """Depth sensor model (colour stays exact); draws come from ``seed`` and the view index."""
+
+    seed: int = 0
+    # sigma(z) = base + quadratic * z^2 (metres): the z^2 growth of triangulating sensors;
+    # 0.5 mm + 1.2 mm/m^2 gives ~3.6 mm at the paper's 1.6 m, like a Kinect-class camera.
+    sigma_base_m: float = 0.0005
+    sigma_quadratic_per_m: float = 0.0012
+    quantisation_m: float = 0.001  # 1 mm depth steps, as 16-bit millimetre images store
+    max_incidence_deg: float = 75.0  # surfaces seen more obliquely return no depth
+    edge_jump_m: float = 0.02  # a neighbour this much nearer/farther marks a discontinuity
+    edge_width_px: int = 1  # pixels dropped on each side of a discontinuity
+    dropout: float = 0.0  # extra fraction of pixels missing at random
+
+
+@dataclass(frozen=True)
+class CaptureConfig:
+    """Camera path, sensor and scene staging. Angles in degrees, lengths in metres."""
+
+    n_views: int = 125
+    step_deg: float = 2.88  # paper: 125 views 2.88 degrees apart cover 360 degrees
+    start_deg: float = 0.0  # azimuth 0: camera on -Y looking along +Y (DESIGN's observer)
+    elevation_deg: float = 25.0  # slightly above the scene, as a camera over a workbench
+    distance_m: float = 1.6  # paper: camera 1.6 m from the object (here: the scene centre)
+    hfov_deg: float = 49.2
+    width: int = 640
+    height: int = 480
+    target_size_m: float | None = 0.3  # largest scene extent after scaling; None: real size
+    support_plane: bool = True  # a table under the scene (instance 0), needed to test RANSAC
+    support_size_m: float = 1.2
+    support_colour: Colour = "#8c8c8c"
+    background: tuple[int, int, int] = (24, 24, 24)  # sRGB where rays hit nothing
+    ambient: float = 0.25  # fraction of the albedo lit regardless of orientation
+    frame_period_ns: int = 100_000_000  # view k is stamped k * period
+    noise: NoiseConfig | None = None
+
+    def __post_init__(self) -> None:
+        if not (abs(self.elevation_deg) < 90 and 0 < self.hfov_deg < 180):
+            raise ValueError("need |elevation_deg| < 90 and 0 < hfov_deg < 180")
+        if min(self.n_views, self.width, self.height) < 1 or self.distance_m <= 0:
+            raise ValueError("n_views, width, height and distance_m must be positive")
+
+
+@dataclass(frozen=True)
+class StagedScene:
+    """A scene ready to ray-cast: the open3d scene (world metres) and per-geometry lookups."""
+
+    scene: Any  # o3d.t.geometry.RaycastingScene
+    instance_of: npt.NDArray[np.int32]  # by open3d geometry id
+    shade_table: npt.NDArray[np.uint8]  # (g * _LEVELS, 3) sRGB of each albedo at each light
+    scale_m_per_mm: float
+    centre_m: FloatArray
+    meta: dict[str, Any] = field(default_factory=dict)
+
+
+def camera_intrinsics(cfg: CaptureConfig) -> CameraIntrinsics:
+    """Square-pixel pinhole with the horizontal field of view ``cfg.hfov_deg``.
+
+    The principal point is the image centre in OpenCV's convention (pixel centres at integer
+    coordinates), so (cx, cy) = ((w - 1) / 2, (h - 1) / 2).
+    """
+    f = (cfg.width / 2.0) / math.tan(math.radians(cfg.hfov_deg) / 2.0)
+    return CameraIntrinsics(cfg.width, cfg.height, f, f, (cfg.width - 1) / 2, (cfg.height - 1) / 2)
+
+
+def view_azimuth_deg(cfg: CaptureConfig, view: int) -> float:
+    """Azimuth of view ``view`` about +Z, degrees (counter-clockwise seen from above)."""
+    return cfg.start_deg + view * cfg.step_deg
+
+
+def camera_pose(cfg: CaptureConfig, view: int, centre_m: FloatArray) -> FloatArray:
+    """world_to_camera (4, 4), metres, OpenCV axes, for view ``view`` looking at ``centre_m``.
+
+    The camera sits ``distance_m`` from the centre at ``elevation_deg`` above the horizontal,
+    rotated by the view's azimuth about +Z from the -Y side; image "up" is world +Z.
+    """
+    az, el = math.radians(view_azimuth_deg(cfg, view)), math.radians(cfg.elevation_deg)
+    offset = cfg.distance_m * np.array(
+        [math.cos(el) * math.sin(az), -math.cos(el) * math.cos(az), math.sin(el)]
+    )
+    eye = np.asarray(centre_m, dtype=np.float64) + offset
+    forward = -offset / np.linalg.norm(offset)
+    right = np.cross(forward, [0.0, 0.0, 1.0])
+    right /= np.linalg.norm(right)
+    down = np.cross(forward, right)
+    rot_cw = np.column_stack([right, down, forward])  # camera axes in world
+    w2c = np.eye(4)
+    w2c[:3, :3] = rot_cw.T
+    w2c[:3, 3] = -rot_cw.T @ eye
+    return w2c
+
+
+def srgb_to_linear(colour: Colour) -> npt.NDArray[np.float32]:
+    """(3,) linear RGB in [0, 1] from "#rrggbb" or an sRGB triple in [0, 1]."""
+    if isinstance(colour, str):
+        h = colour.lstrip("#")
+        c = np.array([int(h[i : i + 2], 16) / 255.0 for i in (0, 2, 4)])
+    else:
+        c = np.asarray(colour, dtype=np.float64)
+    lin = np.where(c <= 0.04045, c / 12.92, ((c + 0.055) / 1.055) ** 2.4)
+    return lin.astype(np.float32)
+
+
+def _linear_to_srgb8(lin: npt.NDArray[np.float32]) -> npt.NDArray[np.uint8]:
+    c = np.clip(lin, 0.0, 1.0)
+    s = np.where(c <= 0.0031308, 12.92 * c, 1.055 * np.power(c, 1 / 2.4) - 0.055)
+    return np.round(s * 255.0).astype(np.uint8)
+
+
+def scene_bounds_mm(parts: Iterable[PlacedPart]) -> tuple[FloatArray, FloatArray]:
+    """Axis-aligned bounds (min, max) of the posed parts in the scene frame, mm."""
+    pts = np.vstack([apply_pose(p.pose, p.mesh.vertices) for p in parts])
+    return pts.min(axis=0), pts.max(axis=0)
+
+
+def scene_scale(parts: list[PlacedPart], cfg: CaptureConfig) -> float:
+    """Metres per scene millimetre: ``target_size_m`` over the largest extent (or 1e-3)."""
+    if cfg.target_size_m is None:
+        return 1e-3
+    lo, hi = scene_bounds_mm(parts)
+    extent = float(np.max(hi - lo))
+    if extent <= 0:
+        raise ValueError("scene has zero extent")
+    return cfg.target_size_m / extent
+
+
+def _support_plane(lo_m: FloatArray, hi_m: FloatArray, size_m: float) -> Any:
+    """A square (two triangles, normal +Z) under the scene at its lowest z."""
+    cx, cy, z = (lo_m[0] + hi_m[0]) / 2, (lo_m[1] + hi_m[1]) / 2, lo_m[2]
+    s = size_m / 2
+    v = np.array([[cx - s, cy - s, z], [cx + s, cy - s, z], [cx + s, cy + s, z],
+                  [cx - s, cy + s, z]], dtype=np.float32)
+    return v, np.array([[0, 1, 2], [0, 2, 3]], dtype=np.uint32)
+
+
+def _add(scene: Any, vertices: npt.NDArray[Any], triangles: npt.NDArray[Any]) -> int:
+    return int(scene.add_triangles(
+        o3d.core.Tensor.from_numpy(np.ascontiguousarray(vertices, dtype=np.float32)),
+        o3d.core.Tensor.from_numpy(np.ascontiguousarray(triangles, dtype=np.uint32)),
+    ))
+
+
+def stage_scene(parts: list[PlacedPart], cfg: CaptureConfig) -> StagedScene:
+    """Scale and pose every part into the world frame (metres) and build the ray caster."""
+    if not parts:
+        raise ValueError("a scene needs at least one part")
+    if len({p.instance_id for p in parts}) != len(parts) or min(p.instance_id for p in parts) < 1:
+        raise ValueError("instance ids must be unique and >= 1")
+    scale = scene_scale(parts, cfg)
+    lo, hi = scene_bounds_mm(parts)
+    scene = o3d.t.geometry.RaycastingScene()
+    instance, albedo = [], []
+    for p in parts:
+        _add(scene, scale * apply_pose(p.pose, p.mesh.vertices), p.mesh.triangles)
+        instance.append(p.instance_id)
+        albedo.append(srgb_to_linear(p.colour))
+    if cfg.support_plane:
+        _add(scene, *_support_plane(scale * lo, scale * hi, cfg.support_size_m))
+        instance.append(0)
+        albedo.append(srgb_to_linear(cfg.support_colour))
+    centre = scale * (lo + hi) / 2
+    levels = np.linspace(0, 1, _LEVELS, dtype=np.float32)
+    table = _linear_to_srgb8(np.asarray(albedo)[:, None, :] * levels[None, :, None])
+    return StagedScene(scene, np.asarray(instance, dtype=np.int32), table.reshape(-1, 3),
+                   scale, centre, {"scale_m_per_mm": scale, "scene_centre_m": centre.tolist()})
+
+
+@dataclass(frozen=True)
+class _Pixels:
+    """Per-pixel camera-frame ray directions (x/z, y/z, z = 1), flattened row-major, and the
+    inverse length of each, precomputed once per camera (a matmul over (n, 3) is slow in numpy,
+    column arithmetic is ~10x faster)."""
+
+    x: npt.NDArray[np.float32]
+    y: npt.NDArray[np.float32]
+    inv_norm: npt.NDArray[np.float32]
+
+
+def pixel_directions(k: CameraIntrinsics) -> npt.NDArray[np.float64]:
+    """(h*w, 3) camera-frame ray directions with z = 1, row-major pixel order."""
+    u, v = np.meshgrid(np.arange(k.width, dtype=np.float64), np.arange(k.height, dtype=np.float64))
+    d = np.stack([(u - k.cx) / k.fx, (v - k.cy) / k.fy, np.ones_like(u)], axis=-1)
+    return d.reshape(-1, 3)
+
+
+def _pixels(k: CameraIntrinsics) -> _Pixels:
+    d = pixel_directions(k)
+    return _Pixels(d[:, 0].astype(np.float32), d[:, 1].astype(np.float32),
+                   (1.0 / np.linalg.norm(d, axis=1)).astype(np.float32))
+
+
+def camera_rays(w2c: FloatArray, px: _Pixels) -> npt.NDArray[np.float32]:
+    """(n, 6) float32 rays: camera centre and world directions whose camera z is 1, so a
+    ray's hit distance is the pixel's z-depth in metres."""
+    rot_cw = w2c[:3, :3].T.astype(np.float32)
+    eye = -w2c[:3, :3].T @ w2c[:3, 3]
+    rays = np.empty((len(px.x), 6), dtype=np.float32)
+    rays[:, :3] = eye
+    for i in range(3):
+        rays[:, 3 + i] = px.x * rot_cw[i, 0] + px.y * rot_cw[i, 1] + rot_cw[i, 2]
+    return rays
+
+
+_KEY_LIGHT = np.array([0.3, -0.4, 1.0], dtype=np.float32) / np.float32(math.sqrt(1.25))
+
+
+def _shade(staged: StagedScene, cfg: CaptureConfig, gid: Any, ndotv: Any, ndotkey: Any,
+           hit: Any) -> npt.NDArray[np.uint8]:
+    """Lambertian colour: a headlight (0.6) plus a key light from above (0.4), two-sided
+    normals, ``ambient`` floor; background where nothing is hit."""
+    facing = np.where(ndotv > 0, -ndotkey, ndotkey)  # normal flipped towards the camera
+    lambert = 0.6 * np.abs(ndotv) + 0.4 * np.clip(facing, 0, 1)
+    light = (cfg.ambient + (1 - cfg.ambient) * lambert).astype(np.float32)
+    level = (np.minimum(light, 1.0) * (_LEVELS - 1) + 0.5).astype(np.int32)
+    rgb = np.take(staged.shade_table, gid.astype(np.int32) * _LEVELS + level, axis=0)
+    rgb[~hit] = np.asarray(cfg.background, dtype=np.uint8)
+    return rgb
+
+
+def _depth_edges(depth: npt.NDArray[np.float32], jump_m: float,
+                 width_px: int) -> npt.NDArray[np.bool_]:
+    """Pixels next to a depth discontinuity (a jump > ``jump_m`` or a hit/miss boundary)."""
+    z = np.where(depth > 0, depth, np.float32(1e6))  # a miss is a far surface: hit/miss = jump
+    edge = np.zeros(depth.shape, dtype=bool)
+    for axis in (0, 1):
+        a = np.moveaxis(z, axis, 0)
+        jump = np.abs(a[1:] - a[:-1]) > jump_m
+        e = np.moveaxis(edge, axis, 0)
+        e[1:] |= jump
+        e[:-1] |= jump
+    if width_px > 1:
+        from scipy.ndimage import binary_dilation
+
+        edge = binary_dilation(edge, iterations=width_px - 1)
+    return edge
+
+
+def apply_noise(depth: npt.NDArray[np.float32], cos_incidence: npt.NDArray[np.float32],
+                noise: NoiseConfig, view: int) -> npt.NDArray[np.float32]:
+    """Sensor model on a clean depth image.
+
+    Args:
+        depth: (h, w) float32 metres, 0 where missing.
+        cos_incidence: (h, w) |cos| of the angle between ray and surface normal.
+        noise: the model; draws are seeded by (noise.seed, view).
+        view: view index, so each view gets its own reproducible noise.
+    Returns:
+        (h, w) float32 metres, 0 where the sensor returns nothing.
+    """
+    rng = np.random.default_rng([noise.seed, view])
+    f32 = np.float32
+    sigma = f32(noise.sigma_base_m) + f32(noise.sigma_quadratic_per_m) * depth * depth
+    z = depth + rng.standard_normal(depth.shape, dtype=f32) * sigma  # float32: ~0.1 um steps
+    if noise.quantisation_m > 0:
+        z = np.round(z * f32(1 / noise.quantisation_m)) * f32(noise.quantisation_m)
+    keep = (depth > 0) & (z > 0)
+    keep &= cos_incidence >= math.cos(math.radians(noise.max_incidence_deg))
+    keep &= ~_depth_edges(depth, noise.edge_jump_m, noise.edge_width_px)
+    if noise.dropout > 0:
+        keep &= rng.random(depth.shape, dtype=f32) >= noise.dropout
+    return np.where(keep, z, f32(0))
+
+
+def _cast(staged: StagedScene, rays: npt.NDArray[np.float32], px: _Pixels) -> dict[str, Any]:
+    """Cast rays; t (z-depth), geometry ids, and cosines of the surface normal with the unit
+    view direction and with the key light."""
+    ans = staged.scene.cast_rays(o3d.core.Tensor.from_numpy(rays))
+    n = ans["primitive_normals"].numpy()
+    d = rays[:, 3:]
+    ndotv = (n[:, 0] * d[:, 0] + n[:, 1] * d[:, 1] + n[:, 2] * d[:, 2]) * px.inv_norm
+    ndotkey = n[:, 0] * _KEY_LIGHT[0] + n[:, 1] * _KEY_LIGHT[1] + n[:, 2] * _KEY_LIGHT[2]
+    return {"t": ans["t_hit"].numpy(), "gid": ans["geometry_ids"].numpy(), "ndotv": ndotv,
+            "ndotkey": ndotkey}
+
+
+def _render(staged: StagedScene, cfg: CaptureConfig, px: _Pixels, view: int) -> RgbdFrame:
+    k = camera_intrinsics(cfg)
+    w2c = camera_pose(cfg, view, staged.centre_m)
+    c = _cast(staged, camera_rays(w2c, px), px)
+    hit = c["gid"] != _MISS
+    shape = (k.height, k.width)
+    depth = np.where(hit, c["t"], 0).astype(np.float32).reshape(shape)
+    if cfg.noise is not None:
+        depth = apply_noise(depth, np.abs(c["ndotv"]).reshape(shape), cfg.noise, view)
+    gid = np.where(hit, c["gid"], 0)
+    instance = np.where(hit, staged.instance_of[gid], 0).astype(np.int32)
+    colour = _shade(staged, cfg, gid, c["ndotv"], c["ndotkey"], hit)
+    meta = {**staged.meta, "view_index": view, "azimuth_deg": view_azimuth_deg(cfg, view),
+            "elevation_deg": cfg.elevation_deg, "noise": cfg.noise is not None}
+    return RgbdFrame(
+        timestamp_ns=view * cfg.frame_period_ns, intrinsics=k,
+        colour=colour.reshape(*shape, 3), depth=depth, world_to_camera=w2c,
+        instance=instance.reshape(shape), meta=meta,
+    )
+
+
+def render_views(parts: list[PlacedPart], cfg: CaptureConfig | None = None,
+                 views: Iterable[int] | None = None) -> Iterator[RgbdFrame]:
+    """Render views of a scene lazily, one ``RgbdFrame`` at a time.
+
+    Args:
+        parts: the scene (one part, a pair or an assembly), meshes in mm, poses in mm.
+        cfg: camera path and sensor; defaults to the paper's protocol without noise.
+        views: view indices to render (default ``range(cfg.n_views)``).
+    Yields:
+        RgbdFrame: colour (h, w, 3) uint8 sRGB; depth (h, w) float32 metres, 0 where missing;
+        instance (h, w) int32 (0 = background/support; the true visible surface, also where
+        the noise model drops the depth); world_to_camera (4, 4) metres with
+        world = scene frame scaled by ``meta["scale_m_per_mm"]``.
+    """
+    cfg = cfg or CaptureConfig()
+    staged = stage_scene(parts, cfg)
+    px = _pixels(camera_intrinsics(cfg))
+    for view in range(cfg.n_views) if views is None else views:
+        yield _render(staged, cfg, px, view)
+
+
+def render_view(parts: list[PlacedPart], cfg: CaptureConfig | None = None,
+                view: int = 0) -> RgbdFrame:
+    """One view of a scene (see ``render_views``)."""
+    return next(render_views(parts, cfg, [view]))
+
+
+def scene_meta(parts: list[PlacedPart], cfg: CaptureConfig | None = None,
+               labels: dict[str, Any] | None = None) -> dict[str, Any]:
+    """JSON-ready description of a scene for the capture's ``/scene`` channel.
+
+    Keys: ``scale_m_per_mm``, ``scene_centre_m``, ``parts`` (instance_id, part_id, label,
+    colour, ``pose_mm`` as a nested 4x4 list, part -> scene), ``config`` and ``labels``
+    (ground truth supplied by the caller, e.g. relations between part ids).
+    """
+    cfg = cfg or CaptureConfig()
+    scale = scene_scale(parts, cfg)
+    lo, hi = scene_bounds_mm(parts)
+    meta = {
+        "format": "mateqa.scene/1",
+        "scale_m_per_mm": scale,
+        "scene_centre_m": (scale * (lo + hi) / 2).tolist(),
+        "parts": [
+            {"instance_id": p.instance_id, "part_id": p.part_id, "label": p.label,
+             "colour": p.colour if isinstance(p.colour, str) else list(p.colour),
+             "pose_mm": np.asarray(p.pose, dtype=np.float64).tolist()}
+            for p in parts
+        ],
+        "config": asdict(cfg),
+        "labels": labels or {},
+    }
+    return cast(dict[str, Any], json.loads(json.dumps(meta)))  # plain JSON types: round trips

@@ -1,0 +1,198 @@
+"""Tests of cadio.capture: camera geometry, view path, instance ids and the noise model."""
+
+from __future__ import annotations
+
+import inspect
+import math
+
+import numpy as np
+import open3d as o3d
+import pytest
+
+from cadio.capture import (
+    CaptureConfig,
+    NoiseConfig,
+    PlacedPart,
+    camera_intrinsics,
+    camera_pose,
+    render_view,
+    render_views,
+    scene_bounds_mm,
+    scene_meta,
+    scene_scale,
+)
+from cadio.records import Mesh
+
+CLEAN = CaptureConfig(support_plane=False, elevation_deg=0.0, target_size_m=None)
+
+
+def box_mesh(sx: float, sy: float, sz: float) -> Mesh:
+    """An axis-aligned box centred on the origin, mm."""
+    m = o3d.geometry.TriangleMesh.create_box(sx, sy, sz)
+    m.translate((-sx / 2, -sy / 2, -sz / 2))
+    return Mesh(np.asarray(m.vertices, dtype=np.float64), np.asarray(m.triangles, dtype=np.int64))
+
+
+def cylinder_mesh(radius: float, height: float) -> Mesh:
+    """A closed cylinder about +Z centred on the origin, mm."""
+    m = o3d.geometry.TriangleMesh.create_cylinder(radius, height, resolution=48)
+    return Mesh(np.asarray(m.vertices, dtype=np.float64), np.asarray(m.triangles, dtype=np.int64))
+
+
+def pose(tx: float, ty: float, tz: float, rz_deg: float = 0.0) -> np.ndarray:
+    c, s = math.cos(math.radians(rz_deg)), math.sin(math.radians(rz_deg))
+    p = np.eye(4)
+    p[:3, :3] = [[c, -s, 0], [s, c, 0], [0, 0, 1]]
+    p[:3, 3] = [tx, ty, tz]
+    return p
+
+
+def cube_scene() -> list[PlacedPart]:
+    """A 100 mm cube centred at (200, 300, 50) mm."""
+    return [PlacedPart(1, box_mesh(100, 100, 100), pose(200, 300, 50), "#c03030")]
+
+
+def pair_scene() -> list[PlacedPart]:
+    """A box and a cylinder standing on z = 0, 60 mm apart, both turned about Z."""
+    return [PlacedPart(1, box_mesh(100, 80, 60), pose(-90, 0, 30, 20), "#c03030", "box"),
+            PlacedPart(2, cylinder_mesh(30, 120), pose(90, 10, 60, 0), "#3050c0", "cyl")]
+
+
+def test_intrinsics_have_the_papers_field_of_view() -> None:
+    k = camera_intrinsics(CaptureConfig())
+    assert (k.width, k.height) == (640, 480)
+    assert math.degrees(2 * math.atan((k.width / 2) / k.fx)) == pytest.approx(49.2, abs=1e-9)
+    assert k.fx == k.fy and (k.cx, k.cy) == (319.5, 239.5)
+
+
+def test_125_views_are_2_88_degrees_apart_at_1_6_m() -> None:
+    cfg = CaptureConfig()
+    centre = np.array([0.1, -0.2, 0.05])
+    eyes = []
+    for v in range(cfg.n_views):
+        w2c = camera_pose(cfg, v, centre)
+        eye = -w2c[:3, :3].T @ w2c[:3, 3]
+        assert np.linalg.norm(eye - centre) == pytest.approx(1.6, abs=1e-12)
+        seen = w2c[:3, :3] @ centre + w2c[:3, 3]  # the centre is on the optical axis
+        assert seen[:2] == pytest.approx([0, 0], abs=1e-12) and seen[2] > 0
+        eyes.append(eye - centre)
+    az = np.degrees(np.unwrap([math.atan2(e[1], e[0]) for e in eyes]))
+    assert np.diff(az) == pytest.approx(np.full(124, 2.88), abs=1e-9)
+    assert cfg.n_views * cfg.step_deg == pytest.approx(360.0)
+    elevation = math.degrees(math.asin(eyes[0][2] / 1.6))
+    assert elevation == pytest.approx(cfg.elevation_deg)
+
+
+def test_view_zero_looks_along_plus_y_with_z_up() -> None:
+    w2c = camera_pose(CaptureConfig(elevation_deg=0.0), 0, np.zeros(3))
+    assert w2c[2, :3] == pytest.approx([0, 1, 0])  # camera z (forward) is world +Y
+    assert w2c[1, :3] == pytest.approx([0, 0, -1])  # camera y (down) is world -Z
+    assert w2c[0, :3] == pytest.approx([1, 0, 0])  # camera x (right) is world +X
+
+
+def test_cube_projects_where_expected_with_z_depth() -> None:
+    frame = render_view(cube_scene(), CLEAN, 0)
+    k = frame.intrinsics
+    face = frame.instance == 1
+    # Camera 1.6 m from the cube centre on -Y; the front face is 50 mm nearer, fronto-parallel,
+    # so every pixel on it has z-depth 1.55 m (a range image would grow towards the corners).
+    assert frame.depth[face] == pytest.approx(np.full(face.sum(), 1.55), abs=1e-5)
+    v, u = np.nonzero(face)
+    half = k.fx * 0.05 / 1.55
+    assert u.min() == pytest.approx(k.cx - half, abs=1.0)
+    assert u.max() == pytest.approx(k.cx + half, abs=1.0)
+    assert v.min() == pytest.approx(k.cy - half, abs=1.0)
+    assert v.max() == pytest.approx(k.cy + half, abs=1.0)
+    assert np.all(frame.depth[~face] == 0) and np.all(frame.instance[~face] == 0)
+
+
+def test_views_render_lazily_and_stamp_their_meta() -> None:
+    cfg = CaptureConfig(n_views=4, start_deg=10.0, step_deg=90.0, width=64, height=48)
+    gen = render_views(cube_scene(), cfg)
+    assert inspect.isgenerator(gen)
+    frames = list(gen)
+    assert [f.meta["view_index"] for f in frames] == [0, 1, 2, 3]
+    assert [f.meta["azimuth_deg"] for f in frames] == [10.0, 100.0, 190.0, 280.0]
+    assert [f.timestamp_ns for f in frames] == [0, 10**8, 2 * 10**8, 3 * 10**8]
+    (only,) = render_views(cube_scene(), cfg, views=[2])
+    assert np.array_equal(only.depth, frames[2].depth)
+
+
+def test_scene_is_scaled_to_the_target_size() -> None:
+    parts = pair_scene()
+    cfg = CaptureConfig(target_size_m=0.3)
+    lo, hi = scene_bounds_mm(parts)
+    scale = scene_scale(parts, cfg)
+    assert scale * float(np.max(hi - lo)) == pytest.approx(0.3)
+    frame = render_view(parts, cfg, 5)
+    assert frame.meta["scale_m_per_mm"] == pytest.approx(scale)
+    meta = scene_meta(parts, cfg, {"left": [[1, 2]]})
+    assert meta["scale_m_per_mm"] == pytest.approx(scale)
+    assert [p["instance_id"] for p in meta["parts"]] == [1, 2]
+    assert np.array(meta["parts"][0]["pose_mm"]) == pytest.approx(parts[0].pose)
+
+
+def test_instance_ids_match_the_parts() -> None:
+    parts = pair_scene()
+    frame = render_view(parts, CaptureConfig(), 7)
+    assert set(np.unique(frame.instance)) == {0, 1, 2}
+    # The box is red and the cylinder blue: the colour under each id must say so.
+    red = frame.colour[frame.instance == 1].astype(int)
+    blue = frame.colour[frame.instance == 2].astype(int)
+    assert np.all(red[:, 0] > red[:, 2]) and np.all(blue[:, 2] > blue[:, 0])
+    assert np.all(frame.depth[frame.instance > 0] > 0)
+
+
+def test_noise_off_is_exact_and_noise_is_seeded() -> None:
+    parts = pair_scene()
+    clean = render_view(parts, CaptureConfig(), 3)
+    again = render_view(parts, CaptureConfig(), 3)
+    assert np.array_equal(clean.depth, again.depth)
+    assert np.array_equal(clean.colour, again.colour)
+    a = render_view(parts, CaptureConfig(noise=NoiseConfig(seed=1)), 3)
+    b = render_view(parts, CaptureConfig(noise=NoiseConfig(seed=1)), 3)
+    c = render_view(parts, CaptureConfig(noise=NoiseConfig(seed=2)), 3)
+    assert np.array_equal(a.depth, b.depth) and not np.array_equal(a.depth, c.depth)
+    assert np.array_equal(a.instance, clean.instance) and np.array_equal(a.colour, clean.colour)
+
+
+def test_noise_has_the_configured_depth_statistics() -> None:
+    noise = NoiseConfig(sigma_base_m=0.001, sigma_quadratic_per_m=0.002, quantisation_m=0.0)
+    frame = render_view(cube_scene(), CaptureConfig(
+        support_plane=False, elevation_deg=0.0, target_size_m=None, noise=noise), 0)
+    inner = (render_view(cube_scene(), CLEAN, 0).instance == 1) & (frame.depth > 0)
+    residual = frame.depth[inner].astype(np.float64) - 1.55
+    expected = 0.001 + 0.002 * 1.55**2
+    assert inner.sum() > 1500
+    assert np.std(residual) == pytest.approx(expected, rel=0.1)
+    assert abs(np.mean(residual)) < 3 * expected / math.sqrt(inner.sum())
+
+    stepped = render_view(cube_scene(), CaptureConfig(
+        support_plane=False, elevation_deg=0.0, target_size_m=None, noise=NoiseConfig()), 0)
+    mm = stepped.depth[stepped.depth > 0].astype(np.float64) * 1000
+    assert mm == pytest.approx(np.round(mm), abs=1e-3)  # 1 mm quantisation
+
+
+def test_noise_drops_grazing_angles_and_depth_edges() -> None:
+    # A large table seen from 20 degrees: its far part is grazing (incidence up to ~80 deg).
+    cfg = CaptureConfig(elevation_deg=20.0, support_size_m=4.0)
+    parts = pair_scene()
+    clean = render_view(parts, cfg, 0)
+    noisy = render_view(parts, CaptureConfig(elevation_deg=20.0, support_size_m=4.0,
+                                             noise=NoiseConfig()), 0)
+    # Incidence on the support plane (normal +Z) from each pixel's ray direction.
+    k = clean.intrinsics
+    v, u = np.mgrid[0 : k.height, 0 : k.width]
+    rays_cam = np.stack([(u - k.cx) / k.fx, (v - k.cy) / k.fy, np.ones(u.shape)], axis=-1)
+    rays = rays_cam @ clean.world_to_camera[:3, :3]  # camera -> world directions
+    cos_inc = np.abs(rays[..., 2]) / np.linalg.norm(rays, axis=-1)
+    plane = (clean.instance == 0) & (clean.depth > 0)
+    grazing = plane & (cos_inc < math.cos(math.radians(75.0)))
+    facing = plane & (cos_inc > math.cos(math.radians(70.0)))
+    assert grazing.sum() > 1000 and facing.sum() > 1000
+    assert np.all(noisy.depth[grazing] == 0)
+    assert np.mean(noisy.depth[facing] > 0) > 0.97
+    # Silhouettes of the parts against the plane are depth discontinuities: dropped.
+    jump = np.zeros(clean.depth.shape, dtype=bool)
+    jump[:, 1:] |= np.abs(np.diff(clean.depth, axis=1)) > 0.05
+    assert jump.sum() > 50 and np.all(noisy.depth[jump] == 0)

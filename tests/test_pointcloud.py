@@ -1,0 +1,164 @@
+"""Tests of cadio.pointcloud: back-projection, segmentation, partial grids and sampling."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import open3d as o3d
+import pytest
+from scipy.ndimage import binary_dilation
+
+from cadio.capture import CaptureConfig, NoiseConfig, PlacedPart, render_view, scene_meta
+from cadio.pointcloud import (
+    adjusted_rand_index,
+    backproject,
+    part_clouds,
+    partial_grid,
+    sample_points,
+    segment_clusters,
+    segmentation_score,
+    to_part_frame,
+    valid_depth,
+)
+from cadio.records import Mesh, RgbdFrame
+from cadio.voxels import voxelize
+
+CFG = CaptureConfig(elevation_deg=25.0, target_size_m=0.3)
+NOISY = CaptureConfig(elevation_deg=25.0, target_size_m=0.3, noise=NoiseConfig(seed=3))
+
+
+def _mesh(m: o3d.geometry.TriangleMesh) -> Mesh:
+    return Mesh(np.asarray(m.vertices, dtype=np.float64), np.asarray(m.triangles, dtype=np.int64))
+
+
+def _pose(t: tuple[float, float, float], rz_deg: float) -> np.ndarray:
+    c, s = math.cos(math.radians(rz_deg)), math.sin(math.radians(rz_deg))
+    p = np.eye(4)
+    p[:3, :3] = [[c, -s, 0], [s, c, 0], [0, 0, 1]]
+    p[:3, 3] = t
+    return p
+
+
+def pair() -> list[PlacedPart]:
+    """A box and a cylinder on the table, 60 mm apart, turned about Z; meshes off-centre."""
+    box = o3d.geometry.TriangleMesh.create_box(100, 80, 60)  # corner at the origin
+    cyl = o3d.geometry.TriangleMesh.create_cylinder(30, 120, resolution=48)
+    return [PlacedPart(1, _mesh(box), _pose((-140, -40, 0), 25), "#c03030", "box"),
+            PlacedPart(2, _mesh(cyl), _pose((90, 10, 60), 0), "#3050c0", "cyl")]
+
+
+@pytest.fixture(scope="module")
+def clean() -> RgbdFrame:
+    return render_view(pair(), CFG, 11)
+
+
+@pytest.fixture(scope="module")
+def noisy() -> RgbdFrame:
+    return render_view(pair(), NOISY, 11)
+
+
+def _distance_to_mesh(mesh: Mesh, points: np.ndarray) -> np.ndarray:
+    scene = o3d.t.geometry.RaycastingScene()
+    scene.add_triangles(o3d.core.Tensor(mesh.vertices.astype(np.float32)),
+                        o3d.core.Tensor(mesh.triangles.astype(np.uint32)))
+    return scene.compute_distance(o3d.core.Tensor(points.astype(np.float32))).numpy()
+
+
+def test_backprojected_points_lie_on_their_part_within_a_mm(clean: RgbdFrame) -> None:
+    meta = scene_meta(pair(), CFG)
+    clouds = part_clouds(clean, meta)
+    for part in pair():
+        pts = clouds[part.instance_id]
+        assert len(pts) > 1000
+        # Part millimetres; float32 rays at 1.6 m are good to ~0.1 micrometre of scene.
+        assert np.max(_distance_to_mesh(part.mesh, pts)) < 0.05
+
+
+def test_to_part_frame_undoes_scale_and_pose() -> None:
+    part = pair()[0]
+    scale = 0.0025
+    world = scale * (part.mesh.vertices @ part.pose[:3, :3].T + part.pose[:3, 3])
+    assert to_part_frame(world, part.pose, scale) == pytest.approx(part.mesh.vertices, abs=1e-9)
+
+
+def test_backproject_returns_world_metres(clean: RgbdFrame) -> None:
+    pts = backproject(clean)
+    assert len(pts) == np.count_nonzero(valid_depth(clean))
+    table = backproject(clean, clean.instance == 0)
+    # The table lies at the scene's lowest z, which is 0: both parts stand on z = 0 mm.
+    assert table[:, 2] == pytest.approx(np.zeros(len(table)), abs=1e-6)
+    assert np.all(np.abs(pts[:, :2]) < 1.0)  # metres, not millimetres: within the 1.2 m table
+
+
+@pytest.mark.parametrize("which", ["clean", "noisy"])
+def test_segmentation_without_ids_matches_the_ids(which: str, request: pytest.FixtureRequest
+                                                  ) -> None:
+    frame: RgbdFrame = request.getfixturevalue(which)
+    labels = segment_clusters(frame)
+    assert frame.instance is not None
+    score = segmentation_score(labels, frame.instance, valid_depth(frame))
+    assert set(score.iou) == {1, 2}
+    # Points within the plane band (5 mm) at the parts' feet are lost with the table.
+    assert score.mean_iou > 0.9 and min(score.iou.values()) > 0.88
+    assert score.ari > 0.85
+
+
+def test_segmentation_score_of_the_truth_is_perfect(clean: RgbdFrame) -> None:
+    assert clean.instance is not None
+    score = segmentation_score(clean.instance * 7, clean.instance)
+    assert score.mean_iou == 1.0 and score.ari == pytest.approx(1.0)
+
+
+def test_adjusted_rand_index_invariants() -> None:
+    rng = np.random.default_rng(0)
+    a = rng.integers(0, 4, 500)
+    assert adjusted_rand_index(a, a) == pytest.approx(1.0)
+    assert adjusted_rand_index(a, (a + 1) % 4) == pytest.approx(1.0)  # relabelled
+    assert abs(adjusted_rand_index(a, rng.integers(0, 4, 500))) < 0.05  # chance level
+
+
+@pytest.mark.parametrize("n", [32, 64])
+def test_partial_grid_is_aligned_with_the_truth_grid(clean: RgbdFrame, n: int) -> None:
+    meta = scene_meta(pair(), CFG)
+    clouds = part_clouds(clean, meta)
+    for part in pair():
+        truth = voxelize(part.mesh, n)
+        seen = partial_grid(clouds[part.instance_id], part.mesh, n)
+        assert np.array_equal(seen.grid_to_part, truth.grid_to_part)
+        occupied = np.count_nonzero(seen.occupancy)
+        near_truth = seen.occupancy & binary_dilation(truth.occupancy)
+        assert occupied > 50
+        assert np.count_nonzero(near_truth) / occupied > 0.95  # a surface shell of the solid
+        # A single view sees one side: far fewer voxels than the solid has.
+        assert occupied < np.count_nonzero(truth.occupancy)
+
+
+def test_partial_grid_of_a_noisy_view_stays_near_the_truth(noisy: RgbdFrame) -> None:
+    meta = scene_meta(pair(), NOISY)
+    part = pair()[0]
+    truth = voxelize(part.mesh, 32)
+    seen = partial_grid(part_clouds(noisy, meta)[1], part.mesh, 32)
+    near = seen.occupancy & binary_dilation(truth.occupancy, iterations=2)
+    assert np.count_nonzero(near) / np.count_nonzero(seen.occupancy) > 0.9
+
+
+def test_sample_points_gives_600_spread_points(clean: RgbdFrame) -> None:
+    pts = part_clouds(clean, scene_meta(pair(), CFG))[2]
+    fps = sample_points(pts, 600, seed=1)
+    rnd = sample_points(pts, 600, seed=1, method="random")
+    assert fps.shape == rnd.shape == (600, 3)
+    assert np.array_equal(fps, sample_points(pts, 600, seed=1))
+    as_set = {tuple(p) for p in pts}
+    assert all(tuple(p) in as_set for p in fps)
+    assert len({tuple(p) for p in fps}) == 600
+
+    def nearest(s: np.ndarray) -> float:
+        d = np.linalg.norm(s[:, None] - s[None], axis=-1) + np.eye(len(s)) * 1e9
+        return float(np.min(d, axis=1).mean())
+
+    assert nearest(fps) > nearest(rnd)  # farthest-point sampling covers the part evenly
+    few = sample_points(pts[:10], 600)
+    assert few.shape == (600, 3) and np.array_equal(few[:10], pts[:10])
+    with pytest.raises(ValueError):
+        sample_points(pts[:0])
