@@ -405,3 +405,16 @@ def _lateral(a0: Features, b0: Features, rng: np.random.Generator) -> FloatArray
     """A random horizontal shift (mm) within half the parts' combined footprint."""
     half = 0.25 * ((a0.bbox_max - a0.bbox_min) + (b0.bbox_max - b0.bbox_min))
     return np.array([rng.uniform(-half[0], half[0]), rng.uniform(-half[1], half[1]), 0.0])
+
+
+def read_scene_parts(catalog: pd.DataFrame, workspace: Path) -> list[ScenePart]:
+    """Catalog parts usable in scenes: ok solids of single-part files, with their features.
+
+    Solids of assemblies are left out: they are placed in their assembly, not free parts.
+    """
+    from cadio.workspace import Workspace, read_features
+
+    ws = Workspace(Path(workspace))
+    rows = catalog[(catalog["status"] == "ok") & (catalog["n_solids"] == 1)]
+    return [ScenePart(str(r.part_id), str(r.category), read_features(ws.features(str(r.part_id))))
+            for r in rows.itertuples()]

@@ -2,7 +2,8 @@
 
 Layout (see DESIGN.md): ``catalog.parquet``, ``meshes/<part_id>.ply``,
 ``features/<part_id>.json``, ``voxels/<part_id>@<n>.npz``, ``mates/<assembly>.parquet``,
-``captures/<scene>.mcap``, ``runs/<run_id>/``, ``library/`` (the generated sample library).
+``scenes.parquet``, ``captures/<scene>.mcap``, ``inputs/<capture>/<part_id>.npz``,
+``runs/<run_id>/``, ``library/`` (the generated sample library).
 Every write goes to a temporary file in the same folder and is renamed into place, so a crash
 never leaves a half-written artefact that a rerun would trust.
 """
@@ -47,6 +48,14 @@ class Workspace:
 
     def capture(self, scene: str) -> Path:
         return self.root / "captures" / f"{scene}.mcap"
+
+    @property
+    def scenes(self) -> Path:
+        return self.root / "scenes.parquet"
+
+    def inputs(self, capture: str, part_id: str) -> Path:
+        """Learning inputs of one part seen in one capture: partial grids and 600 points."""
+        return self.root / "inputs" / capture / f"{part_id}.npz"
 
     def run_dir(self, run_id: str) -> Path:
         return self.root / "runs" / run_id

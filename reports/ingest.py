@@ -32,10 +32,10 @@ class IngestReport:
             "",
             "## Per category",
             "",
-            _table(self.per_category),
+            markdown_table(self.per_category),
         ]
         if not self.problems.empty:
-            lines += ["", "## Failed and skipped files", "", _table(self.problems)]
+            lines += ["", "## Failed and skipped files", "", markdown_table(self.problems)]
         return "\n".join(lines) + "\n"
 
 
@@ -81,7 +81,7 @@ def _per_file(catalog: pd.DataFrame) -> pd.DataFrame:
     )
 
 
-def _table(frame: pd.DataFrame) -> str:
+def markdown_table(frame: pd.DataFrame) -> str:
     """A GitHub-flavoured Markdown table (no optional dependency on tabulate)."""
     cols = [str(c) for c in frame.columns]
     out = ["| " + " | ".join(cols) + " |", "|" + "---|" * len(cols)]
