@@ -6,13 +6,19 @@ Solids are returned already moved to that placement, so every later stage works 
 assembly frame. A cheap sniff of header and trailer runs first: OpenCascade accepts many broken
 files silently (a truncated STEP can still transfer a few solids), and a user deserves to hear
 "truncated" rather than get half an assembly.
+
+``write_step`` is the one writer: byte-reproducible STEP files (see its docstring for why that
+takes more than a fixed time stamp).
 """
 
 from __future__ import annotations
 
+import io
 import logging
+import re
 from dataclasses import dataclass
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 from OCP.IFSelect import IFSelect_RetDone
@@ -35,6 +41,10 @@ from OCP.XCAFDoc import (
 
 from cadio.errors import StepReadError
 from cadio.records import SolidInfo
+from cadio.workspace import atomic_path
+
+if TYPE_CHECKING:
+    import build123d as bd
 
 log = logging.getLogger(__name__)
 
@@ -42,6 +52,10 @@ STEP_SUFFIXES = (".step", ".stp")
 _HEADER = b"ISO-10303-21"
 _TRAILER = b"END-ISO-10303-21"
 _COLOUR_TYPES = (XCAFDoc_ColorType.XCAFDoc_ColorSurf, XCAFDoc_ColorType.XCAFDoc_ColorGen)
+_STYLE_BLOCK = re.compile(r"^#(\d+) = MECHANICAL_DESIGN_GEOMETRIC_PRESENTATION_REPRESENTATION",
+                          re.MULTILINE)
+_ENTITY = re.compile(r"#(\d+) = (.*?);\n", re.DOTALL)
+_REF = re.compile(r"#(\d+)")
 
 
 @dataclass(frozen=True)
@@ -191,3 +205,91 @@ def _matrix(loc: TopLoc_Location) -> np.ndarray:
         for j in range(4):
             m[i, j] = trsf.Value(i + 1, j + 1)
     return m
+
+
+# --------------------------------------------------------------------------- writing
+
+
+def write_step(
+    shape_or_compound: bd.Shape, path: Path, timestamp: str = "2000-01-01T00:00:00"
+) -> None:
+    """Write a shape (a labelled, coloured compound for an assembly) as byte-reproducible STEP.
+
+    Reproducible bytes keep content hashes stable downstream. A fixed header ``timestamp`` is
+    not enough: OCCT writes the colour/style entities in a run-dependent order (a map keyed by
+    shape addresses), so they are put in a canonical order before writing. An existing file
+    with identical bytes is left untouched (its mtime too); otherwise the write is atomic.
+
+    Args:
+        shape_or_compound: a build123d shape; labels and colours of a compound's children
+            become product names and colours.
+        path: the ``.step`` file to write; missing parent folders are created.
+        timestamp: the time stamp written in the STEP header (ISO 8601).
+    """
+    import build123d as bd  # only the writer pays for build123d; the reader needs OCP alone
+
+    buf = io.BytesIO()
+    bd.export_step(shape_or_compound, buf, timestamp=timestamp)
+    data = _canonical_styles(buf.getvalue().decode("latin-1")).encode("latin-1")
+    if path.is_file() and path.read_bytes() == data:
+        return
+    with atomic_path(path) as tmp:
+        tmp.write_bytes(data)
+
+
+def _canonical_styles(step: str) -> str:
+    """Renumber OCCT's colour section in a fixed order.
+
+    OCCT writes one block of presentation entities per coloured shape at the end of DATA, in
+    the iteration order of a map keyed by shape addresses, so the block order (and with it
+    the entity numbers) changes from run to run. Each block only refers to itself and to
+    earlier (deterministic) entities; sorting the blocks by their content with internal
+    references made relative gives the same bytes every time. A file that does not have
+    this shape is returned unchanged (and the determinism test would catch it).
+    """
+    first = _STYLE_BLOCK.search(step)
+    end = step.rfind("ENDSEC;")
+    if first is None or end < first.start():
+        return step
+    start_id, prefix = int(first.group(1)), step[:first.start()]
+    if any(int(ref) >= start_id for ref in _REF.findall(prefix)):
+        return step
+    blocks = _style_blocks(step[first.start():end])
+    if blocks is None:
+        return step
+    blocks.sort(key=lambda block: _renumbered(block, start_id, relative=True))
+    out, next_id = [], start_id
+    for block in blocks:
+        out.append(_renumbered(block, next_id, relative=False))
+        next_id += len(block)
+    return prefix + "".join(out) + step[end:]
+
+
+def _style_blocks(tail: str) -> list[list[tuple[int, str]]] | None:
+    """Entities (id, text on one line) grouped in blocks; None if a block refers outside."""
+    blocks: list[list[tuple[int, str]]] = []
+    for m in _ENTITY.finditer(tail):
+        text = re.sub(r"\s*\n\s*", "", m.group(2))
+        if text.startswith("MECHANICAL_DESIGN_GEOMETRIC_PRESENTATION_REPRESENTATION"):
+            blocks.append([])
+        blocks[-1].append((int(m.group(1)), text))
+    start_id = blocks[0][0][0]
+    for block in blocks:
+        own = {ident for ident, _ in block}
+        refs = {int(r) for _, text in block for r in _REF.findall(text)}
+        if any(r >= start_id and r not in own for r in refs):
+            return None
+    return blocks
+
+
+def _renumbered(block: list[tuple[int, str]], first_id: int, relative: bool) -> str:
+    """The block's entities numbered from ``first_id`` (or as ``@k`` offsets if relative)."""
+    mapping = {old: k for k, (old, _) in enumerate(block)}
+
+    def ref(m: re.Match[str]) -> str:
+        k = mapping.get(int(m.group(1)))
+        if k is None:
+            return m.group(0)
+        return f"@{k}" if relative else f"#{first_id + k}"
+
+    return "".join(f"{_REF.sub(ref, f'#{old} = {text}')};\n" for old, text in block)
