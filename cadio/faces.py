@@ -174,10 +174,15 @@ def _convert(
 ) -> Geom_Surface | None:
     """An analytic surface within ``fit_mm`` of ``surface`` (over ``domain``), or None."""
     converter = GeomConvert_SurfToAnaSurf(surface)
-    if domain is None:
-        analytic = converter.ConvertToAnalytical(fit_mm)
-    else:
-        analytic = converter.ConvertToAnalytical(fit_mm, *domain)
+    try:
+        if domain is None:
+            analytic = converter.ConvertToAnalytical(fit_mm)
+        else:
+            analytic = converter.ConvertToAnalytical(fit_mm, *domain)
+    except Exception:  # OCP's Standard_* exceptions share no Python base class but Exception
+        # The converter fails on some degenerate patches (a sphere's poles, a zero-length
+        # direction); such a face is simply not a plane, cylinder or cone.
+        return None
     if analytic is None or converter.Gap() > fit_mm:
         return None
     return analytic
