@@ -37,9 +37,11 @@ COLUMNS: dict[str, str] = {
     "volume_rel_error": "float64",  # (mesh - brep) / brep
     "n_triangles": "int64",
     "n_faces": "int64",
+    "mesh_missing_faces": "int64",  # faces OCCT could not triangulate (holes in the mesh)
     "voxel_sizes": "object",  # grid sizes written under voxels/
     "status": "string",
     "error": "string",
+    "warning": "string",  # set on ok rows whose derived data is less trustworthy
     "seconds": "float64",
     "config_key": "string",
     "cached": "bool",
@@ -53,7 +55,8 @@ def empty_row() -> dict[str, Any]:
         "n_solids": 0, "name": "", "colour": "", "path_in_assembly": "", "placement": None,
         "bbox_min": None, "bbox_max": None, "volume": float("nan"),
         "mesh_volume": float("nan"), "volume_rel_error": float("nan"), "n_triangles": 0,
-        "n_faces": 0, "voxel_sizes": None, "status": "failed", "error": "", "seconds": 0.0,
+        "n_faces": 0, "mesh_missing_faces": 0, "voxel_sizes": None, "status": "failed",
+        "error": "", "warning": "", "seconds": 0.0,
         "config_key": "", "cached": False,
     }
 

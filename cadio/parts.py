@@ -85,5 +85,9 @@ def _geometry(solid: StepSolid, pid: str, payload: dict[str, Any]) -> dict[str, 
         "volume": volume, "mesh_volume": mvol,
         "volume_rel_error": (mvol - volume) / volume if volume > 0 else float("nan"),
         "n_triangles": len(mesh.triangles), "n_faces": features.n_faces,
+        "mesh_missing_faces": mesh.missing_faces,
+        "warning": (f"{mesh.missing_faces} face(s) could not be meshed: the mesh has holes and "
+                    f"its volume is off by {100 * (mvol - volume) / volume:.1f}%"
+                    if mesh.missing_faces else ""),
         "voxel_sizes": list(payload["voxel_sizes"]),
     }

@@ -251,10 +251,14 @@ def _move_axis(a: AxisGroup, pose: FloatArray) -> AxisGroup:
 
 @dataclass(frozen=True, eq=False)
 class Mesh:
-    """A triangle mesh. vertices: (n, 3) float64 mm; triangles: (m, 3) int64, outward CCW."""
+    """A triangle mesh. vertices: (n, 3) float64 mm; triangles: (m, 3) int64, outward CCW.
+
+    missing_faces: B-rep faces the mesher could not triangulate (the mesh then has holes).
+    """
 
     vertices: FloatArray
     triangles: npt.NDArray[np.int64]
+    missing_faces: int = 0
 
 
 @dataclass(frozen=True, eq=False)

@@ -10,6 +10,7 @@ so that a closed solid gives a closed mesh, whose divergence volume then matches
 from __future__ import annotations
 
 import logging
+from dataclasses import replace
 
 import numpy as np
 import numpy.typing as npt
@@ -67,14 +68,15 @@ def tessellate(shape: TopoDS_Shape, tol: Tolerances = DEFAULT_TOLERANCES) -> Mes
     BRepTools.Clean_s(shape)
     deflection = linear_deflection(shape, tol)
     BRepMesh_IncrementalMesh(shape, deflection, False, tol.mesh_angular_rad, True)
-    vertices, triangles = _gather_faces(shape)
+    vertices, triangles, missing = _gather_faces(shape)
     if len(triangles) == 0:
         raise GeometryError("tessellation", "meshing produced no triangles")
-    return merge_vertices(Mesh(vertices=vertices, triangles=triangles))
+    merged = merge_vertices(Mesh(vertices=vertices, triangles=triangles))
+    return replace(merged, missing_faces=missing)
 
 
-def _gather_faces(shape: TopoDS_Shape) -> tuple[FloatArray, IntArray]:
-    """Concatenate the per-face triangulations (face location applied, winding oriented)."""
+def _gather_faces(shape: TopoDS_Shape) -> tuple[FloatArray, IntArray, int]:
+    """Per-face triangulations concatenated (located, winding oriented) + faces left out."""
     all_vertices: list[FloatArray] = []
     all_triangles: list[IntArray] = []
     offset = 0
@@ -94,8 +96,8 @@ def _gather_faces(shape: TopoDS_Shape) -> tuple[FloatArray, IntArray]:
     if missing:
         log.warning("%d face(s) have no triangulation and are left out of the mesh", missing)
     if not all_triangles:
-        return np.zeros((0, 3)), np.zeros((0, 3), dtype=np.int64)
-    return np.concatenate(all_vertices), np.concatenate(all_triangles)
+        return np.zeros((0, 3)), np.zeros((0, 3), dtype=np.int64), missing
+    return np.concatenate(all_vertices), np.concatenate(all_triangles), missing
 
 
 def _face_triangles(face: TopoDS_Face) -> tuple[FloatArray, IntArray] | None:

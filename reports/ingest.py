@@ -19,6 +19,7 @@ class IngestReport:
     per_category: pd.DataFrame
     problems: pd.DataFrame
     totals: dict[str, Any]
+    warnings: pd.DataFrame
 
     def markdown(self) -> str:
         """The report as Markdown (tables of counts and problems)."""
@@ -36,6 +37,8 @@ class IngestReport:
         ]
         if not self.problems.empty:
             lines += ["", "## Failed and skipped files", "", markdown_table(self.problems)]
+        if not self.warnings.empty:
+            lines += ["", "## Warnings", "", markdown_table(self.warnings)]
         return "\n".join(lines) + "\n"
 
 
@@ -65,7 +68,9 @@ def build_ingest_report(catalog: pd.DataFrame) -> IngestReport:
         "cached": int(ok["cached"].sum()) if len(ok) else 0,
         "worst_volume_error_pct": worst if worst == worst else 0.0,
     }
-    return IngestReport(per_category, problems, totals)
+    warned = catalog[(catalog["status"] == "ok") & (catalog["warning"].fillna("") != "")]
+    warnings = warned[["category", "source", "name", "warning"]].reset_index(drop=True)
+    return IngestReport(per_category, problems, totals, warnings)
 
 
 def _per_file(catalog: pd.DataFrame) -> pd.DataFrame:

@@ -39,9 +39,14 @@ def test_categories_come_from_folders(real) -> None:  # type: ignore[no-untyped-
 def test_mesh_volumes_agree_with_brep(real) -> None:  # type: ignore[no-untyped-def]
     _, catalog = real
     err = catalog["volume_rel_error"].abs()
-    # 0.1 mm chordal deviation: within 2% on every part, far tighter on most.
-    assert (err < 0.02).all(), catalog.loc[err >= 0.02, ["source", "name", "volume_rel_error"]]
+    whole = catalog["mesh_missing_faces"] == 0
+    # 0.1 mm chordal deviation: within 2% on every fully meshed part, far tighter on most.
+    assert (err[whole] < 0.02).all(), catalog.loc[whole & (err >= 0.02), ["source", "name"]]
     assert err.median() < 0.005
+    # A face OCCT cannot mesh (one in abc_00509765) is reported, never silently accepted.
+    holed = catalog[~whole]
+    assert len(holed) <= 2
+    assert all("could not be meshed" in w for w in holed["warning"])
 
 
 def _one(catalog: pd.DataFrame, name: str) -> pd.Series:
