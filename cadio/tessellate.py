@@ -124,7 +124,8 @@ def linear_deflection(shape: TopoDS_Shape, tol: Tolerances = DEFAULT_TOLERANCES)
     ``mesh_relative`` of the bounding-box diagonal keeps small parts as faithful as large ones.
     """
     box = Bnd_Box()
-    BRepBndLib.Add_s(shape, box)
+    # The box of the unplaced shape: the same part gets the same mesh wherever it is placed.
+    BRepBndLib.Add_s(shape.Located(TopLoc_Location()), box)
     if box.IsVoid():
         return tol.mesh_linear_mm
     diagonal = float(np.sqrt(box.SquareExtent()))

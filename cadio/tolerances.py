@@ -23,7 +23,7 @@ class Tolerances:
     mesh_angular_rad: float = 0.5
     # ...but never more than this fraction of the part's bbox diagonal: small parts (bearing
     # balls, washers) would otherwise lose several percent of their volume.
-    mesh_relative: float = 0.001
+    mesh_relative: float = 0.0025
     # A freeform (B-spline) face is recognised as a plane, cylinder or cone when it fits within
     # 1 micrometre: real files (CAx-IF AS1) store every cylinder as a B-spline.
     freeform_fit_mm: float = 1e-3
