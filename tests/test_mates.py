@@ -1,0 +1,403 @@
+"""Tests of cadio.mates and cadio.joints: face mates, joints, pruning, invariance, goldens.
+
+Synthetic assemblies (boxes, a drilled plate, a bolt) pin down each rule with hand-computed
+numbers; the real CAx-IF AS1, KCL pipe flange and KCL ball bearing are checked against
+hand-verified JSON goldens in tests/golden/mates (parts named by instance path, or by index and
+bounding box where the file names every solid NONE).
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pandas as pd
+import pytest
+from OCP.Bnd import Bnd_Box
+from OCP.BRepAlgoAPI import BRepAlgoAPI_Cut, BRepAlgoAPI_Fuse
+from OCP.BRepBndLib import BRepBndLib
+from OCP.BRepPrimAPI import BRepPrimAPI_MakeBox, BRepPrimAPI_MakeCylinder
+from OCP.gp import gp_Ax2, gp_Dir, gp_Pnt, gp_Trsf, gp_Vec
+from OCP.TopAbs import TopAbs_SOLID
+from OCP.TopExp import TopExp_Explorer
+from OCP.TopLoc import TopLoc_Location
+from OCP.TopoDS import TopoDS, TopoDS_Shape
+from scipy.spatial.transform import Rotation
+
+from cadio.joints import CAD_NAMES, Constraint, classify_motion, derive_joint
+from cadio.mates import COLUMNS, extract_mates, read_assembly_mates, read_mates, write_mates
+from cadio.records import SolidInfo
+from cadio.relations import relate
+from cadio.step import StepSolid
+from cadio.tolerances import DEFAULT_TOLERANCES as TOL
+
+GOLDEN = Path(__file__).parent / "golden" / "mates"
+DIRECTIONAL = {"left", "right", "above", "below", "front", "behind"}
+
+# ---------------------------------------------------------------- synthetic parts (mm)
+
+
+def _solid(shape: TopoDS_Shape) -> TopoDS_Shape:
+    explorer = TopExp_Explorer(shape, TopAbs_SOLID)
+    return TopoDS.Solid_s(explorer.Current())
+
+
+def box(x: float, y: float, z: float, dx: float, dy: float, dz: float) -> TopoDS_Shape:
+    return BRepPrimAPI_MakeBox(gp_Pnt(x, y, z), dx, dy, dz).Shape()
+
+
+def cylinder(x: float, y: float, z: float, r: float, h: float) -> TopoDS_Shape:
+    return BRepPrimAPI_MakeCylinder(gp_Ax2(gp_Pnt(x, y, z), gp_Dir(0, 0, 1)), r, h).Shape()
+
+
+def fuse(*shapes: TopoDS_Shape) -> TopoDS_Shape:
+    out = shapes[0]
+    for s in shapes[1:]:
+        out = BRepAlgoAPI_Fuse(out, s).Shape()
+    return _solid(out)
+
+
+def drilled_plate(r_hole: float) -> TopoDS_Shape:
+    """Plate 60x40x10 (z 0..10) with a through hole of radius r_hole at (20, 20)."""
+    return _solid(BRepAlgoAPI_Cut(box(0, 0, 0, 60, 40, 10), cylinder(20, 20, -1, r_hole, 12))
+                  .Shape())
+
+
+def assembly(*named: tuple[str, TopoDS_Shape]) -> list[StepSolid]:
+    return [StepSolid(SolidInfo(k, name, "", np.eye(4), f"asm/{name}"), _solid(shape))
+            for k, (name, shape) in enumerate(named)]
+
+
+def bolted() -> list[StepSolid]:
+    """A drilled plate, a block resting on it, a bolt (shank r=5 fitting the hole, head r=8 on
+    the plate top z=10)."""
+    return assembly(
+        ("plate", drilled_plate(5.0)),
+        ("block", box(35, 10, 10, 20, 20, 5)),
+        ("bolt", fuse(cylinder(20, 20, -5, 5, 15), cylinder(20, 20, 10, 8, 3))),
+    )
+
+
+def rows(table: pd.DataFrame, a: int, b: int, level: str, relation: str | None = None
+         ) -> pd.DataFrame:
+    sel = (table.index_a == a) & (table.index_b == b) & (table.level == level)
+    if relation is not None:
+        sel &= table.relation == relation
+    return table[sel]
+
+
+# ---------------------------------------------------------------- face mates on synthetic parts
+
+
+def test_table_has_the_documented_columns() -> None:
+    table = extract_mates(bolted(), assembly="bolted").table
+    assert tuple(table.columns) == COLUMNS
+    assert set(table.level) == {"face", "part", "joint"}
+    assert (table.index_a < table.index_b).all()
+    assert (table.assembly == "bolted").all()
+
+
+def test_block_on_plate_is_coincident_with_its_footprint_and_planar() -> None:
+    table = extract_mates(bolted()).table
+    mate = rows(table, 0, 1, "face", "coincident")
+    assert len(mate) == 1
+    assert mate.overlap_area_mm2.iloc[0] == pytest.approx(20 * 20, rel=1e-6)
+    assert mate.distance_mm.iloc[0] <= TOL.contact_mm
+    assert np.allclose(mate.axis.iloc[0], [0, 0, 1])  # plate's outward normal
+    assert np.allclose(mate.origin.iloc[0], [45, 20, 10])  # centre of the footprint
+    joint = rows(table, 0, 1, "joint").iloc[0]
+    assert (joint.relation, joint.kinematic, joint.dof) == ("planar", "planar", 3)
+    assert np.allclose(np.abs(joint.axis), [0, 0, 1])
+    assert (joint.onshape, joint.freecad, joint.fusion360) == ("Planar", "Planar", "Planar")
+
+
+def test_bolt_is_revolute_by_geometry_and_fastened_by_name() -> None:
+    table = extract_mates(bolted()).table
+    fit = rows(table, 0, 2, "face", "concentric").iloc[0]
+    assert fit.fit == "fit" and fit.radial_gap_mm == pytest.approx(0.0, abs=1e-9)
+    head = rows(table, 0, 2, "face", "coincident").iloc[0]
+    assert head.overlap_area_mm2 == pytest.approx(math.pi * (8**2 - 5**2), rel=1e-6)
+    joint = rows(table, 0, 2, "joint").iloc[0]
+    assert (joint.kinematic, joint.dof, joint.relation) == ("revolute", 1, "fastened")
+    assert np.allclose(np.abs(joint.axis), [0, 0, 1])
+    assert np.allclose(joint.origin[:2], [20, 20])  # on the bolt's axis
+    assert (joint.onshape, joint.freecad, joint.fusion360) == ("Fastened", "Fixed", "Rigid")
+    assert "fastener by name" in joint.evidence
+
+
+def test_clearance_fit_is_concentric_without_contact() -> None:
+    parts = assembly(("plate", drilled_plate(5.0)), ("shaft", cylinder(20, 20, -20, 4.0, 50)))
+    result = extract_mates(parts)
+    mate = rows(result.table, 0, 1, "face", "concentric").iloc[0]
+    assert mate.fit == "fit" and mate.radial_gap_mm == pytest.approx(1.0, abs=1e-9)
+    assert result.n_contact_pairs == 0  # 1 mm of clearance all round
+    joint = rows(result.table, 0, 1, "joint").iloc[0]
+    assert (joint.kinematic, joint.dof) == ("cylindrical", 2)
+
+
+def test_coaxial_but_far_apart_along_the_axis_is_no_mate() -> None:
+    parts = assembly(("plate", drilled_plate(5.0)), ("pin", cylinder(20, 20, 30, 4.0, 10)))
+    assert rows(extract_mates(parts).table, 0, 1, "face").empty
+
+
+def test_touching_along_an_edge_only_is_no_mate() -> None:
+    parts = assembly(("a", box(0, 0, 0, 10, 10, 10)), ("b", box(10, 0, 10, 10, 10, 10)))
+    result = extract_mates(parts)
+    assert result.n_contact_pairs == 1  # the exact distance is 0 ...
+    assert rows(result.table, 0, 1, "face", "coincident").empty  # ... but no area in common
+    assert rows(result.table, 0, 1, "joint").empty
+
+
+def test_block_in_a_guide_slides_and_in_a_corner_is_fastened() -> None:
+    guide = fuse(box(0, 0, 0, 100, 40, 10), box(0, 0, 10, 100, 10, 20))
+    corner = fuse(box(0, 0, 0, 100, 40, 10), box(0, 0, 10, 100, 10, 20), box(0, 0, 10, 10, 40, 20))
+    parts = assembly(("guide", guide), ("slider", box(30, 10, 10, 20, 20, 10)),
+                     ("corner", corner.Moved(_shift(0, 200, 0))),
+                     ("wedged", box(10, 210, 10, 20, 20, 10)))
+    table = extract_mates(parts).table
+    slide = rows(table, 0, 1, "joint").iloc[0]
+    assert (slide.kinematic, slide.dof) == ("slider", 1)
+    assert np.allclose(np.abs(slide.axis), [1, 0, 0])
+    fixed = rows(table, 2, 3, "joint").iloc[0]
+    assert (fixed.kinematic, fixed.dof, fixed.onshape) == ("fastened", 0, "Fastened")
+
+
+def test_part_level_rows_are_relate_of_the_features() -> None:
+    solids = bolted()
+    table = extract_mates(solids).table
+    from cadio.features import extract_features
+
+    feats = [extract_features(s.shape) for s in solids]
+    for a in range(3):
+        for b in range(a + 1, 3):
+            expected = {r.value for r in relate(feats[a], feats[b]).holding()}
+            assert set(rows(table, a, b, "part").relation) == expected
+
+
+# ---------------------------------------------------------------- joints from constraints
+
+
+def _plane(n: tuple[float, ...], p: tuple[float, ...]) -> Constraint:
+    return Constraint("plane", np.array(n, float), np.array(p, float))
+
+
+def _axis(d: tuple[float, ...], p: tuple[float, ...]) -> Constraint:
+    return Constraint("axis", np.array(d, float), np.array(p, float))
+
+
+@pytest.mark.parametrize(("constraints", "kind", "dof", "axis"), [
+    ([_plane((0, 0, 1), (5, 5, 0))], "planar", 3, (0, 0, 1)),
+    ([_plane((0, 0, 1), (5, 5, 0)), _plane((0, 0, -1), (40, 5, 0))], "planar", 3, (0, 0, 1)),
+    ([_plane((0, 0, 1), (5, 5, 0)), _plane((1, 0, 0), (0, 5, 5))], "slider", 1, (0, 1, 0)),
+    ([_plane((0, 0, 1), (5, 5, 0)), _plane((1, 0, 0), (0, 5, 5)), _plane((0, 1, 0), (5, 0, 5))],
+     "fastened", 0, None),
+    ([_axis((0, 0, 1), (10, 20, 0))], "cylindrical", 2, (0, 0, 1)),
+    ([_axis((0, 0, 1), (10, 20, 5)), _plane((0, 0, -1), (13, 20, 30))], "revolute", 1, (0, 0, 1)),
+    ([_axis((0, 0, 1), (10, 20, 5)), _axis((0, 0, 1), (50, 20, 5))], "slider", 1, (0, 0, 1)),
+    ([_axis((0, 0, 1), (10, 20, 5)), _plane((1, 0, 0), (15, 20, 0))], "slider", 1, (0, 0, 1)),
+    ([_axis((0, 0, 1), (0, 0, 0)), _axis((1, 0, 0), (0, 0, 0))], "fastened", 0, None),
+])
+def test_classify_motion(constraints: list[Constraint], kind: str, dof: int,
+                         axis: tuple[float, ...] | None) -> None:
+    got_kind, got_dof, got_axis, _ = classify_motion(constraints)
+    assert (got_kind, got_dof) == (kind, dof)
+    if axis is None:
+        assert got_axis is None
+    else:
+        assert np.allclose(np.abs(got_axis), axis)
+
+
+def test_revolute_origin_is_on_the_axis_and_moves_with_the_parts() -> None:
+    rot = Rotation.from_euler("xyz", [30, -50, 70], degrees=True).as_matrix()
+    shift = np.array([5.0, -7.0, 11.0])
+    cons = [_axis((0, 0, 1), (10, 20, 5)), _plane((0, 0, -1), (13, 20, 30))]
+    moved = [Constraint(c.kind, rot @ c.direction, rot @ c.point + shift) for c in cons]
+    _, _, axis, origin = classify_motion(cons)
+    _, _, axis2, origin2 = classify_motion(moved)
+    assert np.allclose(origin[:2], [10, 20])
+    assert np.allclose(origin2, rot @ origin + shift)
+    assert np.allclose(np.abs(axis2 @ (rot @ axis)), 1.0)
+
+
+def test_two_contacts_a_fraction_of_a_degree_apart_are_one_direction() -> None:
+    tilt = math.radians(0.4)
+    cons = [_plane((0, 0, 1), (0, 0, 0)), _plane((0, math.sin(tilt), math.cos(tilt)), (50, 0, 0))]
+    assert classify_motion(cons)[0] == "planar"
+
+
+def test_suggestion_and_cad_names() -> None:
+    joint = derive_joint([_axis((0, 0, 1), (0, 0, 0))], ("rod", "bracket"))
+    assert joint is not None and joint.suggested == joint.kinematic == "cylindrical"
+    assert derive_joint([], ("bolt", "plate")) is None
+    assert set(CAD_NAMES) == {"fastened", "revolute", "slider", "cylindrical", "planar"}
+    assert CAD_NAMES["fastened"] == {"onshape": "Fastened", "freecad": "Fixed",
+                                     "fusion360": "Rigid"}
+
+
+# ---------------------------------------------------------------- invariance and I/O
+
+
+def _shift(x: float, y: float, z: float) -> TopLoc_Location:
+    trsf = gp_Trsf()
+    trsf.SetTranslation(gp_Vec(x, y, z))
+    return TopLoc_Location(trsf)
+
+
+def _moved(solids: list[StepSolid], rot: np.ndarray, shift: np.ndarray) -> list[StepSolid]:
+    trsf = gp_Trsf()
+    trsf.SetValues(*rot[0], shift[0], *rot[1], shift[1], *rot[2], shift[2])
+    return [StepSolid(s.info, TopoDS.Solid_s(s.shape.Moved(TopLoc_Location(trsf))))
+            for s in solids]
+
+
+def _keyed(table: pd.DataFrame, skip_directional: bool) -> dict[tuple, Any]:
+    keep = ~table.relation.isin(DIRECTIONAL) if skip_directional else table.relation.notna()
+    cols = ["index_a", "index_b", "level", "relation", "face_a", "face_b", "fit", "kinematic"]
+    return {tuple(r[c] for c in cols): r for _, r in table[keep].iterrows()}
+
+
+def assert_invariant(before: pd.DataFrame, after: pd.DataFrame, rot: np.ndarray,
+                     shift: np.ndarray, skip_directional: bool = True) -> None:
+    """Same rows; axes turned (sign free), origins moved, distances and areas unchanged."""
+    a, b = _keyed(before, skip_directional), _keyed(after, skip_directional)
+    assert a.keys() == b.keys()
+    for key, row in a.items():
+        other = b[key]
+        if row.axis is not None:
+            assert abs(float(np.dot(rot @ np.asarray(row.axis), other.axis))) == pytest.approx(1)
+        if row.origin is not None:
+            assert np.allclose(rot @ np.asarray(row.origin) + shift, other.origin, atol=1e-5)
+        for col in ("overlap_area_mm2", "radial_gap_mm"):
+            assert other[col] == pytest.approx(row[col], rel=1e-6, abs=1e-6, nan_ok=True)
+
+
+def test_moving_the_whole_assembly_changes_nothing() -> None:
+    guide = fuse(box(0, 0, 0, 100, 40, 10), box(0, 0, 10, 100, 10, 20)).Moved(_shift(0, 100, 0))
+    solids = bolted() + assembly(("guide", guide), ("slider", box(30, 110, 10, 20, 20, 10)))
+    solids = [StepSolid(SolidInfo(k, s.info.name, "", np.eye(4), s.info.path_in_assembly),
+                        s.shape) for k, s in enumerate(solids)]
+    rot = Rotation.from_euler("xyz", [37, -61, 113], degrees=True).as_matrix()
+    shift = np.array([250.0, -1234.5, 77.7])
+    before = extract_mates(solids)
+    after = extract_mates(_moved(solids, rot, shift))
+    assert after.n_contact_pairs == before.n_contact_pairs
+    assert set(before.level("joint").kinematic) == {"planar", "revolute", "slider"}
+    assert_invariant(before.table, after.table, rot, shift)
+
+
+def test_turning_about_z_with_the_view_axis_changes_nothing_at_all() -> None:
+    solids = bolted()
+    rot = Rotation.from_euler("z", 71, degrees=True).as_matrix()
+    shift = np.array([10.0, 20.0, -30.0])
+    before = extract_mates(solids).table
+    after = extract_mates(_moved(solids, rot, shift), view_axis=rot @ [0.0, 1.0, 0.0]).table
+    assert_invariant(before, after, rot, shift, skip_directional=False)
+
+
+def test_write_and_read_back(tmp_path: Path) -> None:
+    table = extract_mates(bolted(), assembly="bolted").table
+    path = tmp_path / "mates" / "bolted.parquet"
+    write_mates(path, table)
+    back = read_mates(path)
+    assert list(back.columns) == list(table.columns) and len(back) == len(table)
+    assert back.attrs.get("tolerances") == TOL.as_dict()
+    assert list(path.parent.iterdir()) == [path]  # no temporary file left behind
+
+
+# ---------------------------------------------------------------- real assemblies (goldens)
+
+
+def _bbox(shape: TopoDS_Shape) -> np.ndarray:
+    box = Bnd_Box()
+    BRepBndLib.Add_s(shape, box, False)
+    return np.array(box.Get()).reshape(2, 3)
+
+
+def _resolve(golden: dict[str, Any], solids: list[StepSolid]) -> dict[str, int]:
+    """Alias -> solid index, by instance path or by index checked against a bounding box."""
+    out = {}
+    for alias, spec in golden["instances"].items():
+        if "path" in spec:
+            hits = [s.info.index for s in solids if s.info.path_in_assembly == spec["path"]]
+            assert len(hits) == 1, f"{alias}: {spec['path']} matches {len(hits)} solids"
+            out[alias] = hits[0]
+        else:
+            k = spec["index"]
+            assert np.allclose(_bbox(solids[k].shape), spec["bbox"], atol=0.2), alias
+            out[alias] = k
+    return out
+
+
+def _pair(table: pd.DataFrame, ids: dict[str, int], entry: dict[str, Any], level: str
+          ) -> pd.DataFrame:
+    a, b = sorted((ids[entry["a"]], ids[entry["b"]]))
+    return rows(table, a, b, level)
+
+
+def check_golden(golden: dict[str, Any], solids: list[StepSolid], table: pd.DataFrame) -> None:
+    ids = _resolve(golden, solids)
+    for key, count in golden["counts"].items():
+        level, _, relation = key.partition("/")
+        sel = table.level == level
+        if relation:
+            sel &= table.relation == relation
+        assert int(sel.sum()) == count, key
+    for e in golden["face"]:
+        found = _pair(table, ids, e, "face")
+        found = found[found.relation == e["relation"]]
+        if "fit" in e:
+            found = found[found.fit == e["fit"]]
+        assert len(found) >= 1, e
+        row = found.iloc[0]
+        for col in ("radial_gap_mm", "overlap_area_mm2"):
+            if col in e:
+                assert row[col] == pytest.approx(e[col], rel=1e-3, abs=1e-3), e
+        if "axis" in e:
+            assert abs(float(np.dot(row.axis, e["axis"]))) == pytest.approx(1.0, abs=1e-6), e
+        if "origin_on_axis" in e:
+            rel = np.asarray(row.origin) - e["origin_on_axis"]
+            assert np.linalg.norm(np.cross(rel, e["axis"])) <= TOL.coaxial_mm, e
+    for e in golden["joints"]:
+        joint = _pair(table, ids, e, "joint")
+        assert len(joint) == 1, e
+        row = joint.iloc[0]
+        assert (row.kinematic, row.relation) == (e["kinematic"], e["suggested"]), e
+        if "axis" in e:
+            assert abs(float(np.dot(row.axis, e["axis"]))) == pytest.approx(1.0, abs=1e-6), e
+    for e in golden["absent"]:
+        assert _pair(table, ids, e, "face").empty, e
+    for e in golden["absent_joints"]:
+        assert _pair(table, ids, e, "joint").empty, e
+
+
+@pytest.mark.shared
+@pytest.mark.parametrize("name", ["as1", "pipe_flange", "ball_bearing"])
+def test_real_assembly_matches_hand_checked_golden(name: str, shared_step_dir: Path) -> None:
+    golden = json.loads((GOLDEN / f"{name}.json").read_text())
+    from cadio.step import read_step
+
+    solids = read_step(shared_step_dir / golden["file"])
+    check_golden(golden, solids, extract_mates(solids).table)
+
+
+@pytest.mark.shared
+def test_real_assembly_is_invariant_under_a_rigid_motion(shared_step_dir: Path) -> None:
+    from cadio.step import read_step
+
+    solids = read_step(shared_step_dir / "assemblies" / "occt_as1-oc-214-mat.stp")
+    rot = Rotation.from_euler("xyz", [-23, 48, 131], degrees=True).as_matrix()
+    shift = np.array([-500.0, 42.0, 3000.0])
+    before = extract_mates(solids)
+    after = extract_mates(_moved(solids, rot, shift))
+    assert (after.n_box_pairs >= after.n_contact_pairs == before.n_contact_pairs)
+    assert_invariant(before.table, after.table, rot, shift)
+
+
+@pytest.mark.shared
+def test_read_assembly_mates_names_the_assembly(shared_step_dir: Path) -> None:
+    result = read_assembly_mates(shared_step_dir / "assemblies" / "occt_as1-oc-214-mat.stp")
+    assert set(result.table.assembly) == {"occt_as1-oc-214-mat"}
+    assert result.n_pairs == 18 * 17 // 2 and result.seconds["read"] > 0
