@@ -48,9 +48,35 @@ def _parser() -> argparse.ArgumentParser:
     p.add_argument("--library", type=Path, default=None,
                    help="folder of STEP files (default: generate the built-in sample library)")
     _common(p, settings)
+    p.add_argument("--pairs-per-relation", type=int, default=4,
+                   help="scenes generated per relation (default 4)")
+    p.add_argument("--views-per-scene", type=int, default=8,
+                   help="views rendered per scene, spread over the 125-view circle (default 8)")
+    p.add_argument("--noise", action="store_true", help="switch the depth noise model on")
+    p.add_argument("--captures", type=Path, default=None,
+                   help="folder of MCAP captures to read instead of rendering (real logs)")
     p.add_argument("--stop-server", action="store_true",
                    help="stop the local Prefect server this command started when done")
     p.set_defaults(func=_cmd_nightly)
+
+    p = sub.add_parser("mates", help="face mates, relations and joints of a STEP assembly",
+                       description="Extract the ground-truth mates of one STEP assembly into "
+                       "WS/mates/<assembly>.parquet and print a summary.")
+    p.add_argument("step", type=Path, metavar="STEP", help="a STEP assembly")
+    p.add_argument("--workspace", type=Path, default=settings.workspace,
+                   help=f"workspace folder (default {settings.workspace})")
+    p.set_defaults(func=_cmd_mates)
+
+    p = sub.add_parser("capture", help="render RGB-D views of a STEP file or a scene to MCAP",
+                       description="Render RGB-D views (the paper's camera circle) of a STEP "
+                       "part or assembly, or of a scene id of WS/scenes.parquet, into "
+                       "WS/captures/<name>.mcap.")
+    p.add_argument("target", metavar="STEP_OR_SCENE", help="a STEP file or a scene id")
+    p.add_argument("--workspace", type=Path, default=settings.workspace,
+                   help=f"workspace folder (default {settings.workspace})")
+    p.add_argument("--views", type=int, default=125, help="views to render (default 125)")
+    p.add_argument("--noise", action="store_true", help="switch the depth noise model on")
+    p.set_defaults(func=_cmd_capture)
 
     p = sub.add_parser("samples", help="generate the built-in sample library",
                        description="Write the built-in sample STEP library into OUT.")
@@ -113,6 +139,39 @@ def _cmd_samples(args: argparse.Namespace) -> int:
     return 0
 
 
+def _cmd_mates(args: argparse.Namespace) -> int:
+    from cadio.errors import InputFileError
+    from cadio.mates import read_assembly_mates, write_mates
+    from cadio.workspace import Workspace
+
+    try:
+        result = read_assembly_mates(args.step)
+    except InputFileError as exc:
+        print(f"mateqa mates: {exc}", file=sys.stderr)
+        return 2
+    out = Workspace(args.workspace).mates(args.step.stem)
+    write_mates(out, result.table)
+    counts = result.table.groupby(["level", "relation"]).size()
+    print(f"{result.n_parts} parts, {result.n_pairs} pairs, {result.n_contact_pairs} in contact")
+    print(counts.to_string())
+    print(f"mates: {out}")
+    return 0
+
+
+def _cmd_capture(args: argparse.Namespace) -> int:
+    from cadio.errors import InputFileError
+    from cadio.scan import ScanConfig, capture_step
+
+    cfg = ScanConfig(views_per_scene=args.views, noise=args.noise)
+    try:
+        summary = capture_step(args.target, args.workspace, cfg)
+    except InputFileError as exc:
+        print(f"mateqa capture: {exc}", file=sys.stderr)
+        return 2
+    print(json.dumps(summary, indent=1))
+    return 0
+
+
 def _cmd_nightly(args: argparse.Namespace) -> int:
     from flows.server import server_env, start_server, stop_server
 
@@ -142,6 +201,10 @@ def _run_nightly(args: argparse.Namespace) -> int:
         library=str(args.library) if args.library else None,
         workspace=str(args.workspace),
         voxel_sizes=args.voxel_sizes,
+        pairs_per_relation=args.pairs_per_relation,
+        views_per_scene=args.views_per_scene,
+        noise=args.noise,
+        captures=str(args.captures) if args.captures else None,
         return_state=True,
     )
     if not state.is_completed():
@@ -149,6 +212,7 @@ def _run_nightly(args: argparse.Namespace) -> int:
         return 1
     summary = state.result()
     print(Path(summary["report"]).read_text())
+    print(Path(summary["stages_report"]).read_text())
     print(json.dumps(summary, indent=1))
     return 0
 

@@ -1,6 +1,6 @@
-"""The nightly flow: the main job. Ingest the library, then report.
+"""The nightly flow: the main job. Ingest -> mates -> scenes -> captures -> report.
 
-Later stages (mates, captures, completion, relations, export) are added to this same flow. Tasks
+Later stages (completion, relations, export) are added to this same flow. Tasks
 are thin: resolve paths, call one library function, write its output, return a path or a small
 summary. Tasks are coarse (a batch of files) because SQLite-backed servers struggle with
 thousands of tiny task runs.
@@ -15,17 +15,22 @@ from datetime import UTC, datetime
 from pathlib import Path
 from typing import Any
 
+import pandas as pd
 from prefect import flow, get_run_logger, task
 from prefect.artifacts import create_markdown_artifact
 from prefect.context import TaskRunContext
 from prefect.task_runners import ThreadPoolTaskRunner
 
 from cadio.catalog import read_catalog, to_frame, write_catalog
+from cadio.errors import CaptureError
 from cadio.ingest import Found, IngestConfig, discover, file_sha256, ingest_files, mark_duplicates
-from cadio.sandbox import Limits
+from cadio.sandbox import Job, Limits, run_isolated
+from cadio.scan import ScanConfig, capture_scenes, scan_inputs
+from cadio.scenes import SceneConfig, generate_scenes, read_scene_parts, read_scenes, write_scenes
 from cadio.workspace import Workspace, write_json
 from flows.settings import Settings
-from reports.ingest import build_ingest_report
+from reports.ingest import build_ingest_report, markdown_table
+from reports.stages import captures_table, joints_table, mates_table, scenes_table
 
 
 def _workspace_epoch(ws: Workspace) -> str:
@@ -105,8 +110,115 @@ def ingest_report_task(catalog_path: str, run_dir: str) -> dict[str, Any]:
     return report.totals
 
 
-def _batches(items: list[tuple[str, str]], size: int) -> list[list[tuple[str, str]]]:
+def _file_cache_key(ctx: TaskRunContext, params: dict[str, Any]) -> str:
+    """Content hashes of the files a task reads + its other parameters + workspace epoch."""
+    digest = hashlib.sha256(json.dumps(
+        {k: v for k, v in params.items() if k != "items"}, sort_keys=True, default=str
+    ).encode())
+    for item in params["items"]:
+        p = Path(item["path"])
+        digest.update(file_sha256(p).encode() if p.is_file() else b"not-a-file")
+    return f"{ctx.task.name}-{digest.hexdigest()}"
+
+
+@task(name="mates", cache_key_fn=_file_cache_key, persist_result=True)
+def mates_task(items: list[dict[str, Any]], workspace: str, epoch: str,
+               timeout_s: float, memory_mb: int) -> list[dict[str, Any]]:
+    """Mates of a batch of assemblies, each in an isolated worker; one summary per assembly."""
+    jobs = [Job(item["path"], {**item, "workspace": workspace}) for item in items]
+    out = []
+    limits = Limits(seconds=timeout_s, memory_mb=memory_mb, workers=1)
+    for outcome in run_isolated("cadio.mates:mates_job", jobs, limits):
+        item = outcome.job.payload
+        base = {"assembly": item["assembly"], "category": item["category"],
+                "source": item["path"], "seconds": outcome.seconds}
+        if outcome.error is None:
+            out.append({**base, **outcome.result, "status": "ok", "error": ""})
+        else:
+            out.append({**base, "status": "failed", "error": outcome.error.reason})
+    return out
+
+
+@task(name="scenes")
+def scenes_task(catalog_path: str, workspace: str, pairs_per_relation: int,
+                seed: int) -> dict[str, Any]:
+    """Generate the scene table from the catalog's single parts; returns its path and count."""
+    ws = Workspace(Path(workspace))
+    parts = read_scene_parts(read_catalog(Path(catalog_path)), ws.root)
+    cfg = SceneConfig(seed=seed, pairs_per_relation=pairs_per_relation)
+    table = generate_scenes(parts, cfg)
+    write_scenes(ws.scenes, table)
+    return {"path": str(ws.scenes), "scenes": len(table), "parts": len(parts)}
+
+
+@task(name="capture")
+def capture_task(scene_ids: list[str], workspace: str, cfg: ScanConfig) -> list[dict[str, Any]]:
+    """Render a batch of scenes to MCAP and derive their learning inputs (view 0)."""
+    ws = Workspace(Path(workspace))
+    scenes = read_scenes(ws.scenes)
+    scenes = scenes[scenes["scene_id"].isin(scene_ids)]
+    captured = capture_scenes(scenes, read_catalog(ws.catalog), ws, cfg).to_dict("records")
+    for row in captured:
+        if not row["error"]:
+            row.update(_inputs_summary(Path(row["path"]), ws, cfg))
+    return captured
+
+
+@task(name="read-captures")
+def read_captures_task(captures_dir: str, workspace: str, cfg: ScanConfig) -> list[dict[str, Any]]:
+    """Read captures recorded elsewhere (real logs) into learning inputs; one row per file."""
+    ws = Workspace(Path(workspace))
+    rows = []
+    for path in sorted(Path(captures_dir).rglob("*.mcap")):
+        row = {"scene_id": path.stem, "path": str(path), "bytes": path.stat().st_size,
+               "frames": 0, "parts": 0, "error": ""}
+        row.update(_inputs_summary(path, ws, cfg))
+        rows.append(row)
+    return rows
+
+
+def _inputs_summary(path: Path, ws: Workspace, cfg: ScanConfig) -> dict[str, Any]:
+    try:
+        summary = scan_inputs(path, ws, cfg)
+    except CaptureError as exc:
+        return {"error": exc.reason}
+    return {"frames": summary["frames"], "input_parts": summary["parts"],
+            "seg_mean_iou": summary.get("seg_mean_iou", float("nan"))}
+
+
+def _batches(items: list[Any], size: int) -> list[list[Any]]:
     return [items[i:i + size] for i in range(0, len(items), size)]
+
+
+@task(name="stage-report")
+def stage_report_task(run_dir: str, mates: list[dict[str, Any]], scenes_path: str | None,
+                      captures: list[dict[str, Any]]) -> dict[str, Any]:
+    """Per-category tables of mates, scenes and captures: report.md, JSON and an artifact."""
+    scenes = read_scenes(Path(scenes_path)) if scenes_path else None
+    capture_frame = pd.DataFrame(captures)
+    tables = {"mates": mates_table(mates), "joints": joints_table(mates)}
+    if scenes is not None:
+        tables["scenes"] = scenes_table(scenes)
+        tables["captures"] = captures_table(capture_frame, scenes)
+    out = Path(run_dir)
+    text = "\n".join(f"## {name.capitalize()}\n\n{markdown_table(t)}\n"
+                     for name, t in tables.items())
+    failures = [m for m in mates if m["status"] != "ok"]
+    if failures:
+        text += "\n## Failed assemblies\n\n" + markdown_table(
+            pd.DataFrame(failures)[["category", "source", "error"]]) + "\n"
+    (out / "stages.md").write_text(text)
+    write_json(out / "stages.json", {k: t.to_dict("records") for k, t in tables.items()}
+               | {"captures_detail": capture_frame.to_dict("records")})
+    create_markdown_artifact(key="nightly-stages", markdown=text,
+                             description="Mates, scenes and captures per category")
+    return {
+        "assemblies": len(mates), "assemblies_failed": len(failures),
+        "face_mates": int(sum(m.get("face_mates", 0) for m in mates)),
+        "joints": int(sum(m.get("joints", 0) for m in mates)),
+        "scenes": 0 if scenes is None else len(scenes),
+        "captures": len(captures), "frames": int(sum(c.get("frames", 0) for c in captures)),
+    }
 
 
 @flow(name="nightly", task_runner=ThreadPoolTaskRunner(max_workers=2))  # type: ignore[arg-type]
@@ -115,22 +227,33 @@ def nightly(
     workspace: str = "workspace",
     voxel_sizes: list[int] | None = None,
     batch_size: int = 12,
+    pairs_per_relation: int = 4,
+    views_per_scene: int = 8,
+    noise: bool = False,
+    captures: str | None = None,
+    seed: int = 0,
 ) -> dict[str, Any]:
-    """Ingest the library (the built-in sample library by default) and report.
+    """Ingest the library, extract assembly mates, generate scenes, capture them, report.
 
     Args:
         library: folder of STEP files (categories are its sub-folders); None = built-in samples.
         workspace: the workspace folder.
         voxel_sizes: occupancy grid sizes to write (default 32 and 64).
         batch_size: files per ingest task.
+        pairs_per_relation: scenes per relation (over all splits).
+        views_per_scene: rendered views per scene (spread over the paper's 125-view circle).
+        noise: switch the depth sensor noise model on.
+        captures: folder of MCAP captures to read instead of rendering (real logs).
+        seed: seed of the scene generator.
 
     Returns:
-        A small summary: run id, paths of the report files, totals.
+        A small summary: run id, paths of the report files, totals per stage.
     """
     logger = get_run_logger()
     settings = Settings()
     ws = Workspace(Path(workspace).resolve())
     run_id = datetime.now(UTC).strftime("%Y%m%dT%H%M%SZ")
+    run_dir = ws.run_dir(run_id)
     cfg = _ingest_config(settings, voxel_sizes)
     lib = library or generate_library_task(str(ws.root))
     found = discover_task(lib)
@@ -140,13 +263,46 @@ def nightly(
         for b in _batches(found, batch_size)
     ]
     catalog = write_catalog_task([f.result() for f in futures], str(ws.root))
-    run_dir = ws.run_dir(run_id)
     totals = ingest_report_task(catalog, str(run_dir))
     logger.info("ingest: %s", json.dumps(totals))
+
+    assemblies = _assembly_items(read_catalog(Path(catalog)))
+    mate_futures = [mates_task.submit(b, str(ws.root), epoch, settings.file_timeout_s,
+                                      settings.file_memory_mb)
+                    for b in _batches(assemblies, 4)]
+    mates = [m for f in mate_futures for m in f.result()]
+
+    scan_cfg = ScanConfig(views_per_scene=views_per_scene, noise=noise,
+                          grid_sizes=cfg.voxel_sizes, grid_margin=cfg.voxel_margin)
+    scenes = scenes_task(catalog, str(ws.root), pairs_per_relation, seed)
+    if captures:
+        captured = read_captures_task(captures, str(ws.root), scan_cfg)
+    else:
+        ids = read_scenes(Path(scenes["path"]))["scene_id"].tolist()
+        capture_futures = [capture_task.submit(b, str(ws.root), scan_cfg)
+                           for b in _batches(ids, 10)]
+        captured = [c for f in capture_futures for c in f.result()]
+    stages = stage_report_task(str(run_dir), mates, scenes["path"], captured)
+    logger.info("stages: %s", json.dumps(stages))
     summary = {"run_id": run_id, "library": str(lib), "workspace": str(ws.root),
-               "report": str(run_dir / "ingest.md"), "ingest": totals}
+               "report": str(run_dir / "ingest.md"), "stages_report": str(run_dir / "stages.md"),
+               "ingest": totals, "stages": stages}
     write_json(run_dir / "summary.json", summary)
     return summary
+
+
+def _assembly_items(catalog: pd.DataFrame) -> list[dict[str, Any]]:
+    """Files with several ok solids: their path, category, name and part ids by solid index."""
+    ok = catalog[(catalog["status"] == "ok") & (catalog["n_solids"] > 1)]
+    items = []
+    for source, rows in ok.groupby("source", sort=True):
+        items.append({
+            "path": str(source), "category": str(rows["category"].iloc[0]),
+            "assembly": Path(str(source)).stem,
+            "part_ids": {int(i): str(p) for i, p in zip(rows["solid_index"], rows["part_id"],
+                                                         strict=True)},
+        })
+    return items
 
 
 def _ingest_config(settings: Settings, voxel_sizes: list[int] | None) -> IngestConfig:
