@@ -1,15 +1,6 @@
-"""Which parts touch, and the joint a CAD user would set between two parts from their mates.
+"""The joint a CAD user would set between two parts, from their face mates.
 
-Contact (``contact_proxy``, ``in_contact``): is the exact B-rep distance between two solids at
-most a tolerance? Exact face-to-face distances (BRepExtrema) are costly on freeform faces and
-large housings (tens of seconds for one pair of the PM4 pump), so a cheap certificate rules
-pairs out first: a coarse mesh of a copy of each part (chordal deflection ``MESH_DEFLECTION_MM``)
-is sampled every ``SAMPLE_SPACING_MM`` and the samples' nearest distance, less the sampling and
-mesh slack, is a lower bound on the true distance. Face pairs it cannot rule out are measured
-exactly, the likeliest first, stopping at the first hit; the answer is the exact test's, so it
-does not change when the assembly moves.
-
-Joints: each face mate is read as a bilateral kinematic constraint, as CAD mates are (a
+Each face mate is read as a bilateral kinematic constraint, as CAD mates are (a
 coincident mate keeps two faces together in both directions, so a part resting on a plate is
 "planar", not "free upwards"). The relative motion of part b with respect to part a is a twist
 (w, v): angular velocity w and the velocity v of a reference point c. A constraint allows only the
@@ -18,7 +9,7 @@ twists that keep it satisfied:
 - coincident planes, outward normal n, contact point p: w parallel to n (no tilting) and no
   velocity of p along n (no lift-off): 3 linear equations;
 - a fit, a shaft in a bore (concentric faces, one convex inside one concave, radial clearance at
-  most ``MateConfig.fit_clearance_mm``) on the axis line (d, p): w parallel to d and the
+  most ``Tolerances.fit_clearance_mm``) on the axis line (d, p): w parallel to d and the
   velocity of p parallel to d: 4 equations. Two coaxial holes ("aligned") or a shaft far inside a
   bore ("nested") constrain nothing and are not used.
 
@@ -55,20 +46,7 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
-from OCP.Bnd import Bnd_Box
-from OCP.BRep import BRep_Tool
-from OCP.BRepBndLib import BRepBndLib
-from OCP.BRepBuilderAPI import BRepBuilderAPI_Copy
-from OCP.BRepClass3d import BRepClass3d_SolidClassifier
-from OCP.BRepExtrema import BRepExtrema_DistShapeShape
-from OCP.BRepMesh import BRepMesh_IncrementalMesh
-from OCP.TopAbs import TopAbs_IN, TopAbs_VERTEX
-from OCP.TopExp import TopExp_Explorer
-from OCP.TopLoc import TopLoc_Location
-from OCP.TopoDS import TopoDS, TopoDS_Face, TopoDS_Shape
-from scipy.spatial import cKDTree
 
-from cadio.faces import indexed_faces
 from cadio.records import FloatArray, canonical_direction
 from cadio.tolerances import DEFAULT_TOLERANCES, Tolerances
 
@@ -84,12 +62,6 @@ CAD_NAMES: dict[str, dict[str, str]] = {
     CYLINDRICAL: {"onshape": "Cylindrical", "freecad": "Cylindrical", "fusion360": "Cylindrical"},
     PLANAR: {"onshape": "Planar", "freecad": "Planar", "fusion360": "Planar"},
 }
-# Contact certificate: a coarse mesh (chordal deflection mm, or the part's size / MESH_RELATIVE
-# if larger) cut into triangles no longer than the spacing (mm, or size / SAMPLE_RELATIVE); their
-# centroids are the samples: every point of such a triangle is within 2/3 spacing of one.
-# BRepMesh keeps the deviation near the deflection, not strictly under it: MESH_SAFETY doubles it.
-MESH_DEFLECTION_MM, MESH_RELATIVE, MESH_SAFETY = 0.2, 1000.0, 2.0
-SAMPLE_SPACING_MM, SAMPLE_RELATIVE = 1.5, 100.0
 # Names of parts that CAD users fasten whatever the geometry allows (threads are not modelled).
 FASTENER_NAME = re.compile(r"bolt|screw|nut|washer|rivet|stud", re.IGNORECASE)
 
@@ -243,130 +215,3 @@ def _axis_point(w: FloatArray, v: FloatArray, centre: FloatArray, scale: float) 
     """Point of the instantaneous rotation axis closest to ``centre``, mm."""
     return centre + scale * np.cross(w, v) / float(np.dot(w, w))
 
-
-# ---------------------------------------------------------------- contact
-
-
-@dataclass(frozen=True)
-class ContactProxy:
-    """What the contact test needs of one solid (assembly frame, mm).
-
-    faces: in ``indexed_faces`` order; boxes: (k, 6) their axis-aligned boxes (lo, hi);
-    cheap: (k,) bool, faces whose exact distances are quick (planes); samples: per face, points
-    (n, 3) on a coarse mesh of it (None when the mesher skipped the face); slack: mm, the most
-    a point of the part's surface can be away from its nearest sample.
-    """
-
-    shape: TopoDS_Shape
-    faces: list[TopoDS_Face]
-    boxes: FloatArray
-    cheap: np.ndarray
-    samples: list[FloatArray | None]
-    slack: float
-
-
-def contact_proxy(shape: TopoDS_Shape, cheap_ids: Sequence[int] = ()) -> ContactProxy:
-    """Face boxes and mesh samples of a solid; the solid itself is not modified (a copy is meshed).
-
-    Args:
-        shape: a solid in the assembly frame, mm.
-        cheap_ids: ids of faces whose exact distances are quick to compute (planar faces).
-    """
-    faces = indexed_faces(shape)
-    boxes = np.empty((len(faces), 6))
-    for k, face in enumerate(faces):
-        box = Bnd_Box()
-        BRepBndLib.Add_s(face, box, False)
-        boxes[k] = box.Get()
-    size = float(np.linalg.norm(boxes[:, 3:].max(axis=0) - boxes[:, :3].min(axis=0)))
-    deflection = max(MESH_DEFLECTION_MM, size / MESH_RELATIVE)
-    spacing = max(SAMPLE_SPACING_MM, size / SAMPLE_RELATIVE)
-    copy = BRepBuilderAPI_Copy(shape, False, False).Shape()
-    BRepMesh_IncrementalMesh(copy, deflection, False, 0.5, False)
-    samples: list[FloatArray | None] = []
-    for face in indexed_faces(copy):
-        corners = _triangles(face)
-        samples.append(None if corners is None else _bisect(corners, spacing).mean(axis=1))
-    cheap = np.isin(np.arange(len(faces)), list(cheap_ids))
-    slack = 2.0 * spacing / 3.0 + MESH_SAFETY * deflection
-    return ContactProxy(shape, faces, boxes, cheap, samples, slack)
-
-
-def in_contact(a: ContactProxy, b: ContactProxy, tol_mm: float) -> bool:
-    """True when the exact distance between the two solids is at most ``tol_mm``.
-
-    Candidate face pairs have boxes within reach; the mesh samples give each a lower bound on
-    its distance, and those that may be within ``tol_mm`` are measured exactly (planar pairs
-    first, then by the bound), stopping at the first hit. Solids whose boundaries stay apart
-    touch only when one holds the other.
-    """
-    gap = np.maximum(b.boxes[None, :, :3] - a.boxes[:, None, 3:],
-                     a.boxes[:, None, :3] - b.boxes[None, :, 3:])
-    box_dist = np.linalg.norm(np.clip(gap, 0.0, None), axis=2)
-    bound: dict[tuple[int, int], float] = {}
-    trees: dict[int, cKDTree] = {}
-    slack = a.slack + b.slack
-    for i, j in zip(*np.nonzero(box_dist <= tol_mm), strict=True):
-        sa, sb = a.samples[i], b.samples[j]
-        if sa is None or sb is None:
-            bound[(int(i), int(j))] = 0.0
-            continue
-        if j not in trees:
-            trees[j] = cKDTree(sb)
-        tree = trees[j]
-        nearest, _ = tree.query(sa, k=1, distance_upper_bound=tol_mm + slack)
-        if np.isfinite(nearest).any():
-            bound[(int(i), int(j))] = float(nearest.min()) - slack
-    ranked = sorted(bound, key=lambda ij: (not (a.cheap[ij[0]] and b.cheap[ij[1]]), bound[ij]))
-    return (faces_within(a.faces, b.faces, ranked, tol_mm)
-            or _holds(a.shape, b.shape) or _holds(b.shape, a.shape))
-
-
-def faces_within(faces_a: Sequence[TopoDS_Face], faces_b: Sequence[TopoDS_Face],
-                 pairs: Sequence[tuple[int, int]], tol_mm: float) -> bool:
-    """True when some listed face pair (ids) is within ``tol_mm`` (exact, in list order)."""
-    for i, j in pairs:
-        dist = BRepExtrema_DistShapeShape(faces_a[i], faces_b[j])
-        if dist.IsDone() and dist.Value() <= tol_mm * (1.0 + 1e-9):
-            return True
-    return False
-
-
-def _triangles(face: TopoDS_Face) -> FloatArray | None:
-    """(m, 3, 3) corners of the face's mesh triangles in the shape's frame, or None."""
-    loc = TopLoc_Location()
-    tri = BRep_Tool.Triangulation_s(face, loc)
-    if tri is None or tri.NbTriangles() == 0:
-        return None
-    trsf = loc.Transformation()
-    nodes = np.array([tri.Node(i).Transformed(trsf).Coord()
-                      for i in range(1, tri.NbNodes() + 1)])
-    index = np.array([tri.Triangle(i).Get() for i in range(1, tri.NbTriangles() + 1)]) - 1
-    corners: FloatArray = nodes[index]
-    return corners
-
-
-def _bisect(tri: FloatArray, spacing: float) -> FloatArray:
-    """Split triangles (m, 3, 3) at the middle of their longest edge until no edge > spacing."""
-    done = []
-    while len(tri):
-        length = np.linalg.norm(tri - np.roll(tri, -1, axis=1), axis=2)  # edge k: corner k, k+1
-        short = length.max(axis=1) <= spacing
-        done.append(tri[short])
-        tri, length = tri[~short], length[~short]
-        k = length.argmax(axis=1)
-        turn = (k[:, None] + np.arange(3)) % 3  # longest edge first: corners 0-1
-        tri = np.take_along_axis(tri, turn[:, :, None], axis=1)
-        mid = 0.5 * (tri[:, 0] + tri[:, 1])
-        tri = np.concatenate([np.stack([tri[:, 0], mid, tri[:, 2]], axis=1),
-                              np.stack([mid, tri[:, 1], tri[:, 2]], axis=1)])
-    return np.concatenate(done) if done else np.empty((0, 3, 3))
-
-
-def _holds(outer: TopoDS_Shape, inner: TopoDS_Shape) -> bool:
-    """True when a vertex of ``inner`` lies inside the solid ``outer``."""
-    explorer = TopExp_Explorer(inner, TopAbs_VERTEX)
-    if not explorer.More():
-        return False
-    point = BRep_Tool.Pnt_s(TopoDS.Vertex_s(explorer.Current()))
-    return bool(BRepClass3d_SolidClassifier(outer, point, 1e-7).State() == TopAbs_IN)

@@ -7,69 +7,54 @@ MATE, RELATION OR JOINT (``COLUMNS``, schema in ``write_mates``), for index_a < 
 - level "face": ``concentric`` between coaxial cylindrical/conical faces (axes within
   ``coaxial_deg``, lines within ``coaxial_mm``, overlapping along the axis or abutting within
   ``contact_mm``, any radii; ``fit`` says "fit" for a shaft in a bore with at most
-  ``MateConfig.fit_clearance_mm`` of radial clearance, "nested" for a larger gap, "aligned" for
-  two holes or two shafts), and ``coincident`` between planar faces with opposite outward normals
-  (within ``mate_angle_deg``), planes within ``contact_mm`` and an overlap of positive area (a
-  Boolean common of the two faces laid on one plane: touching along an edge is no mate). Pairs in
-  contact also get ``parallel``/``perpendicular`` rows for their largest principal faces.
+  ``fit_clearance_mm`` of radial clearance, "nested" for a larger gap, "aligned" for two holes or
+  two shafts), and ``coincident`` between planar faces with opposite outward normals (within
+  ``mate_angle_deg``), planes within ``contact_mm`` and an overlap of more than
+  ``min_overlap_mm2`` (a Boolean common of the two faces laid on one plane: touching along an edge
+  is no mate). Pairs in contact also get ``parallel``/``perpendicular`` rows for their largest
+  principal faces.
 - level "part": the ten relations of ``cadio.relations.relate`` (view axis +Y for CAD).
 - level "joint": the joint a CAD user would set, derived from the pair's coincident contacts and
   fits (``cadio.joints``): ``relation`` is the suggested joint, ``kinematic`` the pure
   degree-of-freedom one, with Onshape / FreeCAD / Fusion 360 names.
 
-Pruning cannot change under a rigid motion of the whole assembly. Coincident mates need contact:
-axis-aligned boxes enlarged by twice ``contact_mm`` skip only pairs that cannot touch (a box
-bounds its solid in any frame), and the mate test itself is exact. The pairs "in contact" are
-those whose exact B-rep distance is at most ``contact_mm`` (``cadio.joints.in_contact``). Concentric
-mates do not need contact (a bolt in a clearance hole, the two rings of a ball bearing): they are
-found by matching the axis lines of all parts, a test on lines that is invariant by construction.
+Pruning (``cadio.contact``) cannot change under a rigid motion of the whole assembly. Coincident
+mates need contact: boxes enlarged by twice ``contact_mm`` skip only pairs that cannot touch, and
+the mate test itself is exact; pairs "in contact" are within ``contact_mm`` (exact B-rep
+distance). Concentric mates do not need contact (a bolt in a clearance hole, the two rings of a
+ball bearing): they are found by matching the axis lines of all parts, a test on lines that is
+invariant by construction.
 """
 
 from __future__ import annotations
 
-import logging
 import math
 import time
 from collections.abc import Mapping, Sequence
-from dataclasses import asdict, dataclass, field
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 import pandas as pd
-from OCP.Bnd import Bnd_Box
-from OCP.BRep import BRep_Tool
-from OCP.BRepAdaptor import BRepAdaptor_Curve
-from OCP.BRepAlgoAPI import BRepAlgoAPI_Common
-from OCP.BRepBndLib import BRepBndLib
-from OCP.BRepGProp import BRepGProp, BRepGProp_Face
-from OCP.BRepTools import BRepTools
-from OCP.gp import gp_Ax1, gp_Dir, gp_Pnt, gp_Trsf, gp_Vec
-from OCP.GProp import GProp_GProps
-from OCP.TopAbs import TopAbs_EDGE
-from OCP.TopExp import TopExp_Explorer
-from OCP.TopLoc import TopLoc_Location
-from OCP.TopoDS import TopoDS, TopoDS_Face, TopoDS_Shape
 
-from cadio.faces import CONE, indexed_faces
-from cadio.features import extract_features
-from cadio.joints import (
-    AXIS,
-    Constraint,
-    ContactProxy,
-    contact_proxy,
-    derive_joint,
-    faces_within,
-    in_contact,
+from cadio.contact import (
+    SLACK,
+    AxisFace,
+    AxisLine,
+    PartGeometry,
+    box_pairs,
+    contact_pairs,
+    describe_part,
+    face_overlap,
 )
+from cadio.joints import AXIS, Constraint, derive_joint
 from cadio.joints import PLANE as PLANE_CONTACT
-from cadio.records import DIRECTIONAL, AxisGroup, Features, FloatArray, Relation
+from cadio.records import DIRECTIONAL, Features, Relation
 from cadio.relations import CAD_VIEW_AXIS, RelationResult, relate
 from cadio.step import StepSolid, read_step
 from cadio.tolerances import DEFAULT_TOLERANCES, Tolerances
 from cadio.workspace import atomic_path
-
-log = logging.getLogger(__name__)
 
 COLUMNS = (
     "assembly", "part_a", "part_b", "index_a", "index_b", "name_a", "name_b", "path_a", "path_b",
@@ -80,20 +65,6 @@ COLUMNS = (
 LEVELS = ("face", "part", "joint")
 Row = dict[str, Any]  # one table row, keys ``COLUMNS``
 FIT, NESTED, ALIGNED = "fit", "nested", "aligned"
-_SAMPLES_PER_EDGE = 9
-_SLACK = 1e-9  # values computed exactly at a tolerance stay inside despite rounding
-
-
-@dataclass(frozen=True)
-class MateConfig:
-    """Knobs of mate extraction beyond the shared tolerances (mm, mm^2)."""
-
-    # A shaft inside a coaxial bore is a "fit" (a kinematic constraint, used for joints) when the
-    # radial clearance is at most this; ISO 273 coarse clearance holes up to M24 are within 2 mm.
-    fit_clearance_mm: float = 2.0
-    # Coincident faces must overlap by more than this: a Boolean of faces sharing only an edge
-    # can leave slivers of rounding size.
-    min_overlap_mm2: float = 1e-6
 
 
 @dataclass(frozen=True)
@@ -101,7 +72,7 @@ class MatesResult:
     """Mates of one assembly.
 
     table: one row per mate, relation or joint, columns ``COLUMNS``; ``table.attrs`` holds the
-    tolerances, config and view axis. n_pairs: all unordered pairs of parts; n_box_pairs: pairs
+    tolerances and view axis. n_pairs: all unordered pairs of parts; n_box_pairs: pairs
     passing the box filter; n_contact_pairs: pairs within ``contact_mm`` (exact distance).
     seconds: wall time per phase: features, prune (boxes and exact contact), face_mates,
     relations, joints; read when the result came from a file.
@@ -119,47 +90,6 @@ class MatesResult:
         return self.table[self.table["level"] == level].reset_index(drop=True)
 
 
-@dataclass(frozen=True)
-class _AxisFace:
-    """A cylindrical or conical face: radius mm (cone: mean over its boundary), convex (a shaft
-    or boss, not a hole), ends (2, 3) mm: its axis points at the lowest and highest axial end."""
-
-    face_id: int
-    radius: float
-    convex: bool
-    ends: FloatArray
-
-
-@dataclass(frozen=True)
-class _Line:
-    """Coaxial faces of one part: unit direction, mid point and ends (2, 3) of their extent, mm."""
-
-    direction: FloatArray
-    mid: FloatArray
-    ends: FloatArray
-    faces: tuple[_AxisFace, ...]
-
-
-@dataclass(frozen=True)
-class _Part:
-    """A part and what the mates need: planar faces (ids, outward normals (k, 3), area centroids
-    (k, 3) mm, reach (k,) mm = largest distance from the centroid to the boundary) and axis lines.
-    """
-
-    index: int
-    part_id: str
-    name: str
-    path: str
-    shape: TopoDS_Shape
-    features: Features
-    faces: list[TopoDS_Face]
-    plane_ids: list[int]
-    normals: FloatArray
-    centres: FloatArray
-    reach: FloatArray
-    lines: tuple[_Line, ...]
-
-
 def extract_mates(
     solids: Sequence[StepSolid],
     tol: Tolerances = DEFAULT_TOLERANCES,
@@ -167,17 +97,16 @@ def extract_mates(
     *,
     assembly: str = "",
     part_ids: Mapping[int, str] | None = None,
-    config: MateConfig = MateConfig(),
 ) -> MatesResult:
     """Face-level mates, part-level relations and joints of every pair of parts.
 
     Args:
         solids: the assembly's solids, in the assembly frame (mm), as ``read_step`` returns them.
-        tol: the tolerances (mate angle, contact, coaxial, parallel, freeform fit).
+        tol: the tolerances (mate angle, contact, coaxial, parallel, freeform fit, fit
+            clearance, smallest overlap area).
         view_axis: (3,) the observer's forward direction for left/right/front/behind (+Y for CAD).
         assembly: the assembly name written in every row.
         part_ids: solid index -> part id (default: the index as text).
-        config: knobs beyond the tolerances (fit clearance, smallest overlap area).
 
     Returns:
         A ``MatesResult``: the table (no file is touched), pair counts and seconds per phase.
@@ -187,15 +116,15 @@ def extract_mates(
     """
     clock = _Clock()
     ids = part_ids or {}
-    parts = [_describe_part(s, k, ids.get(s.info.index, str(s.info.index)), tol)
+    parts = [describe_part(s, k, ids.get(s.info.index, str(s.info.index)), tol)
              for k, s in enumerate(solids)]
     clock.lap("features")
-    boxed = _box_pairs(parts, 2.0 * tol.contact_mm)
+    boxed = box_pairs(parts, 2.0 * tol.contact_mm)
     clock.lap("prune")
-    rows = _concentric_rows(parts, tol, config)
-    rows += [r for i, j in boxed for r in _coincident_rows(parts[i], parts[j], tol, config)]
+    rows = _concentric_rows(parts, tol)
+    rows += [r for i, j in boxed for r in _coincident_rows(parts[i], parts[j], tol)]
     clock.lap("face_mates")
-    contact = _contact_pairs(parts, boxed, rows, tol.contact_mm)  # uses the mates as hints
+    contact = contact_pairs(parts, boxed, *_contact_hints(rows, tol.contact_mm), tol.contact_mm)
     clock.lap("prune")
     relations = {(i, j): relate(parts[i].features, parts[j].features, view_axis, tol)
                  for i in range(len(parts)) for j in range(i + 1, len(parts))}
@@ -206,8 +135,7 @@ def extract_mates(
     rows += _joint_rows(parts, rows, tol)
     clock.lap("joints")
     table = _table(rows, assembly)
-    table.attrs = {"tolerances": tol.as_dict(), "mate_config": asdict(config),
-                   "view_axis": [float(v) for v in view_axis]}
+    table.attrs = {"tolerances": tol.as_dict(), "view_axis": [float(v) for v in view_axis]}
     n = len(parts)
     return MatesResult(table, n, n * (n - 1) // 2, len(boxed), len(contact), clock.seconds)
 
@@ -218,7 +146,6 @@ def read_assembly_mates(
     view_axis: Sequence[float] = CAD_VIEW_AXIS,
     *,
     part_ids: Mapping[int, str] | None = None,
-    config: MateConfig = MateConfig(),
 ) -> MatesResult:
     """Read a STEP assembly and extract its mates; the assembly is named after the file stem.
 
@@ -228,8 +155,7 @@ def read_assembly_mates(
     start = time.perf_counter()
     solids = read_step(Path(path))
     read_s = time.perf_counter() - start
-    result = extract_mates(solids, tol, view_axis, assembly=Path(path).stem,
-                           part_ids=part_ids, config=config)
+    result = extract_mates(solids, tol, view_axis, assembly=Path(path).stem, part_ids=part_ids)
     result.seconds["read"] = read_s
     return result
 
@@ -243,7 +169,7 @@ def write_mates(path: Path | str, table: pd.DataFrame) -> None:
     (face ids, -1 when none), axis, origin (3 floats, assembly frame, or None), distance_mm,
     angle_deg, overlap_area_mm2, radial_gap_mm (NaN when not applicable), fit ("fit", "nested",
     "aligned" for concentric), kinematic, dof (-1 when none), onshape, freecad, fusion360 (joint
-    names), evidence (text). ``table.attrs`` (tolerances, config, view axis) go in the metadata.
+    names), evidence (text). ``table.attrs`` (tolerances, view axis) go in the metadata.
     """
     with atomic_path(Path(path)) as tmp:
         table.to_parquet(tmp, index=False)
@@ -254,160 +180,22 @@ def read_mates(path: Path | str) -> pd.DataFrame:
     return pd.read_parquet(Path(path))
 
 
-# ---------------------------------------------------------------- per-part geometry
-
-
-def _describe_part(solid: StepSolid, index: int, part_id: str, tol: Tolerances) -> _Part:
-    """Features, planar faces and axis lines of one solid (assembly frame)."""
-    shape = solid.shape
-    faces = indexed_faces(shape)
-    features = extract_features(shape, tol)
-    ids, normals, centres, reach = [], [], [], []
-    for g in features.planes:
-        for fid, offset, outward in zip(g.face_ids, g.offsets, g.outward, strict=True):
-            pts = _boundary(faces[fid])
-            centre = pts.mean(axis=0) if len(pts) else g.normal * offset
-            centre = centre - (float(np.dot(g.normal, centre)) - offset) * g.normal
-            ids.append(fid)
-            normals.append(outward * g.normal)
-            centres.append(centre)
-            reach.append(float(np.max(np.linalg.norm(pts - centre, axis=1))) if len(pts) else 0.0)
-    return _Part(
-        index=index, part_id=part_id, name=solid.info.name, path=solid.info.path_in_assembly,
-        shape=shape, features=features, faces=faces, plane_ids=ids,
-        normals=np.array(normals).reshape(-1, 3), centres=np.array(centres).reshape(-1, 3),
-        reach=np.array(reach, dtype=np.float64), lines=_axis_lines(features.axes, faces, tol),
-    )
-
-
-def _boundary(face: TopoDS_Face) -> FloatArray:
-    """Points sampled along the face's edges (m, 3), mm (degenerate edges skipped)."""
-    points = []
-    explorer = TopExp_Explorer(face, TopAbs_EDGE)
-    while explorer.More():
-        edge = TopoDS.Edge_s(explorer.Current())
-        explorer.Next()
-        if BRep_Tool.Degenerated_s(edge):
-            continue
-        curve = BRepAdaptor_Curve(edge)
-        for u in np.linspace(curve.FirstParameter(), curve.LastParameter(), _SAMPLES_PER_EDGE):
-            p = curve.Value(float(u))
-            points.append((p.X(), p.Y(), p.Z()))
-    return np.array(points, dtype=np.float64).reshape(-1, 3)
-
-
-def _axis_face(face_id: int, face: TopoDS_Face, kind: str, radius: float, d: FloatArray,
-               point: FloatArray) -> _AxisFace:
-    """One face on the axis line (d unit, point): its axial ends, radius and convexity."""
-    pts = _boundary(face)
-    rel = pts - point
-    t = rel @ d
-    if kind == CONE and len(pts):  # the cone's reference radius may be anywhere on its axis
-        radius = float(np.linalg.norm(rel - np.outer(t, d), axis=1).mean())
-    ends = point + np.outer([t.min(), t.max()] if len(t) else [0.0, 0.0], d)
-    return _AxisFace(face_id, float(radius), _is_convex(face, point, d), ends)
-
-
-def _is_convex(face: TopoDS_Face, point: FloatArray, d: FloatArray) -> bool:
-    """True when the face's outward normal points away from its axis (a shaft, not a hole)."""
-    gprop = BRepGProp_Face(face)
-    umin, umax, vmin, vmax = BRepTools.UVBounds_s(face)
-    best = 0.0
-    for fu, fv in ((0.5, 0.5), (0.25, 0.25), (0.75, 0.75), (0.25, 0.75), (0.75, 0.25)):
-        p, n = gp_Pnt(), gp_Vec()
-        gprop.Normal(umin + fu * (umax - umin), vmin + fv * (vmax - vmin), p, n)
-        rel = np.array([p.X(), p.Y(), p.Z()]) - point
-        radial = rel - np.dot(rel, d) * d
-        value = float(np.dot(radial, [n.X(), n.Y(), n.Z()]))
-        if abs(value) > abs(best):
-            best = value
-    return best > 0.0
-
-
-def _axis_lines(groups: Sequence[AxisGroup], faces: list[TopoDS_Face],
-                tol: Tolerances) -> tuple[_Line, ...]:
-    """Merge the part's cylinder and cone axis groups that share a line (greedy, in order)."""
-    clusters: list[list[AxisGroup]] = []
-    for g in groups:
-        for c in clusters:
-            if _coaxial(c[0].direction, c[0].point, g.direction, g.point, tol):
-                c.append(g)
-                break
-        else:
-            clusters.append([g])
-    lines = []
-    for members in clusters:
-        d, base = members[0].direction, members[0].point
-        axis_faces = tuple(
-            _axis_face(fid, faces[fid], g.kind, r, d, base)
-            for g in members for fid, r in zip(g.face_ids, g.radii, strict=True))
-        t = np.concatenate([f.ends @ d for f in axis_faces])
-        ends = base + np.outer([t.min(), t.max()], d)
-        lines.append(_Line(d, ends.mean(axis=0), ends, axis_faces))
-    return tuple(lines)
-
-
-def _coaxial(da: FloatArray, pa: FloatArray, db: FloatArray, pb: FloatArray,
-             tol: Tolerances) -> bool:
-    angle = math.degrees(math.atan2(np.linalg.norm(np.cross(da, db)), abs(np.dot(da, db))))
-    gap = _line_gap(pa, da, pb, db)
-    return angle <= tol.coaxial_deg + _SLACK and gap <= tol.coaxial_mm + _SLACK
-
-
-def _line_gap(pa: FloatArray, da: FloatArray, pb: FloatArray, db: FloatArray) -> float:
-    """Largest distance of either point from the other's axis line (unit directions), mm."""
-    def off(p: FloatArray, q: FloatArray, d: FloatArray) -> float:
-        r = p - q
-        return float(np.linalg.norm(r - np.dot(r, d) * d))
-
-    return max(off(pa, pb, db), off(pb, pa, da))
-
-
-# ---------------------------------------------------------------- pruning
-
-
-def _box_pairs(parts: list[_Part], margin: float) -> list[tuple[int, int]]:
-    """Pairs (i < j) whose bounding boxes, enlarged by ``margin`` mm, overlap."""
-    if len(parts) < 2:
-        return []
-    lo, hi = np.empty((len(parts), 3)), np.empty((len(parts), 3))
-    for k, part in enumerate(parts):
-        box = Bnd_Box()
-        BRepBndLib.Add_s(part.shape, box, False)  # from the geometry, enlarged by its tolerance
-        lo[k], hi[k] = box.Get()[:3], box.Get()[3:]
-    hit = np.all((lo[:, None, :] <= hi[None, :, :] + margin)
-                 & (lo[None, :, :] <= hi[:, None, :] + margin), axis=2)
-    i, j = np.nonzero(np.triu(hit, k=1))
-    return list(zip(i.tolist(), j.tolist(), strict=True))
-
-
-def _contact_pairs(parts: list[_Part], boxed: list[tuple[int, int]], rows: list[Row],
-                   tol: float) -> list[tuple[int, int]]:
-    """Pairs within ``tol`` mm (exact). A coincident mate proves contact; a concentric fit with
-    a radial gap within ``tol`` is measured on its two faces first; the rest by ``in_contact``."""
+def _contact_hints(rows: list[Row], tol: float) -> tuple[
+        set[tuple[int, int]], dict[tuple[int, int], list[tuple[int, int]]]]:
+    """The face mates as hints for ``contact_pairs``: pairs with a coincident mate (in contact),
+    and per pair the face ids of concentric fits with a radial gap within ``tol`` mm."""
     mated = {(r["index_a"], r["index_b"]) for r in rows if r["relation"] == "coincident"}
     hints: dict[tuple[int, int], list[tuple[int, int]]] = {}
     for r in rows:
         if r["relation"] == "concentric" and r["radial_gap_mm"] <= tol:
             hints.setdefault((r["index_a"], r["index_b"]), []).append((r["face_a"], r["face_b"]))
-    proxies: dict[int, ContactProxy] = {}
-
-    def touching(i: int, j: int) -> bool:
-        if (i, j) in mated or faces_within(parts[i].faces, parts[j].faces,
-                                           hints.get((i, j), []), tol):
-            return True
-        for k in (i, j):
-            if k not in proxies:
-                proxies[k] = contact_proxy(parts[k].shape, parts[k].plane_ids)
-        return in_contact(proxies[i], proxies[j], tol)
-
-    return [(i, j) for i, j in boxed if touching(i, j)]
+    return mated, hints
 
 
 # ---------------------------------------------------------------- concentric
 
 
-def _concentric_rows(parts: list[_Part], tol: Tolerances, cfg: MateConfig) -> list[Row]:
+def _concentric_rows(parts: list[PartGeometry], tol: Tolerances) -> list[Row]:
     """One row per pair of coaxial axis lines of two parts that overlap along the axis."""
     owner = [(p.index, k) for p in parts for k in range(len(p.lines))]
     if len(owner) < 2:
@@ -427,20 +215,20 @@ def _concentric_rows(parts: list[_Part], tol: Tolerances, cfg: MateConfig) -> li
         gap_a = np.linalg.norm(rel - (np.einsum("ij,ij->i", rel, d[b]))[:, None] * d[b], axis=1)
         ta, tb = ends[a] @ d[a], ends[b] @ d[a]  # (2,), (m, 2)
         overlap = np.minimum(ta.max(), tb.max(axis=1)) - np.maximum(ta.min(), tb.min(axis=1))
-        keep = ((part_of[b] != part_of[a]) & (angle <= tol.coaxial_deg + _SLACK)
-                & (np.maximum(gap_a, gap_b) <= tol.coaxial_mm + _SLACK)
-                & (overlap >= -tol.contact_mm - _SLACK))
+        keep = ((part_of[b] != part_of[a]) & (angle <= tol.coaxial_deg + SLACK)
+                & (np.maximum(gap_a, gap_b) <= tol.coaxial_mm + SLACK)
+                & (overlap >= -tol.contact_mm - SLACK))
         for k in np.nonzero(keep)[0]:
             pa, pb = parts[part_of[a]], parts[part_of[b[k]]]
             row = _concentric_row(pa, lines[a], pb, lines[b[k]], float(angle[k]),
-                                  float(max(gap_a[k], gap_b[k])), tol, cfg)
+                                  float(max(gap_a[k], gap_b[k])), tol)
             if row is not None:
                 rows.append(row)
     return rows
 
 
-def _concentric_row(pa: _Part, la: _Line, pb: _Part, lb: _Line, angle: float, gap: float,
-                    tol: Tolerances, cfg: MateConfig) -> Row | None:
+def _concentric_row(pa: PartGeometry, la: AxisLine, pb: PartGeometry, lb: AxisLine,
+                    angle: float, gap: float, tol: Tolerances) -> Row | None:
     """The mate of two coaxial lines, with the face pair that engages best as evidence."""
     if pa.index > pb.index:
         pa, la, pb, lb = pb, lb, pa, la
@@ -449,8 +237,8 @@ def _concentric_row(pa: _Part, la: _Line, pb: _Part, lb: _Line, angle: float, ga
         for fb in lb.faces:
             ta, tb = fa.ends @ la.direction, fb.ends @ la.direction
             lo, hi = max(ta.min(), tb.min()), min(ta.max(), tb.max())
-            if hi - lo >= -tol.contact_mm - _SLACK:
-                fit, radial = _fit(fa, fb, hi - lo, tol, cfg)
+            if hi - lo >= -tol.contact_mm - SLACK:
+                fit, radial = _fit(fa, fb, hi - lo, tol)
                 found.append(((FIT, NESTED, ALIGNED).index(fit), hi - lo, radial, fa, fb, fit,
                               0.5 * (lo + hi)))
     if not found:
@@ -471,12 +259,11 @@ def _concentric_row(pa: _Part, la: _Line, pb: _Part, lb: _Line, angle: float, ga
                 radial_gap_mm=radial, fit=fit, evidence=evidence)
 
 
-def _kind(f: _AxisFace) -> str:
+def _kind(f: AxisFace) -> str:
     return "shaft" if f.convex else "hole"
 
 
-def _fit(fa: _AxisFace, fb: _AxisFace, overlap: float, tol: Tolerances,
-         cfg: MateConfig) -> tuple[str, float]:
+def _fit(fa: AxisFace, fb: AxisFace, overlap: float, tol: Tolerances) -> tuple[str, float]:
     """("fit" | "nested" | "aligned", radial gap mm) of two coaxial faces."""
     if fa.convex == fb.convex:
         return ALIGNED, abs(fa.radius - fb.radius)
@@ -484,29 +271,29 @@ def _fit(fa: _AxisFace, fb: _AxisFace, overlap: float, tol: Tolerances,
     radial = bore.radius - shaft.radius
     if overlap <= tol.contact_mm or radial < -tol.coaxial_mm:
         return ALIGNED, abs(radial)  # abutting, or a boss beside a smaller hole
-    return (FIT if radial <= cfg.fit_clearance_mm + _SLACK else NESTED), max(radial, 0.0)
+    return (FIT if radial <= tol.fit_clearance_mm + SLACK else NESTED), max(radial, 0.0)
 
 
 # ---------------------------------------------------------------- coincident
 
 
-def _coincident_rows(a: _Part, b: _Part, tol: Tolerances, cfg: MateConfig) -> list[Row]:
+def _coincident_rows(a: PartGeometry, b: PartGeometry, tol: Tolerances) -> list[Row]:
     """Planar faces of two parts in contact: opposite normals, planes close, positive overlap."""
     if not len(a.plane_ids) or not len(b.plane_ids):
         return []
     cos = a.normals @ b.normals.T  # (ka, kb)
-    opposed = cos <= -math.cos(math.radians(tol.mate_angle_deg)) + _SLACK
+    opposed = cos <= -math.cos(math.radians(tol.mate_angle_deg)) + SLACK
     rel = b.centres[None, :, :] - a.centres[:, None, :]  # (ka, kb, 3)
     along = np.einsum("ijk,ik->ij", rel, a.normals)
     offset = np.maximum(np.abs(along), np.abs(np.einsum("ijk,jk->ij", rel, b.normals)))
     inplane = np.linalg.norm(rel - along[..., None] * a.normals[:, None, :], axis=2)
     near = inplane <= a.reach[:, None] + b.reach[None, :] + tol.contact_mm
     rows = []
-    for k, m in zip(*np.nonzero(opposed & (offset <= tol.contact_mm + _SLACK) & near),
+    for k, m in zip(*np.nonzero(opposed & (offset <= tol.contact_mm + SLACK) & near),
                     strict=True):
-        area, centre = _overlap(a.faces[a.plane_ids[k]], b.faces[b.plane_ids[m]],
+        area, centre = face_overlap(a.faces[a.plane_ids[k]], b.faces[b.plane_ids[m]],
                                 a.normals[k], a.centres[k], b.normals[m], b.centres[m])
-        if area <= cfg.min_overlap_mm2:
+        if area <= tol.min_overlap_mm2:
             continue
         angle = math.degrees(math.acos(min(1.0, -float(cos[k, m]))))
         rows.append(_row(
@@ -518,36 +305,10 @@ def _coincident_rows(a: _Part, b: _Part, tol: Tolerances, cfg: MateConfig) -> li
     return rows
 
 
-def _overlap(fa: TopoDS_Face, fb: TopoDS_Face, na: FloatArray, ca: FloatArray,
-             nb: FloatArray, cb: FloatArray) -> tuple[float, FloatArray]:
-    """(area mm^2, centroid (3,) mm) of the overlap of two nearly coplanar, opposed faces.
-
-    Face b is turned about its centroid until its normal is exactly -na and shifted onto a's
-    plane (a motion of at most ``mate_angle_deg`` and ``contact_mm``), then intersected with a.
-    """
-    axis = np.cross(nb, -na)
-    sin = float(np.linalg.norm(axis))
-    turn = gp_Trsf()
-    if sin > 1e-12:
-        turn.SetRotation(gp_Ax1(gp_Pnt(*cb), gp_Dir(*(axis / sin))),
-                         math.atan2(sin, float(np.dot(nb, -na))))
-    shift = gp_Trsf()
-    shift.SetTranslation(gp_Vec(*(-float(np.dot(cb - ca, na)) * na)))
-    moved = fb.Moved(TopLoc_Location(shift.Multiplied(turn)))
-    common = BRepAlgoAPI_Common(fa, moved)
-    if not common.IsDone():
-        log.warning("Boolean common of two planar faces failed: no overlap assumed")
-        return 0.0, ca
-    props = GProp_GProps()
-    BRepGProp.SurfaceProperties_s(common.Shape(), props)
-    c = props.CentreOfMass()
-    return float(props.Mass()), np.array([c.X(), c.Y(), c.Z()])
-
-
 # ---------------------------------------------------------------- part level
 
 
-def _part_rows(a: _Part, b: _Part, rr: RelationResult) -> list[Row]:
+def _part_rows(a: PartGeometry, b: PartGeometry, rr: RelationResult) -> list[Row]:
     """One row per relation of ``relate`` that holds for (a, b). Face ids stay -1: relate's
     choice among tied coplanar faces is not stable under a rigid motion."""
     rows = []
@@ -573,7 +334,7 @@ def _part_evidence(rel: Relation, rr: RelationResult) -> tuple[float, float, str
     return rr.centre_distance_mm, angle, f"b to a {angle:.2f} deg off the {rel.value} axis"
 
 
-def _principal_face_rows(a: _Part, b: _Part, rr: RelationResult) -> list[Row]:
+def _principal_face_rows(a: PartGeometry, b: PartGeometry, rr: RelationResult) -> list[Row]:
     """Face-level parallel / perpendicular rows for the largest principal faces of parts in
     contact (the part-level truth from ``relate``)."""
     faces = {"face_a": _largest_principal_face(a.features),
@@ -597,7 +358,7 @@ def _largest_principal_face(f: Features) -> int:
 # ---------------------------------------------------------------- joints and the table
 
 
-def _joint_rows(parts: list[_Part], rows: list[Row], tol: Tolerances) -> list[Row]:
+def _joint_rows(parts: list[PartGeometry], rows: list[Row], tol: Tolerances) -> list[Row]:
     """One joint row per pair with at least one coincident contact or concentric fit."""
     by_pair: dict[tuple[int, int], list[Constraint]] = {}
     for r in rows:
@@ -625,7 +386,7 @@ def _joint_rows(parts: list[_Part], rows: list[Row], tol: Tolerances) -> list[Ro
     return out
 
 
-def _row(a: _Part, b: _Part, level: str, relation: str, **values: Any) -> Row:
+def _row(a: PartGeometry, b: PartGeometry, level: str, relation: str, **values: Any) -> Row:
     row: dict[str, Any] = {
         "part_a": a.part_id, "part_b": b.part_id, "index_a": a.index, "index_b": b.index,
         "name_a": a.name, "name_b": b.name, "path_a": a.path, "path_b": b.path,

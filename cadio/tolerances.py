@@ -11,7 +11,7 @@ from dataclasses import asdict, dataclass
 
 @dataclass(frozen=True)
 class Tolerances:
-    """Tolerances for tessellation, face recognition and the ten spatial relations.
+    """Tolerances for tessellation, face recognition, the ten spatial relations and face mates.
 
     Lengths are millimetres, angles degrees unless the name says radians.
     """
@@ -39,6 +39,10 @@ class Tolerances:
     # Face-level mates: opposite normals within 0.5 degree, contact within 0.1 mm.
     mate_angle_deg: float = 0.5
     contact_mm: float = 0.1
+    # Radial clearance of a "fit" (shaft in bore): ISO 273 coarse holes up to M24 are within 2 mm.
+    fit_clearance_mm: float = 2.0
+    # Coincident faces overlap by more than this, mm^2: faces sharing only an edge leave slivers.
+    min_overlap_mm2: float = 1e-6
     # Groups of planar faces by normal direction: directions within this angle are one group.
     group_angle_deg: float = 0.5
 

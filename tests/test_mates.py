@@ -1,4 +1,4 @@
-"""Tests of cadio.mates and cadio.joints: face mates, joints, pruning, invariance, goldens.
+"""Tests of cadio.mates, joints and contact: face mates, joints, pruning, invariance, goldens.
 
 Synthetic assemblies (boxes, a drilled plate, a bolt) pin down each rule with hand-computed
 numbers; the real CAx-IF AS1, KCL pipe flange and KCL ball bearing are checked against

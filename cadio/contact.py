@@ -1,0 +1,398 @@
+"""Which parts touch: per-part face geometry, box pruning and the exact contact test.
+
+``describe_part`` gives what the mates need of a solid (planar faces, axis lines; assembly
+frame, mm), ``face_overlap`` the area two opposed, nearly coplanar faces have in common.
+
+Pruning cannot change under a rigid motion of the whole assembly: enlarged axis-aligned boxes
+(``box_pairs``) skip only pairs that cannot touch (a box bounds its solid in any frame), and the
+contact test (``contact_pairs``, ``in_contact``: is the B-rep distance between two solids at
+most a tolerance?) is exact. Exact face-to-face distances (BRepExtrema) are costly on freeform
+faces and large housings (tens of seconds for one pair of the PM4 pump), so a cheap certificate
+rules pairs out first: a coarse mesh of a copy of each part (chordal deflection
+``MESH_DEFLECTION_MM``) is sampled every ``SAMPLE_SPACING_MM`` and the samples' nearest
+distance, less the sampling and mesh slack, is a lower bound on the true distance. Face pairs it
+cannot rule out are measured exactly, the likeliest first, stopping at the first hit; the answer
+is the exact test's, so it does not change when the assembly moves.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+from collections.abc import Collection, Mapping, Sequence
+from dataclasses import dataclass
+
+import numpy as np
+from OCP.Bnd import Bnd_Box
+from OCP.BRep import BRep_Tool
+from OCP.BRepAdaptor import BRepAdaptor_Curve
+from OCP.BRepAlgoAPI import BRepAlgoAPI_Common
+from OCP.BRepBndLib import BRepBndLib
+from OCP.BRepBuilderAPI import BRepBuilderAPI_Copy
+from OCP.BRepClass3d import BRepClass3d_SolidClassifier
+from OCP.BRepExtrema import BRepExtrema_DistShapeShape
+from OCP.BRepGProp import BRepGProp, BRepGProp_Face
+from OCP.BRepMesh import BRepMesh_IncrementalMesh
+from OCP.BRepTools import BRepTools
+from OCP.gp import gp_Ax1, gp_Dir, gp_Pnt, gp_Trsf, gp_Vec
+from OCP.GProp import GProp_GProps
+from OCP.TopAbs import TopAbs_EDGE, TopAbs_IN, TopAbs_VERTEX
+from OCP.TopExp import TopExp_Explorer
+from OCP.TopLoc import TopLoc_Location
+from OCP.TopoDS import TopoDS, TopoDS_Face, TopoDS_Shape
+from scipy.spatial import cKDTree
+
+from cadio.faces import CONE, indexed_faces
+from cadio.features import extract_features
+from cadio.records import AxisGroup, Features, FloatArray
+from cadio.step import StepSolid
+from cadio.tolerances import Tolerances
+
+log = logging.getLogger(__name__)
+
+# Contact certificate: a coarse mesh (chordal deflection mm, or the part's size / MESH_RELATIVE
+# if larger) cut into triangles no longer than the spacing (mm, or size / SAMPLE_RELATIVE); their
+# centroids are the samples: every point of such a triangle is within 2/3 spacing of one.
+# BRepMesh keeps the deviation near the deflection, not strictly under it: MESH_SAFETY doubles it.
+MESH_DEFLECTION_MM, MESH_RELATIVE, MESH_SAFETY = 0.2, 1000.0, 2.0
+SAMPLE_SPACING_MM, SAMPLE_RELATIVE = 1.5, 100.0
+_SAMPLES_PER_EDGE = 9
+SLACK = 1e-9  # values computed exactly at a tolerance stay inside despite rounding
+
+
+# ---------------------------------------------------------------- per-part geometry
+
+
+@dataclass(frozen=True)
+class AxisFace:
+    """A cylindrical or conical face: radius mm (cone: mean over its boundary), convex (a shaft
+    or boss, not a hole), ends (2, 3) mm: its axis points at the lowest and highest axial end."""
+
+    face_id: int
+    radius: float
+    convex: bool
+    ends: FloatArray
+
+
+@dataclass(frozen=True)
+class AxisLine:
+    """Coaxial faces of one part: unit direction, mid point and ends (2, 3) of their extent, mm."""
+
+    direction: FloatArray
+    mid: FloatArray
+    ends: FloatArray
+    faces: tuple[AxisFace, ...]
+
+
+@dataclass(frozen=True)
+class PartGeometry:
+    """A part and what the mates need: planar faces (ids, outward normals (k, 3), area centroids
+    (k, 3) mm, reach (k,) mm = largest distance from centroid to boundary) and axis lines."""
+
+    index: int
+    part_id: str
+    name: str
+    path: str
+    shape: TopoDS_Shape
+    features: Features
+    faces: list[TopoDS_Face]
+    plane_ids: list[int]
+    normals: FloatArray
+    centres: FloatArray
+    reach: FloatArray
+    lines: tuple[AxisLine, ...]
+
+
+def describe_part(solid: StepSolid, index: int, part_id: str, tol: Tolerances) -> PartGeometry:
+    """Features, planar faces and axis lines of one solid (assembly frame)."""
+    shape = solid.shape
+    faces = indexed_faces(shape)
+    features = extract_features(shape, tol)
+    ids, normals, centres, reach = [], [], [], []
+    for g in features.planes:
+        for fid, offset, outward in zip(g.face_ids, g.offsets, g.outward, strict=True):
+            pts = _boundary(faces[fid])
+            centre = pts.mean(axis=0) if len(pts) else g.normal * offset
+            centre = centre - (float(np.dot(g.normal, centre)) - offset) * g.normal
+            ids.append(fid)
+            normals.append(outward * g.normal)
+            centres.append(centre)
+            reach.append(float(np.max(np.linalg.norm(pts - centre, axis=1))) if len(pts) else 0.0)
+    return PartGeometry(
+        index=index, part_id=part_id, name=solid.info.name, path=solid.info.path_in_assembly,
+        shape=shape, features=features, faces=faces, plane_ids=ids,
+        normals=np.array(normals).reshape(-1, 3), centres=np.array(centres).reshape(-1, 3),
+        reach=np.array(reach, dtype=np.float64), lines=_axis_lines(features.axes, faces, tol),
+    )
+
+
+def _boundary(face: TopoDS_Face) -> FloatArray:
+    """Points sampled along the face's edges (m, 3), mm (degenerate edges skipped)."""
+    points = []
+    explorer = TopExp_Explorer(face, TopAbs_EDGE)
+    while explorer.More():
+        edge = TopoDS.Edge_s(explorer.Current())
+        explorer.Next()
+        if BRep_Tool.Degenerated_s(edge):
+            continue
+        curve = BRepAdaptor_Curve(edge)
+        for u in np.linspace(curve.FirstParameter(), curve.LastParameter(), _SAMPLES_PER_EDGE):
+            p = curve.Value(float(u))
+            points.append((p.X(), p.Y(), p.Z()))
+    return np.array(points, dtype=np.float64).reshape(-1, 3)
+
+
+def _axis_face(face_id: int, face: TopoDS_Face, kind: str, radius: float, d: FloatArray,
+               point: FloatArray) -> AxisFace:
+    """One face on the axis line (d unit, point): its axial ends, radius and convexity."""
+    pts = _boundary(face)
+    rel = pts - point
+    t = rel @ d
+    if kind == CONE and len(pts):  # the cone's reference radius may be anywhere on its axis
+        radius = float(np.linalg.norm(rel - np.outer(t, d), axis=1).mean())
+    ends = point + np.outer([t.min(), t.max()] if len(t) else [0.0, 0.0], d)
+    return AxisFace(face_id, float(radius), _is_convex(face, point, d), ends)
+
+
+def _is_convex(face: TopoDS_Face, point: FloatArray, d: FloatArray) -> bool:
+    """True when the face's outward normal points away from its axis (a shaft, not a hole)."""
+    gprop = BRepGProp_Face(face)
+    umin, umax, vmin, vmax = BRepTools.UVBounds_s(face)
+    best = 0.0
+    for fu, fv in ((0.5, 0.5), (0.25, 0.25), (0.75, 0.75), (0.25, 0.75), (0.75, 0.25)):
+        p, n = gp_Pnt(), gp_Vec()
+        gprop.Normal(umin + fu * (umax - umin), vmin + fv * (vmax - vmin), p, n)
+        rel = np.array([p.X(), p.Y(), p.Z()]) - point
+        radial = rel - np.dot(rel, d) * d
+        value = float(np.dot(radial, [n.X(), n.Y(), n.Z()]))
+        if abs(value) > abs(best):
+            best = value
+    return best > 0.0
+
+
+def _axis_lines(groups: Sequence[AxisGroup], faces: list[TopoDS_Face],
+                tol: Tolerances) -> tuple[AxisLine, ...]:
+    """Merge the part's cylinder and cone axis groups that share a line (greedy, in order)."""
+    clusters: list[list[AxisGroup]] = []
+    for g in groups:
+        for c in clusters:
+            if _coaxial(c[0].direction, c[0].point, g.direction, g.point, tol):
+                c.append(g)
+                break
+        else:
+            clusters.append([g])
+    lines = []
+    for members in clusters:
+        d, base = members[0].direction, members[0].point
+        axis_faces = tuple(
+            _axis_face(fid, faces[fid], g.kind, r, d, base)
+            for g in members for fid, r in zip(g.face_ids, g.radii, strict=True))
+        t = np.concatenate([f.ends @ d for f in axis_faces])
+        ends = base + np.outer([t.min(), t.max()], d)
+        lines.append(AxisLine(d, ends.mean(axis=0), ends, axis_faces))
+    return tuple(lines)
+
+
+def _coaxial(da: FloatArray, pa: FloatArray, db: FloatArray, pb: FloatArray,
+             tol: Tolerances) -> bool:
+    angle = math.degrees(math.atan2(np.linalg.norm(np.cross(da, db)), abs(np.dot(da, db))))
+    gap = _line_gap(pa, da, pb, db)
+    return angle <= tol.coaxial_deg + SLACK and gap <= tol.coaxial_mm + SLACK
+
+
+def _line_gap(pa: FloatArray, da: FloatArray, pb: FloatArray, db: FloatArray) -> float:
+    """Largest distance of either point from the other's axis line (unit directions), mm."""
+    def off(p: FloatArray, q: FloatArray, d: FloatArray) -> float:
+        r = p - q
+        return float(np.linalg.norm(r - np.dot(r, d) * d))
+
+    return max(off(pa, pb, db), off(pb, pa, da))
+
+
+# ---------------------------------------------------------------- pruning and contact
+
+
+def box_pairs(parts: Sequence[PartGeometry], margin: float) -> list[tuple[int, int]]:
+    """Pairs (i < j) whose bounding boxes, enlarged by ``margin`` mm, overlap."""
+    if len(parts) < 2:
+        return []
+    lo, hi = np.empty((len(parts), 3)), np.empty((len(parts), 3))
+    for k, part in enumerate(parts):
+        box = Bnd_Box()
+        BRepBndLib.Add_s(part.shape, box, False)  # from the geometry, enlarged by its tolerance
+        lo[k], hi[k] = box.Get()[:3], box.Get()[3:]
+    hit = np.all((lo[:, None, :] <= hi[None, :, :] + margin)
+                 & (lo[None, :, :] <= hi[:, None, :] + margin), axis=2)
+    i, j = np.nonzero(np.triu(hit, k=1))
+    return list(zip(i.tolist(), j.tolist(), strict=True))
+
+
+def contact_pairs(parts: Sequence[PartGeometry], boxed: Sequence[tuple[int, int]],
+                  mated: Collection[tuple[int, int]],
+                  hints: Mapping[tuple[int, int], Sequence[tuple[int, int]]],
+                  tol: float) -> list[tuple[int, int]]:
+    """Pairs of ``boxed`` within ``tol`` mm (exact): those in ``mated`` (coincident mates), else
+    the face-id pairs in ``hints`` (close concentric fits) measured first, else ``in_contact``."""
+    proxies: dict[int, ContactProxy] = {}
+
+    def touching(i: int, j: int) -> bool:
+        if (i, j) in mated or faces_within(parts[i].faces, parts[j].faces,
+                                           hints.get((i, j), []), tol):
+            return True
+        for k in (i, j):
+            if k not in proxies:
+                proxies[k] = contact_proxy(parts[k].shape, parts[k].plane_ids)
+        return in_contact(proxies[i], proxies[j], tol)
+
+    return [(i, j) for i, j in boxed if touching(i, j)]
+
+
+@dataclass(frozen=True)
+class ContactProxy:
+    """What the contact test needs of one solid (assembly frame, mm).
+
+    faces: in ``indexed_faces`` order; boxes: (k, 6) their axis-aligned boxes (lo, hi);
+    cheap: (k,) bool, faces whose exact distances are quick (planes); samples: per face, points
+    (n, 3) on a coarse mesh of it (None when the mesher skipped the face); slack: mm, the most
+    a point of the part's surface can be away from its nearest sample.
+    """
+
+    shape: TopoDS_Shape
+    faces: list[TopoDS_Face]
+    boxes: FloatArray
+    cheap: np.ndarray
+    samples: list[FloatArray | None]
+    slack: float
+
+
+def contact_proxy(shape: TopoDS_Shape, cheap_ids: Sequence[int] = ()) -> ContactProxy:
+    """Face boxes and mesh samples of a solid; the solid itself is not modified (a copy is meshed).
+
+    Args:
+        shape: a solid in the assembly frame, mm.
+        cheap_ids: ids of faces whose exact distances are quick to compute (planar faces).
+    """
+    faces = indexed_faces(shape)
+    boxes = np.empty((len(faces), 6))
+    for k, face in enumerate(faces):
+        box = Bnd_Box()
+        BRepBndLib.Add_s(face, box, False)
+        boxes[k] = box.Get()
+    size = float(np.linalg.norm(boxes[:, 3:].max(axis=0) - boxes[:, :3].min(axis=0)))
+    deflection = max(MESH_DEFLECTION_MM, size / MESH_RELATIVE)
+    spacing = max(SAMPLE_SPACING_MM, size / SAMPLE_RELATIVE)
+    copy = BRepBuilderAPI_Copy(shape, False, False).Shape()
+    BRepMesh_IncrementalMesh(copy, deflection, False, 0.5, False)
+    samples: list[FloatArray | None] = []
+    for face in indexed_faces(copy):
+        corners = _triangles(face)
+        samples.append(None if corners is None else _bisect(corners, spacing).mean(axis=1))
+    cheap = np.isin(np.arange(len(faces)), list(cheap_ids))
+    slack = 2.0 * spacing / 3.0 + MESH_SAFETY * deflection
+    return ContactProxy(shape, faces, boxes, cheap, samples, slack)
+
+
+def in_contact(a: ContactProxy, b: ContactProxy, tol_mm: float) -> bool:
+    """True when the exact distance between the two solids is at most ``tol_mm``.
+
+    Candidate face pairs have boxes within reach; the mesh samples give each a lower bound on
+    its distance, and those that may be within ``tol_mm`` are measured exactly (planar pairs
+    first, then by the bound), stopping at the first hit. Solids whose boundaries stay apart
+    touch only when one holds the other.
+    """
+    gap = np.maximum(b.boxes[None, :, :3] - a.boxes[:, None, 3:],
+                     a.boxes[:, None, :3] - b.boxes[None, :, 3:])
+    box_dist = np.linalg.norm(np.clip(gap, 0.0, None), axis=2)
+    bound: dict[tuple[int, int], float] = {}
+    trees: dict[int, cKDTree] = {}
+    slack = a.slack + b.slack
+    for i, j in zip(*np.nonzero(box_dist <= tol_mm), strict=True):
+        sa, sb = a.samples[i], b.samples[j]
+        if sa is None or sb is None:
+            bound[(int(i), int(j))] = 0.0
+            continue
+        if j not in trees:
+            trees[j] = cKDTree(sb)
+        tree = trees[j]
+        nearest, _ = tree.query(sa, k=1, distance_upper_bound=tol_mm + slack)
+        if np.isfinite(nearest).any():
+            bound[(int(i), int(j))] = float(nearest.min()) - slack
+    ranked = sorted(bound, key=lambda ij: (not (a.cheap[ij[0]] and b.cheap[ij[1]]), bound[ij]))
+    return (faces_within(a.faces, b.faces, ranked, tol_mm)
+            or _holds(a.shape, b.shape) or _holds(b.shape, a.shape))
+
+
+def faces_within(faces_a: Sequence[TopoDS_Face], faces_b: Sequence[TopoDS_Face],
+                 pairs: Sequence[tuple[int, int]], tol_mm: float) -> bool:
+    """True when some listed face pair (ids) is within ``tol_mm`` (exact, in list order)."""
+    for i, j in pairs:
+        dist = BRepExtrema_DistShapeShape(faces_a[i], faces_b[j])
+        if dist.IsDone() and dist.Value() <= tol_mm * (1.0 + 1e-9):
+            return True
+    return False
+
+
+def _triangles(face: TopoDS_Face) -> FloatArray | None:
+    """(m, 3, 3) corners of the face's mesh triangles in the shape's frame, or None."""
+    loc = TopLoc_Location()
+    tri = BRep_Tool.Triangulation_s(face, loc)
+    if tri is None or tri.NbTriangles() == 0:
+        return None
+    trsf = loc.Transformation()
+    nodes = np.array([tri.Node(i).Transformed(trsf).Coord()
+                      for i in range(1, tri.NbNodes() + 1)])
+    index = np.array([tri.Triangle(i).Get() for i in range(1, tri.NbTriangles() + 1)]) - 1
+    corners: FloatArray = nodes[index]
+    return corners
+
+
+def _bisect(tri: FloatArray, spacing: float) -> FloatArray:
+    """Split triangles (m, 3, 3) at the middle of their longest edge until no edge > spacing."""
+    done = []
+    while len(tri):
+        length = np.linalg.norm(tri - np.roll(tri, -1, axis=1), axis=2)  # edge k: corner k, k+1
+        short = length.max(axis=1) <= spacing
+        done.append(tri[short])
+        tri, length = tri[~short], length[~short]
+        k = length.argmax(axis=1)
+        turn = (k[:, None] + np.arange(3)) % 3  # longest edge first: corners 0-1
+        tri = np.take_along_axis(tri, turn[:, :, None], axis=1)
+        mid = 0.5 * (tri[:, 0] + tri[:, 1])
+        tri = np.concatenate([np.stack([tri[:, 0], mid, tri[:, 2]], axis=1),
+                              np.stack([mid, tri[:, 1], tri[:, 2]], axis=1)])
+    return np.concatenate(done) if done else np.empty((0, 3, 3))
+
+
+def _holds(outer: TopoDS_Shape, inner: TopoDS_Shape) -> bool:
+    """True when a vertex of ``inner`` lies inside the solid ``outer``."""
+    explorer = TopExp_Explorer(inner, TopAbs_VERTEX)
+    if not explorer.More():
+        return False
+    point = BRep_Tool.Pnt_s(TopoDS.Vertex_s(explorer.Current()))
+    return bool(BRepClass3d_SolidClassifier(outer, point, 1e-7).State() == TopAbs_IN)
+
+
+def face_overlap(fa: TopoDS_Face, fb: TopoDS_Face, na: FloatArray, ca: FloatArray,
+                 nb: FloatArray, cb: FloatArray) -> tuple[float, FloatArray]:
+    """(area mm^2, centroid (3,) mm) of the overlap of two nearly coplanar, opposed faces.
+
+    Face b is turned about its centroid until its normal is exactly -na and shifted onto a's
+    plane (a motion of at most ``mate_angle_deg`` and ``contact_mm``), then intersected with a.
+    """
+    axis = np.cross(nb, -na)
+    sin = float(np.linalg.norm(axis))
+    turn = gp_Trsf()
+    if sin > 1e-12:
+        turn.SetRotation(gp_Ax1(gp_Pnt(*cb), gp_Dir(*(axis / sin))),
+                         math.atan2(sin, float(np.dot(nb, -na))))
+    shift = gp_Trsf()
+    shift.SetTranslation(gp_Vec(*(-float(np.dot(cb - ca, na)) * na)))
+    moved = fb.Moved(TopLoc_Location(shift.Multiplied(turn)))
+    common = BRepAlgoAPI_Common(fa, moved)
+    if not common.IsDone():
+        log.warning("Boolean common of two planar faces failed: no overlap assumed")
+        return 0.0, ca
+    props = GProp_GProps()
+    BRepGProp.SurfaceProperties_s(common.Shape(), props)
+    c = props.CentreOfMass()
+    return float(props.Mass()), np.array([c.X(), c.Y(), c.Z()])
