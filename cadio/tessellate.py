@@ -118,10 +118,12 @@ def _face_triangles(face: TopoDS_Face) -> tuple[FloatArray, IntArray] | None:
 
 
 def linear_deflection(shape: TopoDS_Shape, tol: Tolerances = DEFAULT_TOLERANCES) -> float:
-    """Chordal deviation for ``shape``: ``mesh_linear_mm``, or less for small parts.
+    """Chordal deviation for ``shape``: ``mesh_linear_mm``, less for small parts, more for huge.
 
-    A fixed 0.1 mm sag costs a 3 mm bearing ball ~6% of its volume; capping the sag at
-    ``mesh_relative`` of the bounding-box diagonal keeps small parts as faithful as large ones.
+    A fixed 0.1 mm sag costs a 3 mm bearing ball ~6% of its volume, and gives a 200 m part
+    millions of triangles. The sag is kept between ``mesh_relative_coarse`` and
+    ``mesh_relative`` of the bounding-box diagonal, so every part is meshed to a similar
+    relative accuracy; parts of ~40-200 mm get exactly ``mesh_linear_mm``.
     """
     box = Bnd_Box()
     # The box of the unplaced shape: the same part gets the same mesh wherever it is placed.
@@ -129,7 +131,8 @@ def linear_deflection(shape: TopoDS_Shape, tol: Tolerances = DEFAULT_TOLERANCES)
     if box.IsVoid():
         return tol.mesh_linear_mm
     diagonal = float(np.sqrt(box.SquareExtent()))
-    return min(tol.mesh_linear_mm, max(tol.mesh_relative * diagonal, 1e-3))
+    fine = min(tol.mesh_linear_mm, max(tol.mesh_relative * diagonal, 1e-3))
+    return max(fine, tol.mesh_relative_coarse * diagonal)
 
 
 def merge_vertices(mesh: Mesh, distance: float = MERGE_DISTANCE_MM) -> Mesh:

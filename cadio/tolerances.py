@@ -24,6 +24,9 @@ class Tolerances:
     # ...but never more than this fraction of the part's bbox diagonal: small parts (bearing
     # balls, washers) would otherwise lose several percent of their volume.
     mesh_relative: float = 0.0025
+    # ...and never less than this fraction: a 200 m part (a file in metres declared as mm) at
+    # 0.1 mm sag becomes millions of triangles and minutes of meshing for no useful accuracy.
+    mesh_relative_coarse: float = 0.0005
     # A freeform (B-spline) face is recognised as a plane, cylinder or cone when it fits within
     # 1 micrometre: real files (CAx-IF AS1) store every cylinder as a B-spline.
     freeform_fit_mm: float = 1e-3
