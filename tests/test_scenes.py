@@ -9,6 +9,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 import pytest
+from conftest import SHARED_STEP_DIR
 from test_relations import box_features, cylinder_features
 
 from cadio.records import Features, Relation
@@ -29,7 +30,7 @@ from cadio.tolerances import DEFAULT_TOLERANCES as TOL
 
 log = logging.getLogger(__name__)
 NAMES = [r.value for r in Relation]
-FASTENERS = Path("/work/shared/data/step/fasteners")
+FASTENERS = SHARED_STEP_DIR / "fasteners"
 
 
 def synthetic_parts(n: int = 30, seed: int = 0) -> list[ScenePart]:
