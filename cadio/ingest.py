@@ -21,7 +21,7 @@ from typing import Any
 import pandas as pd
 
 from cadio.catalog import empty_row, read_catalog, to_frame, write_catalog
-from cadio.errors import InputFileError
+from cadio.errors import InputFileError, WorkerError
 from cadio.sandbox import Job, Limits, run_isolated
 from cadio.step import STEP_SUFFIXES
 from cadio.tolerances import DEFAULT_TOLERANCES, Tolerances
@@ -192,7 +192,7 @@ def _payload(item: Found, sha: str, ws: Workspace, cfg: IngestConfig) -> dict[st
 def _run_jobs(jobs: Iterable[Job], cfg: IngestConfig) -> list[dict[str, Any]]:
     rows: list[dict[str, Any]] = []
     payloads = {job.key: job.payload for job in jobs}
-    for outcome in run_isolated(cfg.worker_target, payloads_jobs(payloads), cfg.limits):
+    for outcome in run_isolated(cfg.worker_target, _jobs(payloads), cfg.limits):
         if outcome.error is None:
             rows.extend(outcome.result)
             continue
@@ -203,13 +203,11 @@ def _run_jobs(jobs: Iterable[Job], cfg: IngestConfig) -> list[dict[str, Any]]:
     return rows
 
 
-def payloads_jobs(payloads: dict[str, dict[str, Any]]) -> list[Job]:
+def _jobs(payloads: dict[str, dict[str, Any]]) -> list[Job]:
     """Jobs in a stable order (by path) for reproducible logs."""
     return [Job(key, payloads[key]) for key in sorted(payloads)]
 
 
 def _failure_key(error: InputFileError, payload: dict[str, Any]) -> str:
     """Deterministic input errors are cached; time-outs and crashes are retried next run."""
-    from cadio.errors import WorkerError
-
     return "" if isinstance(error, WorkerError) else str(payload["config_key"])

@@ -100,27 +100,15 @@ def _common(p: argparse.ArgumentParser, settings: Settings) -> None:
                    help="files larger than this are skipped, MB")
 
 
-def _ingest_config(args: argparse.Namespace) -> object:
-    from dataclasses import replace
-
-    from cadio.ingest import IngestConfig
-    from cadio.sandbox import Limits
-
-    workers = args.workers or (os.cpu_count() or 1)
-    cfg = IngestConfig(
-        limits=Limits(seconds=args.timeout, memory_mb=args.memory_mb, workers=workers),
-        max_file_mb=args.max_file_mb,
-    )
-    return replace(cfg, voxel_sizes=tuple(args.voxel_sizes)) if args.voxel_sizes else cfg
-
-
 def _cmd_ingest(args: argparse.Namespace) -> int:
     from cadio.errors import InputFileError
-    from cadio.ingest import IngestConfig, ingest
+    from cadio.ingest import ingest
+    from flows.settings import ingest_config
     from reports.ingest import build_ingest_report
 
-    cfg = _ingest_config(args)
-    assert isinstance(cfg, IngestConfig)
+    settings = Settings(workers=args.workers, file_timeout_s=args.timeout,
+                        file_memory_mb=args.memory_mb, max_file_mb=args.max_file_mb)
+    cfg = ingest_config(settings, args.voxel_sizes, default_workers=os.cpu_count() or 1)
     try:
         catalog = ingest(args.library, args.workspace, cfg)
     except InputFileError as exc:

@@ -10,7 +10,6 @@ from __future__ import annotations
 
 import hashlib
 import json
-from dataclasses import replace
 from datetime import UTC, datetime
 from pathlib import Path
 from typing import Any
@@ -28,7 +27,7 @@ from cadio.sandbox import Job, Limits, run_isolated
 from cadio.scan import ScanConfig, capture_scenes, scan_inputs
 from cadio.scenes import SceneConfig, generate_scenes, read_scene_parts, read_scenes, write_scenes
 from cadio.workspace import Workspace, write_json
-from flows.settings import Settings
+from flows.settings import Settings, ingest_config
 from reports.ingest import build_ingest_report, markdown_table
 from reports.stages import captures_table, joints_table, mates_table, scenes_table
 
@@ -254,7 +253,7 @@ def nightly(
     ws = Workspace(Path(workspace).resolve())
     run_id = datetime.now(UTC).strftime("%Y%m%dT%H%M%SZ")
     run_dir = ws.run_dir(run_id)
-    cfg = _ingest_config(settings, voxel_sizes)
+    cfg = ingest_config(settings, voxel_sizes)
     lib = library or generate_library_task(str(ws.root))
     found = discover_task(lib)
     epoch = _workspace_epoch(ws)
@@ -304,10 +303,3 @@ def _assembly_items(catalog: pd.DataFrame) -> list[dict[str, Any]]:
         })
     return items
 
-
-def _ingest_config(settings: Settings, voxel_sizes: list[int] | None) -> IngestConfig:
-    workers = settings.workers or 1
-    limits = Limits(seconds=settings.file_timeout_s, memory_mb=settings.file_memory_mb,
-                    workers=workers)
-    cfg = IngestConfig(limits=limits, max_file_mb=settings.max_file_mb)
-    return replace(cfg, voxel_sizes=tuple(voxel_sizes)) if voxel_sizes else cfg
