@@ -211,7 +211,7 @@ def _matrix(loc: TopLoc_Location) -> np.ndarray:
 
 
 def write_step(
-    shape_or_compound: bd.Shape, path: Path, timestamp: str = "2000-01-01T00:00:00"
+    shape_or_compound: bd.Shape, path: Path | str, timestamp: str = "2000-01-01T00:00:00"
 ) -> None:
     """Write a shape (a labelled, coloured compound for an assembly) as byte-reproducible STEP.
 
@@ -231,6 +231,7 @@ def write_step(
     buf = io.BytesIO()
     bd.export_step(shape_or_compound, buf, timestamp=timestamp)
     data = _canonical_styles(buf.getvalue().decode("latin-1")).encode("latin-1")
+    path = Path(path)
     if path.is_file() and path.read_bytes() == data:
         return
     with atomic_path(path) as tmp:

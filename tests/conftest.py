@@ -48,11 +48,17 @@ def manifest(shared_step_dir: Path):  # type: ignore[no-untyped-def]
 
 @pytest.fixture(scope="session")
 def box_step(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    """A small valid STEP part (a 20 x 10 x 5 mm box with a 4 mm hole), made with build123d."""
+    """A small valid STEP part (a 20 x 10 x 5 mm box with a 4 mm hole), made with build123d.
+
+    Written with a fixed header time stamp: its content hash, hence its part id and its
+    train/val/test split, is the same in every session.
+    """
     import build123d as bd
+
+    from cadio.step import write_step
 
     path = tmp_path_factory.mktemp("box") / "box.step"
     part = bd.Box(20, 10, 5) - bd.Cylinder(2, 5)
     part.label = "box"
-    bd.export_step(part, path)
+    write_step(part, path)
     return path
