@@ -1,10 +1,10 @@
 """Benchmark of simulated RGB-D capture: rendering throughput and MCAP size per view.
 
 Renders a pair scene (a box and a finely tessellated cylinder, the paper's 640x480 camera) with
-``cadio.capture.render_views``, noise off and on, and compares it with a bare open3d loop on the
-same ``RaycastingScene`` (``create_rays_pinhole`` + ``cast_rays``, nothing else): the renderer
-should stay near what open3d's ray caster does on this machine. Then writes the views as MCAP
-(16UC1 depth, zstd) and reports bytes per view. Runs in well under two minutes.
+``cadio.capture.render.render_views``, noise off and on, and compares it with a bare open3d loop
+on the same ``RaycastingScene`` (``create_rays_pinhole`` + ``cast_rays``, nothing else): the
+renderer should stay near what open3d's ray caster does on this machine. Then writes the views
+as MCAP (16UC1 depth, zstd) and reports bytes per view. Runs in well under two minutes.
 
 Usage: ``.venv/bin/python bench/capture.py [--views 30]``
 """
@@ -22,9 +22,10 @@ import open3d as o3d
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # run from anywhere
 
-from cadio.capture import (
+from cadio.capture.mcap_io import write_capture
+from cadio.capture.noise import NoiseConfig
+from cadio.capture.render import (
     CaptureConfig,
-    NoiseConfig,
     PlacedPart,
     camera_intrinsics,
     camera_pose,
@@ -32,7 +33,6 @@ from cadio.capture import (
     scene_meta,
     stage_scene,
 )
-from cadio.mcap_io import write_capture
 from cadio.records import Mesh
 
 

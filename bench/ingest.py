@@ -19,12 +19,12 @@ import time
 from collections import defaultdict
 from pathlib import Path
 
-from cadio.features import extract_features
-from cadio.ingest import IngestConfig, discover, ingest
+from cadio.cad.features import extract_features
+from cadio.cad.ingest import IngestConfig, discover, ingest
+from cadio.cad.step import read_step
+from cadio.cad.tessellate import tessellate
+from cadio.cad.voxels import voxelize
 from cadio.sandbox import Limits
-from cadio.step import read_step
-from cadio.tessellate import tessellate
-from cadio.voxels import voxelize
 
 DEFAULT_DIR = Path(__file__).resolve().parents[2] / "shared" / "data" / "step"
 

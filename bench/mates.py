@@ -18,7 +18,7 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # run from anywhere
 
-from cadio.mates import read_assembly_mates
+from cadio.truth.mates import read_assembly_mates
 
 ASSEMBLIES = Path(__file__).resolve().parents[2] / "shared" / "data" / "step" / "assemblies"
 DEFAULT = ("kcl_pipe-flange-assembly.step", "occt_pm4_rotor-pump-assembly.stp",

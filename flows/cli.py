@@ -101,8 +101,8 @@ def _common(p: argparse.ArgumentParser, settings: Settings) -> None:
 
 
 def _cmd_ingest(args: argparse.Namespace) -> int:
+    from cadio.cad.ingest import ingest
     from cadio.errors import InputFileError
-    from cadio.ingest import ingest
     from flows.settings import ingest_config
     from reports.ingest import build_ingest_report
 
@@ -120,7 +120,7 @@ def _cmd_ingest(args: argparse.Namespace) -> int:
 
 
 def _cmd_samples(args: argparse.Namespace) -> int:
-    from cadio.samples import generate_library
+    from cadio.samples.library import generate_library
 
     paths = generate_library(args.out)
     print(f"{len(paths)} STEP files in {args.out}")
@@ -129,7 +129,7 @@ def _cmd_samples(args: argparse.Namespace) -> int:
 
 def _cmd_mates(args: argparse.Namespace) -> int:
     from cadio.errors import InputFileError
-    from cadio.mates import read_assembly_mates, write_mates
+    from cadio.truth.mates import read_assembly_mates, write_mates
     from cadio.workspace import Workspace
 
     try:
@@ -147,8 +147,8 @@ def _cmd_mates(args: argparse.Namespace) -> int:
 
 
 def _cmd_capture(args: argparse.Namespace) -> int:
+    from cadio.capture.scan import ScanConfig, capture_step
     from cadio.errors import InputFileError
-    from cadio.scan import ScanConfig, capture_step
 
     cfg = ScanConfig(views_per_scene=args.views, noise=args.noise)
     try:

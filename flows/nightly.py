@@ -20,12 +20,25 @@ from prefect.artifacts import create_markdown_artifact
 from prefect.context import TaskRunContext
 from prefect.task_runners import ThreadPoolTaskRunner
 
+from cadio.cad.ingest import (
+    Found,
+    IngestConfig,
+    discover,
+    file_sha256,
+    ingest_files,
+    mark_duplicates,
+)
+from cadio.capture.scan import ScanConfig, capture_scenes, scan_inputs
 from cadio.catalog import read_catalog, to_frame, write_catalog
 from cadio.errors import CaptureError
-from cadio.ingest import Found, IngestConfig, discover, file_sha256, ingest_files, mark_duplicates
 from cadio.sandbox import Job, Limits, run_isolated
-from cadio.scan import ScanConfig, capture_scenes, scan_inputs
-from cadio.scenes import SceneConfig, generate_scenes, read_scene_parts, read_scenes, write_scenes
+from cadio.truth.scenes import (
+    SceneConfig,
+    generate_scenes,
+    read_scene_parts,
+    read_scenes,
+    write_scenes,
+)
 from cadio.workspace import Workspace, write_json
 from flows.settings import Settings, ingest_config
 from reports.ingest import build_ingest_report, markdown_table
@@ -56,7 +69,7 @@ def _batch_cache_key(ctx: TaskRunContext, params: dict[str, Any]) -> str:
 @task(name="generate-sample-library")
 def generate_library_task(workspace: str) -> str:
     """Write the built-in sample library into the workspace (once; reruns reuse it)."""
-    from cadio.samples import generate_library
+    from cadio.samples.library import generate_library
 
     out = Workspace(Path(workspace)).library
     paths = generate_library(out)
@@ -127,7 +140,7 @@ def mates_task(items: list[dict[str, Any]], workspace: str, epoch: str,
     jobs = [Job(item["path"], {**item, "workspace": workspace}) for item in items]
     out = []
     limits = Limits(seconds=timeout_s, memory_mb=memory_mb, workers=1)
-    for outcome in run_isolated("cadio.mates:mates_job", jobs, limits):
+    for outcome in run_isolated("cadio.truth.mates:mates_job", jobs, limits):
         item = outcome.job.payload
         base = {"assembly": item["assembly"], "category": item["category"],
                 "source": item["path"], "seconds": outcome.seconds}

@@ -7,7 +7,7 @@ from pathlib import Path
 
 from pydantic_settings import BaseSettings, SettingsConfigDict
 
-from cadio.ingest import IngestConfig
+from cadio.cad.ingest import IngestConfig
 from cadio.sandbox import Limits
 
 

@@ -55,7 +55,7 @@ def box_step(tmp_path_factory: pytest.TempPathFactory) -> Path:
     """
     import build123d as bd
 
-    from cadio.step import write_step
+    from cadio.cad.step import write_step
 
     path = tmp_path_factory.mktemp("box") / "box.step"
     part = bd.Box(20, 10, 5) - bd.Cylinder(2, 5)

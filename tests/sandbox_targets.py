@@ -24,7 +24,7 @@ def misbehave(payload: str) -> str:
 
 def process_or_crash(payload: dict[str, Any]) -> list[dict[str, Any]]:
     """The real per-file ingest job, except that a file named *segfault* crashes the process."""
-    from cadio.parts import process_file
+    from cadio.cad.ingest import process_file
 
     if "segfault" in Path(payload["path"]).name:
         ctypes.string_at(0)

@@ -1,4 +1,4 @@
-"""Tests of cadio.features: plane groups, axes, principal choices, freeform recognition."""
+"""Tests of cadio.cad.features: plane groups, axes, principal choices, freeform recognition."""
 
 from __future__ import annotations
 
@@ -14,7 +14,7 @@ from OCP.GeomAbs import GeomAbs_BSplineSurface
 from OCP.gp import gp_Ax1, gp_Dir, gp_Pnt, gp_Trsf, gp_Vec
 from OCP.TopoDS import TopoDS_Shape
 
-from cadio.features import extract_features, indexed_faces
+from cadio.cad.features import extract_features, indexed_faces
 from cadio.records import Features
 from cadio.tolerances import DEFAULT_TOLERANCES
 from cadio.workspace import read_features, write_features

@@ -11,8 +11,8 @@ import numpy as np
 import pandas as pd
 import pytest
 
+from cadio.cad.ingest import IngestConfig, discover, ingest
 from cadio.catalog import read_catalog
-from cadio.ingest import IngestConfig, discover, ingest
 from cadio.sandbox import Limits
 from cadio.workspace import Workspace, read_features, read_mesh, read_voxels
 

@@ -1,4 +1,4 @@
-"""Tests of cadio.mates, joints and contact: face mates, joints, pruning, invariance, goldens.
+"""Tests of cadio.truth.mates, joints and contact: face mates, joints, pruning, invariance, goldens.
 
 Synthetic assemblies (boxes, a drilled plate, a bolt) pin down each rule with hand-computed
 numbers; the real CAx-IF AS1, KCL pipe flange and KCL ball bearing are checked against
@@ -27,12 +27,12 @@ from OCP.TopLoc import TopLoc_Location
 from OCP.TopoDS import TopoDS, TopoDS_Shape
 from scipy.spatial.transform import Rotation
 
-from cadio.joints import CAD_NAMES, Constraint, classify_motion, derive_joint
-from cadio.mates import COLUMNS, extract_mates, read_assembly_mates, read_mates, write_mates
+from cadio.cad.step import StepSolid
 from cadio.records import SolidInfo
-from cadio.relations import relate
-from cadio.step import StepSolid
 from cadio.tolerances import DEFAULT_TOLERANCES as TOL
+from cadio.truth.joints import CAD_NAMES, Constraint, classify_motion, derive_joint
+from cadio.truth.mates import COLUMNS, extract_mates, read_assembly_mates, read_mates, write_mates
+from cadio.truth.relations import relate
 
 GOLDEN = Path(__file__).parent / "golden" / "mates"
 DIRECTIONAL = {"left", "right", "above", "below", "front", "behind"}
@@ -168,7 +168,7 @@ def test_block_in_a_guide_slides_and_in_a_corner_is_fastened() -> None:
 def test_part_level_rows_are_relate_of_the_features() -> None:
     solids = bolted()
     table = extract_mates(solids).table
-    from cadio.features import extract_features
+    from cadio.cad.features import extract_features
 
     feats = [extract_features(s.shape) for s in solids]
     for a in range(3):
@@ -377,7 +377,7 @@ def check_golden(golden: dict[str, Any], solids: list[StepSolid], table: pd.Data
 @pytest.mark.parametrize("name", ["as1", "pipe_flange", "ball_bearing"])
 def test_real_assembly_matches_hand_checked_golden(name: str, shared_step_dir: Path) -> None:
     golden = json.loads((GOLDEN / f"{name}.json").read_text())
-    from cadio.step import read_step
+    from cadio.cad.step import read_step
 
     solids = read_step(shared_step_dir / golden["file"])
     check_golden(golden, solids, extract_mates(solids).table)
@@ -385,7 +385,7 @@ def test_real_assembly_matches_hand_checked_golden(name: str, shared_step_dir: P
 
 @pytest.mark.shared
 def test_real_assembly_is_invariant_under_a_rigid_motion(shared_step_dir: Path) -> None:
-    from cadio.step import read_step
+    from cadio.cad.step import read_step
 
     solids = read_step(shared_step_dir / "assemblies" / "occt_as1-oc-214-mat.stp")
     rot = Rotation.from_euler("xyz", [-23, 48, 131], degrees=True).as_matrix()

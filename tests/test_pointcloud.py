@@ -1,4 +1,4 @@
-"""Tests of cadio.pointcloud: back-projection, segmentation, partial grids and sampling."""
+"""Tests of cadio.capture.pointcloud: back-projection, segmentation, partial grids and sampling."""
 
 from __future__ import annotations
 
@@ -9,20 +9,19 @@ import open3d as o3d
 import pytest
 from scipy.ndimage import binary_dilation
 
-from cadio.capture import CaptureConfig, NoiseConfig, PlacedPart, render_view, scene_meta
-from cadio.pointcloud import (
-    adjusted_rand_index,
+from cadio.cad.voxels import voxelize
+from cadio.capture.noise import NoiseConfig
+from cadio.capture.pointcloud import (
     backproject,
     part_clouds,
     partial_grid,
     sample_points,
-    segment_clusters,
-    segmentation_score,
     to_part_frame,
     valid_depth,
 )
+from cadio.capture.render import CaptureConfig, PlacedPart, render_view, scene_meta
+from cadio.capture.segment import adjusted_rand_index, segment_clusters, segmentation_score
 from cadio.records import Mesh, RgbdFrame
-from cadio.voxels import voxelize
 
 CFG = CaptureConfig(elevation_deg=25.0, target_size_m=0.3)
 NOISY = CaptureConfig(elevation_deg=25.0, target_size_m=0.3, noise=NoiseConfig(seed=3))

@@ -8,7 +8,7 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from cadio.ingest import IngestConfig, ingest
+from cadio.cad.ingest import IngestConfig, ingest
 from cadio.sandbox import Limits
 from cadio.workspace import Workspace, read_features, read_voxels
 

@@ -1,4 +1,4 @@
-"""Tests of cadio.relations: the paper's logic rules by construction, boundaries, invariance.
+"""Tests of cadio.truth.relations: the paper's logic rules by construction, boundaries, invariance.
 
 Synthetic features (a box, a capped cylinder) stand in for B-rep parts; ``box_features`` and
 ``cylinder_features`` are also used by tests/test_scenes.py.
@@ -21,14 +21,14 @@ from cadio.records import (
     PlaneGroup,
     Relation,
 )
-from cadio.relations import (
+from cadio.tolerances import DEFAULT_TOLERANCES as TOL
+from cadio.truth.relations import (
     direction_axes,
     directional_truth,
     relate,
     relation_table,
     view_frame,
 )
-from cadio.tolerances import DEFAULT_TOLERANCES as TOL
 
 # ---------------------------------------------------------------- synthetic features
 

@@ -15,7 +15,7 @@ import numpy as np
 import pytest
 
 from cadio.records import Category
-from cadio.samples import (
+from cadio.samples.library import (
     ASSEMBLIES,
     LIBRARY_INDEX,
     LibraryEntry,
@@ -165,7 +165,8 @@ def test_generation_is_deterministic_across_processes(library, tmp_path) -> None
     old_entry = {"path": stale.relative_to(tmp_path).as_posix(), "sha256": "0"}
     old_index = {"stamp": {"version": 0}, "files": [old_entry]}
     (tmp_path / LIBRARY_INDEX).write_text(json.dumps(old_index))
-    code = "import sys; from pathlib import Path; from cadio.samples import generate_library; "
+    code = "import sys; from pathlib import Path; "
+    code += "from cadio.samples.library import generate_library; "
     code += "generate_library(Path(sys.argv[1]))"
     env = {**os.environ, "PYTHONHASHSEED": "12345"}
     subprocess.run([sys.executable, "-c", code, str(tmp_path)], cwd=REPO, env=env, check=True,

@@ -9,12 +9,12 @@ import pandas as pd
 import pytest
 from scipy import ndimage
 
+from cadio.cad.ingest import IngestConfig, ingest
+from cadio.capture.mcap_io import read_capture, read_scene_meta
+from cadio.capture.scan import ScanConfig, capture_scenes, capture_step, scan_inputs, view_indices
 from cadio.catalog import read_catalog
-from cadio.ingest import IngestConfig, ingest
-from cadio.mcap_io import read_capture, read_scene_meta
 from cadio.sandbox import Limits
-from cadio.scan import ScanConfig, capture_scenes, capture_step, scan_inputs, view_indices
-from cadio.scenes import SceneConfig, generate_scenes, read_scene_parts, write_scenes
+from cadio.truth.scenes import SceneConfig, generate_scenes, read_scene_parts, write_scenes
 from cadio.workspace import Workspace, read_voxels
 
 CFG = ScanConfig(views_per_scene=2, grid_sizes=(32,))

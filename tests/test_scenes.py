@@ -1,4 +1,4 @@
-"""Tests of cadio.scenes: labels from ``relate``, intent, boundaries, splits by part, contact."""
+"""Tests of cadio.truth.scenes: labels from ``relate``, intent, boundaries, part splits, contact."""
 
 from __future__ import annotations
 
@@ -13,8 +13,9 @@ from conftest import SHARED_STEP_DIR
 from test_relations import box_features, cylinder_features
 
 from cadio.records import Features, Relation
-from cadio.relations import relation_table
-from cadio.scenes import (
+from cadio.tolerances import DEFAULT_TOLERANCES as TOL
+from cadio.truth.relations import relation_table
+from cadio.truth.scenes import (
     SPLITS,
     SceneConfig,
     ScenePart,
@@ -26,7 +27,6 @@ from cadio.scenes import (
     scene_poses,
     write_scenes,
 )
-from cadio.tolerances import DEFAULT_TOLERANCES as TOL
 
 log = logging.getLogger(__name__)
 NAMES = [r.value for r in Relation]
@@ -194,7 +194,7 @@ def test_real_fasteners(tmp_path: Path) -> None:
     if not FASTENERS.is_dir():
         pytest.skip("shared STEP data absent")
     build123d = pytest.importorskip("build123d")
-    features = pytest.importorskip("cadio.features")
+    features = pytest.importorskip("cadio.cad.features")
     parts = [
         ScenePart(p.name, "fasteners",
                   features.extract_features(build123d.import_step(p).solids()[0].wrapped))

@@ -8,8 +8,8 @@ import numpy as np
 import pandas as pd
 import pytest
 
+from cadio.cad.step import read_step, sniff_step
 from cadio.errors import StepReadError
-from cadio.step import read_step, sniff_step
 
 
 def test_solid_counts_match_the_manifest(shared_step_dir: Path, manifest: pd.DataFrame) -> None:

@@ -1,4 +1,4 @@
-"""Tests of cadio.tessellate: watertight outward meshes whose volume matches the B-rep."""
+"""Tests of cadio.cad.tessellate: watertight outward meshes whose volume matches the B-rep."""
 
 from __future__ import annotations
 
@@ -11,9 +11,9 @@ from OCP.gp import gp_Ax1, gp_Dir, gp_Pnt, gp_Trsf, gp_Vec
 from OCP.TopLoc import TopLoc_Location
 from OCP.TopoDS import TopoDS_Compound
 
+from cadio.cad.tessellate import brep_volume, merge_vertices, mesh_volume, tessellate
 from cadio.errors import GeometryError
 from cadio.records import Mesh
-from cadio.tessellate import brep_volume, merge_vertices, mesh_volume, tessellate
 from cadio.tolerances import DEFAULT_TOLERANCES
 
 # Relative volume error allowed at the default tolerances (0.1 mm, 0.5 rad).

@@ -1,4 +1,4 @@
-"""Tests of cadio.voxels: grid placement, solid occupancy, point binning, IoU."""
+"""Tests of cadio.cad.voxels: grid placement, solid occupancy, point binning, IoU."""
 
 from __future__ import annotations
 
@@ -8,9 +8,9 @@ import build123d as bd
 import numpy as np
 import pytest
 
+from cadio.cad.tessellate import brep_volume, tessellate
+from cadio.cad.voxels import grid_transform, iou, points_to_grid, voxel_centres, voxelize
 from cadio.records import VoxelGrid
-from cadio.tessellate import brep_volume, tessellate
-from cadio.voxels import grid_transform, iou, points_to_grid, voxel_centres, voxelize
 from cadio.workspace import read_voxels, write_voxels
 
 NUT = "fasteners/kcl_hex-nut.step"

@@ -2,7 +2,7 @@
 
 The ground-truth relations (parallel, perpendicular, coincident, concentric) and the face-level
 mates are decided on these features, so they come from the exact B-rep. Faces are recognised as
-planes, cylinders and cones by ``cadio.faces`` (freeform faces included, when they fit within
+planes, cylinders and cones by ``cadio.cad.faces`` (freeform faces included, when they fit within
 ``Tolerances.freeform_fit_mm``), then grouped: planes by parallel normals, cylinders and cones by
 shared axis lines. Groups are built greedily in face-id order and compared with their first face,
 so the result is the same after any rigid motion of the part. Everything is in the coordinates
@@ -22,8 +22,7 @@ from OCP.BRepGProp import BRepGProp
 from OCP.GProp import GProp_GProps
 from OCP.TopoDS import TopoDS_Shape
 
-from cadio.errors import GeometryError
-from cadio.faces import (
+from cadio.cad.faces import (
     CONE,
     CYLINDER,
     PLANE,
@@ -33,11 +32,12 @@ from cadio.faces import (
     recognise_faces,
     surface_props,
 )
+from cadio.cad.tessellate import MASS_PROPS_REL_EPS
+from cadio.errors import GeometryError
 from cadio.records import AxisGroup, Features, FloatArray, PlaneGroup, canonical_direction
-from cadio.tessellate import MASS_PROPS_REL_EPS
 from cadio.tolerances import DEFAULT_TOLERANCES, Tolerances
 
-# Face recognition lives in cadio.faces; its names are re-exported for existing callers.
+# Face recognition lives in cadio.cad.faces; its names are re-exported for existing callers.
 __all__ = [
     "CONE", "CYLINDER", "PLANE", "FacePrimitive", "extract_features", "face_area", "group_axes",
     "group_planes", "indexed_faces", "recognise_faces", "tight_bbox",

@@ -18,19 +18,19 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from cadio.capture import CaptureConfig, NoiseConfig, PlacedPart, render_views, scene_meta
-from cadio.catalog import read_catalog
-from cadio.errors import CaptureError, InputFileError
-from cadio.mcap_io import CaptureWriter, read_capture, read_scene_meta
-from cadio.pointcloud import (
+from cadio.capture.mcap_io import CaptureWriter, read_capture, read_scene_meta
+from cadio.capture.noise import NoiseConfig
+from cadio.capture.pointcloud import (
     part_clouds,
     partial_grid,
     sample_points,
-    segment_clusters,
-    segmentation_score,
 )
+from cadio.capture.render import CaptureConfig, PlacedPart, render_views, scene_meta
+from cadio.capture.segment import segment_clusters, segmentation_score
+from cadio.catalog import read_catalog
+from cadio.errors import CaptureError, InputFileError
 from cadio.records import Relation, RgbdFrame
-from cadio.scenes import read_scenes, scene_poses
+from cadio.truth.scenes import read_scenes, scene_poses
 from cadio.workspace import Workspace, atomic_write, read_mesh
 
 log = logging.getLogger(__name__)
@@ -198,8 +198,8 @@ def capture_step(target: str, workspace: Path, cfg: ScanConfig) -> dict[str, Any
 
 
 def _capture_file(path: Path, ws: Workspace, cfg: ScanConfig) -> dict[str, Any]:
-    from cadio.step import read_step
-    from cadio.tessellate import tessellate
+    from cadio.cad.step import read_step
+    from cadio.cad.tessellate import tessellate
 
     parts = [PlacedPart(instance_id=s.info.index + 1, mesh=tessellate(s.shape), pose=np.eye(4),
                         colour=s.info.colour or "#b4b4b4", part_id=str(s.info.index),

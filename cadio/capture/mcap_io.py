@@ -74,7 +74,7 @@ DEPTH_MM = "16UC1"  # uint16 millimetres, 0 = missing (what ROS / RealSense driv
 DEPTH_M = "32FC1"  # float32 metres, 0 = missing
 INSTANCE_ENCODING = "16UC1"
 
-WRITER_ID = "mateqa cadio.mcap_io"
+WRITER_ID = "mateqa cadio.capture.mcap_io"
 WORLD_FRAME = "world"
 CAMERA_FRAME = "camera"
 

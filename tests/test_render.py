@@ -1,4 +1,4 @@
-"""Tests of cadio.capture: camera geometry, view path, instance ids and the noise model."""
+"""Tests of cadio.capture.render and .noise: camera geometry, view path, instance ids, noise."""
 
 from __future__ import annotations
 
@@ -9,9 +9,9 @@ import numpy as np
 import open3d as o3d
 import pytest
 
-from cadio.capture import (
+from cadio.capture.noise import NoiseConfig
+from cadio.capture.render import (
     CaptureConfig,
-    NoiseConfig,
     PlacedPart,
     camera_intrinsics,
     camera_pose,

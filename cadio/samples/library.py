@@ -10,8 +10,8 @@ geometry (millimetres, Z up). Layout under ``out_dir``::
 
 Files are byte-identical across runs and machines (fixed STEP header time stamp, no
 randomness), so content hashes downstream stay stable; a rerun whose stamp and hashes match
-returns at once. Every write is atomic. The geometry lives in ``cadio.sample_parts`` and
-``cadio.sample_assemblies``; the deterministic STEP writer in ``cadio.step``.
+returns at once. Every write is atomic. The geometry lives in ``cadio.samples.parts`` and
+``cadio.samples.assemblies``; the deterministic STEP writer in ``cadio.cad.step``.
 """
 
 from __future__ import annotations
@@ -28,10 +28,11 @@ from typing import Any
 
 import build123d as bd
 
+from cadio.cad.step import write_step
 from cadio.errors import InputFileError
 from cadio.records import Category
-from cadio.sample_assemblies import assembly_builders
-from cadio.sample_parts import (
+from cadio.samples.assemblies import assembly_builders
+from cadio.samples.parts import (
     Builder,
     brake_builders,
     caster_builders,
@@ -39,7 +40,6 @@ from cadio.sample_parts import (
     fastener_builders,
     motion_builders,
 )
-from cadio.step import write_step
 from cadio.workspace import write_json
 
 logger = logging.getLogger(__name__)

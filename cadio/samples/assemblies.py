@@ -2,7 +2,7 @@
 
 Each assembly is a list of solids in file order, positioned so that parts touch (face, seat or
 bore contact) without interfering and shaft lines are coaxial; the tests check both. Parts reuse
-the single-part builders of ``cadio.sample_parts``.
+the single-part builders of ``cadio.samples.parts``.
 """
 
 from __future__ import annotations
@@ -13,7 +13,7 @@ import build123d as bd
 from bd_warehouse import bearing as bdw_bearing
 from bd_warehouse import fastener as bdw_fastener
 
-from cadio.sample_parts import (
+from cadio.samples.parts import (
     _C75S,
     _bearing,
     _box,

@@ -31,7 +31,8 @@ import pyarrow as pa
 import pyarrow.parquet as pq
 
 from cadio.records import DIRECTIONAL, Features, FloatArray, Relation
-from cadio.relations import (
+from cadio.tolerances import DEFAULT_TOLERANCES, Tolerances
+from cadio.truth.relations import (
     CAD_VIEW_AXIS,
     EVIDENCE_COLUMNS,
     RelationResult,
@@ -39,7 +40,6 @@ from cadio.relations import (
     principal_plane_group,
     relate,
 )
-from cadio.tolerances import DEFAULT_TOLERANCES, Tolerances
 from cadio.workspace import atomic_write
 
 log = logging.getLogger(__name__)

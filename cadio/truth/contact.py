@@ -42,10 +42,10 @@ from OCP.TopLoc import TopLoc_Location
 from OCP.TopoDS import TopoDS, TopoDS_Face, TopoDS_Shape
 from scipy.spatial import cKDTree
 
-from cadio.faces import CONE, indexed_faces
-from cadio.features import extract_features
+from cadio.cad.faces import CONE, indexed_faces
+from cadio.cad.features import extract_features
+from cadio.cad.step import StepSolid
 from cadio.records import AxisGroup, Features, FloatArray
-from cadio.step import StepSolid
 from cadio.tolerances import Tolerances
 
 log = logging.getLogger(__name__)

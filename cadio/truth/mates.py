@@ -13,17 +13,17 @@ MATE, RELATION OR JOINT (``COLUMNS``, schema in ``write_mates``), for index_a < 
   ``min_overlap_mm2`` (a Boolean common of the two faces laid on one plane: touching along an edge
   is no mate). Pairs in contact also get ``parallel``/``perpendicular`` rows for their largest
   principal faces.
-- level "part": the ten relations of ``cadio.relations.relate`` (view axis +Y for CAD).
+- level "part": the ten relations of ``cadio.truth.relations.relate`` (view axis +Y for CAD).
 - level "joint": the joint a CAD user would set, derived from the pair's coincident contacts and
-  fits (``cadio.joints``): ``relation`` is the suggested joint, ``kinematic`` the pure
+  fits (``cadio.truth.joints``): ``relation`` is the suggested joint, ``kinematic`` the pure
   degree-of-freedom one, with Onshape / FreeCAD / Fusion 360 names.
 
-Pruning (``cadio.contact``) cannot change under a rigid motion of the whole assembly. Coincident
-mates need contact: boxes enlarged by twice ``contact_mm`` skip only pairs that cannot touch, and
-the mate test itself is exact; pairs "in contact" are within ``contact_mm`` (exact B-rep
-distance). Concentric mates do not need contact (a bolt in a clearance hole, the two rings of a
-ball bearing): they are found by matching the axis lines of all parts, a test on lines that is
-invariant by construction.
+Pruning (``cadio.truth.contact``) cannot change under a rigid motion of the whole assembly.
+Coincident mates need contact: boxes enlarged by twice ``contact_mm`` skip only pairs that
+cannot touch, and the mate test itself is exact; pairs "in contact" are within ``contact_mm``
+(exact B-rep distance). Concentric mates do not need contact (a bolt in a clearance hole, the
+two rings of a ball bearing): they are found by matching the axis lines of all parts, a test on
+lines that is invariant by construction.
 """
 
 from __future__ import annotations
@@ -38,7 +38,10 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from cadio.contact import (
+from cadio.cad.step import StepSolid, read_step
+from cadio.records import DIRECTIONAL, Features, Relation
+from cadio.tolerances import DEFAULT_TOLERANCES, Tolerances
+from cadio.truth.contact import (
     SLACK,
     AxisFace,
     AxisLine,
@@ -48,12 +51,9 @@ from cadio.contact import (
     describe_part,
     face_overlap,
 )
-from cadio.joints import AXIS, Constraint, derive_joint
-from cadio.joints import PLANE as PLANE_CONTACT
-from cadio.records import DIRECTIONAL, Features, Relation
-from cadio.relations import CAD_VIEW_AXIS, RelationResult, relate
-from cadio.step import StepSolid, read_step
-from cadio.tolerances import DEFAULT_TOLERANCES, Tolerances
+from cadio.truth.joints import AXIS, Constraint, derive_joint
+from cadio.truth.joints import PLANE as PLANE_CONTACT
+from cadio.truth.relations import CAD_VIEW_AXIS, RelationResult, relate
 from cadio.workspace import atomic_path
 
 COLUMNS = (

@@ -1,7 +1,7 @@
 """Recognition of B-rep faces as planes, cylinders and cones, with stable face ids.
 
-Features (``cadio.features``) and face-level mates (``cadio.mates``) both reason on primitive
-faces. Analytic faces are taken as stored; freeform faces (B-spline, Bezier, surfaces of
+Features (``cadio.cad.features``) and face-level mates (``cadio.truth.mates``) both reason on
+primitive faces. Analytic faces are taken as stored; freeform faces (B-spline, Bezier, surfaces of
 revolution or extrusion, offset and trimmed surfaces) are converted with OpenCascade's
 ``GeomConvert_SurfToAnaSurf`` (and ``GeomLib_IsPlanarSurface``) when they fit a primitive within
 ``Tolerances.freeform_fit_mm``: real files store many planes and cylinders as B-splines (the
@@ -34,9 +34,9 @@ from OCP.TopExp import TopExp
 from OCP.TopoDS import TopoDS, TopoDS_Face, TopoDS_Shape
 from OCP.TopTools import TopTools_IndexedMapOfShape
 
+from cadio.cad.tessellate import MASS_PROPS_REL_EPS
 from cadio.errors import GeometryError
 from cadio.records import FloatArray
-from cadio.tessellate import MASS_PROPS_REL_EPS
 from cadio.tolerances import DEFAULT_TOLERANCES, Tolerances
 
 PLANE, CYLINDER, CONE = "plane", "cylinder", "cone"

@@ -1,12 +1,8 @@
-"""From RGB-D frames to per-part point clouds, partial occupancy grids and point samples.
+"""Separating parts in a frame without instance ids, and scoring a segmentation against the ids.
 
-Depth is back-projected to points in the frame's world frame, in **metres** (the capture's
-world is the scene frame scaled by ``scale_m_per_mm``). The ground truth of a part lives in its
-own millimetre coordinates, so ``to_part_frame`` undoes the scale and the part's pose; a partial
-grid binned there shares its ``grid_to_part`` with ``voxels.voxelize`` of the same mesh, voxel
-for voxel. Parts are separated with the instance ids when a capture has them; otherwise the
-support plane is removed (RANSAC) and the rest clustered (open3d DBSCAN), and
-``segmentation_score`` says how well that recovers the ids on simulated data.
+A real recording has no instance-id image: the support plane is found by RANSAC and removed with
+what lies behind it, and the remaining points are clustered with open3d's DBSCAN.
+``segmentation_score`` measures how well that recovers the ids on simulated captures.
 """
 
 from __future__ import annotations
@@ -19,62 +15,8 @@ import numpy.typing as npt
 import open3d as o3d
 from scipy.optimize import linear_sum_assignment
 
-from cadio.records import FloatArray, Mesh, RgbdFrame, VoxelGrid, apply_pose
-from cadio.voxels import grid_transform, points_to_grid
-
-IntImage = npt.NDArray[np.int32]
-
-
-def valid_depth(frame: RgbdFrame) -> npt.NDArray[np.bool_]:
-    """(h, w) bool: pixels with a finite, positive depth."""
-    return np.isfinite(frame.depth) & (frame.depth > 0)
-
-
-def backproject(frame: RgbdFrame, mask: npt.NDArray[np.bool_] | None = None) -> FloatArray:
-    """Points seen by the pixels of ``mask`` (and with valid depth), in world metres.
-
-    Returns:
-        (n, 3) float64 metres, world frame, in row-major pixel order of ``mask & valid``.
-    """
-    keep = valid_depth(frame) if mask is None else valid_depth(frame) & mask
-    v, u = np.nonzero(keep)
-    k = frame.intrinsics
-    z = frame.depth[v, u].astype(np.float64)
-    cam = np.column_stack([(u - k.cx) / k.fx * z, (v - k.cy) / k.fy * z, z])
-    return apply_pose(np.asarray(np.linalg.inv(frame.world_to_camera), dtype=np.float64), cam)
-
-
-def to_part_frame(points_m: FloatArray, pose_mm: FloatArray, scale_m_per_mm: float) -> FloatArray:
-    """World points (metres) to a part's own coordinates (millimetres).
-
-    Args:
-        points_m: (n, 3) world metres.
-        pose_mm: (4, 4) part -> scene, mm (the scene's ``pose_mm``).
-        scale_m_per_mm: the capture's scale (``scene_meta["scale_m_per_mm"]``).
-    Returns:
-        (n, 3) float64 mm in part coordinates.
-    """
-    return apply_pose(np.linalg.inv(np.asarray(pose_mm, dtype=np.float64)),
-                      np.asarray(points_m, dtype=np.float64) / scale_m_per_mm)
-
-
-def part_clouds(frame: RgbdFrame, scene: dict[str, Any],
-                labels: IntImage | None = None) -> dict[int, FloatArray]:
-    """Each part's observed points in its own coordinates, mm, keyed by instance id.
-
-    Args:
-        frame: a frame with instance ids (or pass ``labels``, an (h, w) image of the same ids).
-        scene: the capture's scene description (``read_scene_meta`` / ``capture.scene_meta``).
-    Raises:
-        ValueError: when neither the frame nor ``labels`` give per-pixel ids.
-    """
-    ids = frame.instance if labels is None else labels
-    if ids is None:
-        raise ValueError("frame has no instance ids: segment it first (segment_clusters)")
-    scale = float(scene["scale_m_per_mm"])
-    return {int(p["instance_id"]): to_part_frame(backproject(frame, ids == p["instance_id"]),
-                                                 np.asarray(p["pose_mm"]), scale)
-            for p in scene["parts"]}
+from cadio.capture.pointcloud import IntImage, backproject, valid_depth
+from cadio.records import FloatArray, RgbdFrame
 
 
 @dataclass(frozen=True)
@@ -196,51 +138,3 @@ def segmentation_score(labels: IntImage, instance: IntImage,
     fg = keep & ((instance > 0) | (labels > 0))
     return SegmentationScore(iou, float(np.mean(list(iou.values()))) if iou else 1.0,
                              adjusted_rand_index(instance[fg], labels[fg]))
-
-
-def partial_grid(points_part_mm: FloatArray, mesh: Mesh, n: int,
-                 margin: float = 0.05) -> VoxelGrid:
-    """Occupancy of a part's observed points on the part's own truth grid.
-
-    The grid is ``voxels.grid_transform`` of the mesh's bounding box, exactly as
-    ``voxels.voxelize(mesh, n, margin)`` builds it, so the two grids align voxel for voxel.
-
-    Args:
-        points_part_mm: (m, 3) mm in part coordinates (``to_part_frame``).
-        mesh: the part's mesh, mm, part coordinates.
-        n: grid size (64 as in the paper, 32 on a CPU).
-    """
-    g2p = grid_transform(mesh.vertices.min(axis=0), mesh.vertices.max(axis=0), n, margin)
-    return VoxelGrid(occupancy=points_to_grid(points_part_mm, g2p, n), grid_to_part=g2p)
-
-
-def sample_points(points: FloatArray, k: int = 600, seed: int = 0,
-                  method: str = "fps") -> FloatArray:
-    """k points of a cloud for the relation network (the paper samples 600 per part).
-
-    Args:
-        points: (n, 3), any unit; n >= 1.
-        method: "fps" (farthest point sampling from a seeded random start) or "random".
-    Returns:
-        (k, 3), same unit; when n < k, every point plus seeded random repeats.
-    Raises:
-        ValueError: on an empty cloud or an unknown method.
-    """
-    pts = np.asarray(points, dtype=np.float64)
-    if len(pts) == 0:
-        raise ValueError("cannot sample an empty point cloud")
-    if method not in ("fps", "random"):
-        raise ValueError(f"unknown sampling method {method!r}")
-    rng = np.random.default_rng(seed)
-    if len(pts) <= k:
-        extra = rng.choice(len(pts), k - len(pts), replace=True)
-        return np.concatenate([pts, pts[extra]])
-    if method == "random":
-        return pts[np.sort(rng.choice(len(pts), k, replace=False))]
-    chosen = np.empty(k, dtype=np.int64)
-    chosen[0] = rng.integers(len(pts))
-    dist = np.sum((pts - pts[chosen[0]]) ** 2, axis=1)
-    for i in range(1, k):
-        chosen[i] = int(np.argmax(dist))
-        dist = np.minimum(dist, np.sum((pts - pts[chosen[i]]) ** 2, axis=1))
-    return pts[chosen]

@@ -3,8 +3,8 @@
 Each ``*_builders`` function lists (name, description, build) for one category; ``build``
 returns a shape in millimetres, Z up, that ``dress_solid`` checks is one valid solid and labels.
 Nothing is built until a builder is called. The underscore helpers (primitives and the parts
-that assemblies reuse) are shared with ``cadio.sample_assemblies`` only. Any change to geometry,
-names or colours must bump ``cadio.samples.LIBRARY_VERSION``.
+that assemblies reuse) are shared with ``cadio.samples.assemblies`` only. Any change to geometry,
+names or colours must bump ``cadio.samples.library.LIBRARY_VERSION``.
 """
 
 from __future__ import annotations
