@@ -47,3 +47,20 @@ def test_sniff_rejects_non_step_and_truncated(tmp_path: Path, box_step: Path) ->
     with pytest.raises(StepReadError, match="truncated"):
         sniff_step(cut)
     sniff_step(box_step)
+
+
+def test_an_assembly_written_twice_in_one_process_has_the_same_bytes(tmp_path: Path) -> None:
+    """OCCT numbers assembly occurrences from a process-wide counter; the writer must not."""
+    import build123d as bd
+
+    from cadio.cad.step import read_step, write_step
+
+    def assembly() -> bd.Compound:
+        a, b = bd.Box(10, 10, 2), bd.Pos(0, 0, 2) * bd.Cylinder(3, 6)
+        a.label, b.label = "base", "pin"
+        return bd.Compound(children=[a, b], label="pair")
+
+    write_step(assembly(), tmp_path / "first.step")
+    write_step(assembly(), tmp_path / "second.step")
+    assert (tmp_path / "first.step").read_bytes() == (tmp_path / "second.step").read_bytes()
+    assert [s.info.name for s in read_step(tmp_path / "second.step")] == ["base", "pin"]

@@ -18,7 +18,7 @@ import logging
 import re
 from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from OCP.IFSelect import IFSelect_RetDone
@@ -56,6 +56,7 @@ _STYLE_BLOCK = re.compile(r"^#(\d+) = MECHANICAL_DESIGN_GEOMETRIC_PRESENTATION_R
                           re.MULTILINE)
 _ENTITY = re.compile(r"#(\d+) = (.*?);\n", re.DOTALL)
 _REF = re.compile(r"#(\d+)")
+_OCCURRENCE_ID = re.compile(r"(NEXT_ASSEMBLY_USAGE_OCCURRENCE\(\s*)'\d+'")
 
 
 @dataclass(frozen=True)
@@ -211,13 +212,15 @@ def _matrix(loc: TopLoc_Location) -> np.ndarray:
 
 
 def write_step(
-    shape_or_compound: bd.Shape, path: Path | str, timestamp: str = "2000-01-01T00:00:00"
+    shape_or_compound: bd.Shape[Any], path: Path | str, timestamp: str = "2000-01-01T00:00:00"
 ) -> None:
     """Write a shape (a labelled, coloured compound for an assembly) as byte-reproducible STEP.
 
     Reproducible bytes keep content hashes stable downstream. A fixed header ``timestamp`` is
     not enough: OCCT writes the colour/style entities in a run-dependent order (a map keyed by
-    shape addresses), so they are put in a canonical order before writing. An existing file
+    shape addresses), so they are put in a canonical order before writing; and it numbers the
+    assembly occurrences from a counter that lives as long as the process, so they are
+    renumbered from 1 in each file. An existing file
     with identical bytes is left untouched (its mtime too); otherwise the write is atomic.
 
     Args:
@@ -230,7 +233,8 @@ def write_step(
 
     buf = io.BytesIO()
     bd.export_step(shape_or_compound, buf, timestamp=timestamp)
-    data = _canonical_styles(buf.getvalue().decode("latin-1")).encode("latin-1")
+    text = _canonical_occurrences(_canonical_styles(buf.getvalue().decode("latin-1")))
+    data = text.encode("latin-1")
     path = Path(path)
     if path.is_file() and path.read_bytes() == data:
         return
@@ -264,6 +268,17 @@ def _canonical_styles(step: str) -> str:
         out.append(_renumbered(block, next_id, relative=False))
         next_id += len(block)
     return prefix + "".join(out) + step[end:]
+
+
+def _canonical_occurrences(step: str) -> str:
+    """Number the ids of NEXT_ASSEMBLY_USAGE_OCCURRENCE entities 1, 2, ... in file order.
+
+    OCCT takes them from a process-wide counter, so the same assembly written after another
+    one would get other ids (and another content hash). The ids are labels: no entity refers
+    to them.
+    """
+    counter = iter(range(1, 1 << 30))
+    return _OCCURRENCE_ID.sub(lambda m: f"{m.group(1)}'{next(counter)}'", step)
 
 
 def _style_blocks(tail: str) -> list[list[tuple[int, str]]] | None:
