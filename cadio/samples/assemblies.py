@@ -8,6 +8,7 @@ the single-part builders of ``cadio.samples.parts``.
 from __future__ import annotations
 
 from collections.abc import Callable
+from typing import Any
 
 import build123d as bd
 from bd_warehouse import bearing as bdw_bearing
@@ -31,9 +32,10 @@ from cadio.samples.parts import (
 )
 
 
-def _hang(shape: bd.Shape, top_z: float) -> bd.Shape:
+def _hang(shape: bd.Shape[Any], top_z: float) -> bd.Shape[Any]:
     """``shape`` moved along Z so that its highest point is at ``top_z``."""
-    return bd.Pos(0, 0, top_z - shape.bounding_box().max.Z) * shape
+    moved: bd.Shape[Any] = bd.Pos(0, 0, top_z - shape.bounding_box().max.Z) * shape
+    return moved
 
 
 def _bolted_joint() -> list[bd.Solid]:

@@ -47,7 +47,7 @@ logger = logging.getLogger(__name__)
 ASSEMBLIES = "assemblies"
 LIBRARY_INDEX = "LIBRARY.json"
 # Bump whenever any geometry, name or colour changes: it invalidates generated libraries.
-LIBRARY_VERSION = 1
+LIBRARY_VERSION = 2
 
 
 @dataclass(frozen=True)
@@ -67,7 +67,7 @@ class SampleSpec:
     category: str  # a Category value, or ASSEMBLIES
     name: str
     description: str
-    build: Callable[[], bd.Shape]
+    build: Callable[[], bd.Shape[Any]]
 
 
 @dataclass(frozen=True)
@@ -90,7 +90,7 @@ def _single(build: Builder, name: str, colour: str) -> Builder:
     return lambda: dress_solid(build(), name, colour)
 
 
-def _compound(build: Callable[[], list[bd.Solid]], name: str) -> Callable[[], bd.Shape]:
+def _compound(build: Callable[[], list[bd.Solid]], name: str) -> Callable[[], bd.Shape[Any]]:
     return lambda: bd.Compound(children=build(), label=name)
 
 
@@ -126,7 +126,7 @@ def _stamp(cfg: SampleConfig) -> dict[str, Any]:
     return {"version": LIBRARY_VERSION, "config": asdict(cfg), "packages": versions}
 
 
-def _labels(shape: bd.Shape) -> tuple[str, ...]:
+def _labels(shape: bd.Shape[Any]) -> tuple[str, ...]:
     if isinstance(shape, bd.Compound) and shape.children:
         return tuple(child.label for child in shape.children)
     return (shape.label,)

@@ -12,6 +12,7 @@ from __future__ import annotations
 import math
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
+from typing import Any
 
 import build123d as bd
 from bd_warehouse import bearing as bdw_bearing
@@ -20,7 +21,7 @@ from bd_warehouse import gear as bdw_gear
 
 from cadio.errors import GeometryError
 
-Builder = Callable[[], bd.Shape]
+Builder = Callable[[], bd.Shape[Any]]
 _Z0 = (bd.Align.CENTER, bd.Align.CENTER, bd.Align.MIN)  # centred in x, y; starting at z = 0
 
 # --------------------------------------------------------------------------- colours
@@ -33,7 +34,7 @@ _COLOURS: dict[str, tuple[float, float, float]] = {
 }
 
 
-def dress_solid(shape: bd.Shape, label: str, colour: str) -> bd.Solid:
+def dress_solid(shape: bd.Shape[Any], label: str, colour: str) -> bd.Solid:
     """The single valid solid of ``shape``, labelled and coloured (a ``_COLOURS`` key).
 
     Raises:
@@ -48,7 +49,7 @@ def dress_solid(shape: bd.Shape, label: str, colour: str) -> bd.Solid:
 # --------------------------------------------------------------------------- primitives
 
 
-def _one(shape: bd.Shape, what: str = "sample") -> bd.Solid:
+def _one(shape: bd.Shape[Any], what: str = "sample") -> bd.Solid:
     """The single valid solid of ``shape``; GeometryError otherwise."""
     solids = shape.solids()
     if len(solids) != 1:
@@ -58,20 +59,21 @@ def _one(shape: bd.Shape, what: str = "sample") -> bd.Solid:
     return solids[0]
 
 
-def _cut(base: bd.Shape, *tools: bd.Shape) -> bd.Solid:
+def _cut(base: bd.Shape[Any], *tools: bd.Shape[Any]) -> bd.Solid:
     return _one(base.cut(*tools))
 
 
-def _fuse(base: bd.Shape, *others: bd.Shape) -> bd.Solid:
+def _fuse(base: bd.Shape[Any], *others: bd.Shape[Any]) -> bd.Solid:
     return _one(base.fuse(*others).clean())
 
 
-def _cyl(r: float, h: float, x: float = 0, y: float = 0, z: float = 0) -> bd.Shape:
+def _cyl(r: float, h: float, x: float = 0, y: float = 0, z: float = 0) -> bd.Shape[Any]:
     """Cylinder along +Z from (x, y, z)."""
     return bd.Pos(x, y, z) * bd.Cylinder(r, h, align=_Z0)
 
 
-def _box(sx: float, sy: float, sz: float, x: float = 0, y: float = 0, z: float = 0) -> bd.Shape:
+def _box(sx: float, sy: float, sz: float, x: float = 0, y: float = 0,
+         z: float = 0) -> bd.Shape[Any]:
     """Box centred on (x, y) in plan, from z upwards."""
     return bd.Pos(x, y, z) * bd.Box(sx, sy, sz, align=_Z0)
 
@@ -88,11 +90,11 @@ def _polar(r: float, n: int, phase: float = 0.0) -> list[tuple[float, float, flo
     return [(r * math.cos(math.radians(a)), r * math.sin(math.radians(a)), a) for a in angles]
 
 
-def _bolt_holes(pcd: float, n: int, d: float, z: float, h: float) -> list[bd.Shape]:
+def _bolt_holes(pcd: float, n: int, d: float, z: float, h: float) -> list[bd.Shape[Any]]:
     return [_cyl(d / 2, h, x, y, z) for x, y, _ in _polar(pcd / 2, n)]
 
 
-def _radial_hole(d: float, z: float, length: float) -> bd.Shape:
+def _radial_hole(d: float, z: float, length: float) -> bd.Shape[Any]:
     """A hole along +Y from the Z axis, at height z (set-screw and grease holes)."""
     return bd.Pos(0, length / 2, z) * bd.Rot(90, 0, 0) * bd.Cylinder(d / 2, length)
 
