@@ -1,14 +1,17 @@
 """The part catalog: one row per part (solid) or per file that yielded none, in parquet.
 
-Columns (see DESIGN.md): ``part_id`` (content hash of the file plus the solid index),
-``category`` (the folder name), ``source`` (the file), ``status`` (``ok``, ``failed`` or
-``skipped``), ``error`` (the reason, empty when ok), and the geometry summary of each solid.
+``CatalogRow`` is the typed record the ingest stage produces (see DESIGN.md): ``part_id``
+(content hash of the file plus the solid index), ``category`` (the folder name), ``source``
+(the file), ``status`` (``ok``, ``failed`` or ``skipped``), ``error`` (the reason, empty when
+ok), and the geometry summary of each solid. The catalog file is those rows as a table.
 """
 
 from __future__ import annotations
 
 import json
-from collections.abc import Sequence
+import math
+from collections.abc import Mapping, Sequence
+from dataclasses import asdict, dataclass, fields
 from pathlib import Path
 from typing import Any
 
@@ -18,52 +21,76 @@ from cadio.workspace import atomic_path
 
 STATUSES = ("ok", "failed", "skipped")
 
+
+@dataclass(frozen=True)
+class CatalogRow:
+    """One part of the catalog (or one file that yielded no part). Lengths mm, volumes mm^3."""
+
+    part_id: str = ""
+    category: str = ""
+    source: str = ""
+    source_sha256: str = ""
+    solid_index: int = -1  # -1 for a file without a solid
+    n_solids: int = 0
+    name: str = ""
+    colour: str = ""  # sRGB "#rrggbb" or ""
+    path_in_assembly: str = ""
+    placement: tuple[float, ...] | None = None  # 16 floats, row-major 4x4, mm
+    bbox_min: tuple[float, ...] | None = None  # 3 floats, mm
+    bbox_max: tuple[float, ...] | None = None
+    volume: float = math.nan  # B-rep volume
+    mesh_volume: float = math.nan  # tessellated volume
+    volume_rel_error: float = math.nan  # (mesh - brep) / brep
+    n_triangles: int = 0
+    n_faces: int = 0
+    mesh_missing_faces: int = 0  # faces OCCT could not triangulate (holes in the mesh)
+    voxel_sizes: tuple[int, ...] | None = None  # grid sizes written under voxels/
+    status: str = "failed"
+    error: str = ""
+    warning: str = ""  # set on ok rows whose derived data is less trustworthy
+    seconds: float = 0.0
+    config_key: str = ""
+    cached: bool = False
+
+    @property
+    def ok(self) -> bool:
+        return self.status == "ok"
+
+    @classmethod
+    def from_record(cls, record: Mapping[str, Any]) -> CatalogRow:
+        """A row from a catalog frame record (``read_catalog(...).to_dict("records")``)."""
+        values: dict[str, Any] = {}
+        for f in fields(cls):
+            if f.name in record:
+                values[f.name] = _typed(f.name, record[f.name])
+        return cls(**values)
+
+
+_TYPES = {"solid_index": int, "n_solids": int, "n_triangles": int, "n_faces": int,
+          "mesh_missing_faces": int, "volume": float, "mesh_volume": float,
+          "volume_rel_error": float, "seconds": float, "cached": bool}
+_LIST_COLUMNS = ("placement", "bbox_min", "bbox_max", "voxel_sizes")
 # Column -> pandas dtype; the order is the order written.
 COLUMNS: dict[str, str] = {
-    "part_id": "string",
-    "category": "string",
-    "source": "string",
-    "source_sha256": "string",
-    "solid_index": "int64",
-    "n_solids": "int64",
-    "name": "string",
-    "colour": "string",
-    "path_in_assembly": "string",
-    "placement": "object",  # 16 floats, row-major 4x4, mm
-    "bbox_min": "object",  # 3 floats, mm
-    "bbox_max": "object",
-    "volume": "float64",  # B-rep volume, mm^3
-    "mesh_volume": "float64",  # tessellated volume, mm^3
-    "volume_rel_error": "float64",  # (mesh - brep) / brep
-    "n_triangles": "int64",
-    "n_faces": "int64",
-    "mesh_missing_faces": "int64",  # faces OCCT could not triangulate (holes in the mesh)
-    "voxel_sizes": "object",  # grid sizes written under voxels/
-    "status": "string",
-    "error": "string",
-    "warning": "string",  # set on ok rows whose derived data is less trustworthy
-    "seconds": "float64",
-    "config_key": "string",
-    "cached": "bool",
+    f.name: ("object" if f.name in _LIST_COLUMNS else
+             {int: "int64", float: "float64", bool: "bool"}.get(_TYPES.get(f.name, str), "string"))
+    for f in fields(CatalogRow)
 }
 
 
-def empty_row() -> dict[str, Any]:
-    """A row with every column set to its neutral value."""
-    return {
-        "part_id": "", "category": "", "source": "", "source_sha256": "", "solid_index": -1,
-        "n_solids": 0, "name": "", "colour": "", "path_in_assembly": "", "placement": None,
-        "bbox_min": None, "bbox_max": None, "volume": float("nan"),
-        "mesh_volume": float("nan"), "volume_rel_error": float("nan"), "n_triangles": 0,
-        "n_faces": 0, "mesh_missing_faces": 0, "voxel_sizes": None, "status": "failed",
-        "error": "", "warning": "", "seconds": 0.0,
-        "config_key": "", "cached": False,
-    }
+def _typed(name: str, value: Any) -> Any:
+    """A frame value as the field's Python type (lists as tuples, missing text as "")."""
+    if name in _LIST_COLUMNS:
+        return None if value is None else tuple(value)
+    kind = _TYPES.get(name, str)
+    if value is None or value is pd.NA:
+        return "" if kind is str else (math.nan if kind is float else kind())
+    return kind(value)
 
 
-def to_frame(rows: Sequence[dict[str, Any]]) -> pd.DataFrame:
-    """Rows (dicts with the catalog columns) as a typed DataFrame, in catalog column order."""
-    frame = pd.DataFrame([{**empty_row(), **r} for r in rows], columns=list(COLUMNS))
+def to_frame(rows: Sequence[CatalogRow]) -> pd.DataFrame:
+    """Rows as a typed DataFrame, in catalog column order."""
+    frame = pd.DataFrame([asdict(r) for r in rows], columns=list(COLUMNS))
     for name, dtype in COLUMNS.items():
         if dtype != "object":
             frame[name] = frame[name].astype(dtype)
@@ -89,6 +116,11 @@ def read_catalog(path: Path) -> pd.DataFrame:
         if dtype == "object" and name in frame:
             frame[name] = [json.loads(v) if isinstance(v, str) else v for v in frame[name]]
     return frame
+
+
+def catalog_rows(frame: pd.DataFrame) -> list[CatalogRow]:
+    """The rows of a catalog frame as records."""
+    return [CatalogRow.from_record(r) for r in frame.to_dict("records")]
 
 
 def _plain(value: Any) -> Any:

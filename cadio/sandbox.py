@@ -9,7 +9,6 @@ waits on results and process deaths together, turns a timeout, a memory error or
 
 from __future__ import annotations
 
-import importlib
 import logging
 import multiprocessing as mp
 import os
@@ -20,8 +19,7 @@ from collections import deque
 from collections.abc import Callable, Iterable, Iterator
 from dataclasses import dataclass
 from multiprocessing.connection import Connection, wait
-from pathlib import Path
-from typing import Any
+from typing import Any, Generic, TypeVar
 
 from cadio.errors import CadioError, InputFileError, WorkerError
 
@@ -43,55 +41,62 @@ class Limits:
     workers: int = 2
 
 
+P = TypeVar("P")  # a job's payload: a typed record of the stage (e.g. ``IngestJob``)
+R = TypeVar("R")  # what the job function returns for it
+
+
 @dataclass(frozen=True)
-class Job:
+class Job(Generic[P]):
     """One unit of work: ``key`` names the input (a file path) in errors."""
 
     key: str
-    payload: Any
+    payload: P
 
 
 @dataclass(frozen=True)
-class Outcome:
-    """The result of a job, or the error that ended it."""
+class Outcome(Generic[P, R]):
+    """The result of a job, or the error that ended it (then ``result`` is None)."""
 
-    job: Job
-    result: Any = None
+    job: Job[P]
+    result: R | None = None
     error: InputFileError | None = None
     seconds: float = 0.0
 
 
-def run_isolated(target: str, jobs: Iterable[Job], limits: Limits = Limits()) -> Iterator[Outcome]:
-    """Run ``target(payload)`` for every job in isolated worker processes.
+def run_isolated(
+    fn: Callable[[P], R], jobs: Iterable[Job[P]], limits: Limits = Limits()
+) -> Iterator[Outcome[P, R]]:
+    """Run ``fn(payload)`` for every job in isolated worker processes.
 
     Args:
-        target: "package.module:function"; the function takes a job payload and returns a
-            picklable result. It raises ``InputFileError`` for bad input.
+        fn: a module-level function (workers are spawned, so it travels by its qualified
+            name); it takes a job payload and returns a picklable result, and raises
+            ``InputFileError`` for bad input.
         jobs: the jobs; their order of completion may differ.
         limits: time, memory and parallelism limits.
 
     Yields:
         One ``Outcome`` per job, as jobs finish.
     """
-    pool = _Pool(target, limits)
+    pool: _Pool[P, R] = _Pool(fn, limits)
     try:
         yield from pool.run(deque(jobs))
     finally:
         pool.close()
 
 
-class _Worker:
-    def __init__(self, ctx: Any, target: str, memory_mb: int) -> None:
+class _Worker(Generic[P]):
+    def __init__(self, ctx: Any, fn: Callable[[Any], Any], memory_mb: int) -> None:
         self.conn, child = ctx.Pipe()
         self.process = ctx.Process(
-            target=_worker_main, args=(child, target, memory_mb), daemon=True
+            target=_worker_main, args=(child, fn, memory_mb), daemon=True
         )
         self.process.start()
         child.close()
-        self.job: Job | None = None
+        self.job: Job[P] | None = None
         self.started = 0.0
 
-    def submit(self, job: Job) -> None:
+    def submit(self, job: Job[P]) -> None:
         self.job, self.started = job, time.monotonic()
         self.conn.send(job.payload)
 
@@ -102,13 +107,13 @@ class _Worker:
         self.conn.close()
 
 
-class _Pool:
-    def __init__(self, target: str, limits: Limits) -> None:
+class _Pool(Generic[P, R]):
+    def __init__(self, fn: Callable[[P], R], limits: Limits) -> None:
         self.ctx = mp.get_context("spawn")
-        self.target, self.limits = target, limits
-        self.workers: list[_Worker] = []
+        self.fn, self.limits = fn, limits
+        self.workers: list[_Worker[P]] = []
 
-    def run(self, queue: deque[Job]) -> Iterator[Outcome]:
+    def run(self, queue: deque[Job[P]]) -> Iterator[Outcome[P, R]]:
         while queue or any(w.job for w in self.workers):
             self._fill(queue)
             busy = [w for w in self.workers if w.job is not None]
@@ -121,19 +126,19 @@ class _Pool:
                 if outcome is not None:
                     yield outcome
 
-    def _fill(self, queue: deque[Job]) -> None:
+    def _fill(self, queue: deque[Job[P]]) -> None:
         self.workers = [w for w in self.workers if w.process.is_alive() or w.job is not None]
         while len(self.workers) < self.limits.workers and queue:
-            self.workers.append(_Worker(self.ctx, self.target, self.limits.memory_mb))
+            self.workers.append(_Worker(self.ctx, self.fn, self.limits.memory_mb))
         for worker in self.workers:
             if worker.job is None and queue:
                 worker.submit(queue.popleft())
 
-    def _next_deadline(self, busy: list[_Worker]) -> float:
+    def _next_deadline(self, busy: list[_Worker[P]]) -> float:
         now = time.monotonic()
         return max(0.0, min(w.started + self.limits.seconds - now for w in busy))
 
-    def _check(self, worker: _Worker, ready: list[Any]) -> Outcome | None:
+    def _check(self, worker: _Worker[P], ready: list[Any]) -> Outcome[P, R] | None:
         job = worker.job
         assert job is not None
         elapsed = time.monotonic() - worker.started
@@ -156,7 +161,7 @@ class _Pool:
             return self._retire(worker, reason, elapsed)
         return None
 
-    def _retire(self, worker: _Worker, reason: str, elapsed: float) -> Outcome:
+    def _retire(self, worker: _Worker[P], reason: str, elapsed: float) -> Outcome[P, R]:
         job = worker.job
         assert job is not None
         worker.kill()
@@ -194,13 +199,11 @@ def _rebuild_error(key: str, value: tuple[str, str]) -> InputFileError:
     return InputFileError(key, reason)
 
 
-def _worker_main(conn: Connection, target: str, memory_mb: int) -> None:
+def _worker_main(conn: Connection, fn: Callable[[Any], Any], memory_mb: int) -> None:
     """Entry point of a worker: limit memory, silence the kernel's console, serve jobs."""
     _limit_memory(memory_mb)
     devnull = os.open(os.devnull, os.O_WRONLY)
     os.dup2(devnull, 1)  # OpenCascade prints parser chatter straight to fd 1
-    module, _, name = target.partition(":")
-    fn: Callable[[Any], Any] = getattr(importlib.import_module(module), name)
     while True:
         try:
             payload = conn.recv()
@@ -227,8 +230,3 @@ def _serve(fn: Callable[[Any], Any], payload: Any, memory_mb: int) -> tuple[str,
 def _limit_memory(memory_mb: int) -> None:
     limit = memory_mb * 1024 * 1024
     resource.setrlimit(resource.RLIMIT_AS, (limit, limit))
-
-
-def path_key(path: Path) -> str:
-    """The key used for a file job: its path as given."""
-    return str(path)

@@ -1,12 +1,20 @@
 """Every geometric tolerance of mateqa, in one place, each with the reason for its value.
 
-Tests import these objects rather than repeating numbers; reports print them next to results
-so that a figure is never separated from the rule that produced it.
+One ``Tolerances`` object is the only route for a tolerance: the nightly flow takes it as a
+parameter and hands it to ingest, mates, scenes and capture; the CLI's ``--tol NAME=VALUE``
+options and ``--tolerances FILE.json`` map onto it (``with_overrides``); every run writes the
+one it used beside its results (``tolerances.json``, and the metadata of the mates tables).
+Tests import these objects rather than repeating numbers.
 """
 
 from __future__ import annotations
 
-from dataclasses import asdict, dataclass
+import json
+from collections.abc import Mapping
+from dataclasses import asdict, dataclass, fields, replace
+from pathlib import Path
+
+from cadio.workspace import write_json
 
 
 @dataclass(frozen=True)
@@ -48,10 +56,53 @@ class Tolerances:
     min_overlap_mm2: float = 1e-6
     # Groups of planar faces by normal direction: directions within this angle are one group.
     group_angle_deg: float = 0.5
+    # Voxel grids: the cube's side is the part's largest extent times (1 + margin), so that
+    # surface voxels are not cut by the grid's border. Truth grids and the partial grids of
+    # the captures must share it to align voxel for voxel.
+    grid_margin: float = 0.05
 
     def as_dict(self) -> dict[str, float]:
         """The tolerances as a flat dict, for reports and parquet metadata."""
         return asdict(self)
 
+    def with_overrides(self, overrides: Mapping[str, float | str]) -> Tolerances:
+        """These tolerances with some values replaced (values may be numeric strings).
+
+        Raises:
+            ValueError: an unknown name (the message lists the known ones) or a value that is
+                not a finite, non-negative number.
+        """
+        known = {f.name for f in fields(self)}
+        values: dict[str, float] = {}
+        for name, raw in overrides.items():
+            if name not in known:
+                raise ValueError(f"unknown tolerance {name!r}; known: {', '.join(sorted(known))}")
+            try:
+                value = float(raw)
+            except ValueError:
+                raise ValueError(f"tolerance {name} must be a number, got {raw!r}") from None
+            if not value >= 0.0 or value == float("inf"):
+                raise ValueError(f"tolerance {name} must be finite and >= 0, got {raw!r}")
+            values[name] = value
+        return replace(self, **values)
+
 
 DEFAULT_TOLERANCES = Tolerances()
+
+
+def read_tolerances(path: Path) -> Tolerances:
+    """Tolerances from a JSON object of overrides (a ``tolerances.json`` of a run reads back).
+
+    Raises:
+        ValueError: the file is not a JSON object, or names an unknown tolerance.
+    """
+    data = json.loads(Path(path).read_text())
+    if not isinstance(data, dict):
+        raise ValueError(f"{path}: expected a JSON object of tolerance names to values")
+    return DEFAULT_TOLERANCES.with_overrides(data)
+
+
+def write_tolerances(path: Path, tol: Tolerances) -> None:
+    """Write the tolerances a run used, as JSON (atomically)."""
+    write_json(path, tol.as_dict())
+

@@ -1,8 +1,10 @@
 """The ``mateqa`` command line.
 
-``ingest`` runs the library functions directly (no Prefect); ``nightly`` runs the Prefect flow,
-against ``PREFECT_API_URL`` when set, otherwise against a local Prefect server on SQLite that it
-starts (and leaves running for the UI and later runs unless ``--stop-server``).
+``ingest``, ``mates`` and ``capture`` run the library functions directly (no Prefect);
+``nightly`` runs the Prefect flow, against ``PREFECT_API_URL`` when set, otherwise against a
+local Prefect server on SQLite that it starts (and leaves running for the UI and later runs
+unless ``--stop-server``). Every command takes the same tolerance options (``--tol NAME=VALUE``,
+``--tolerances FILE.json``), which map onto the one ``Tolerances`` object of the run.
 Exit code 0 means the run completed, even when some inputs were bad (they are in the report).
 """
 
@@ -13,9 +15,17 @@ import json
 import logging
 import os
 import sys
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
+from dataclasses import asdict
 from pathlib import Path
 
+from cadio.errors import InputFileError
+from cadio.tolerances import DEFAULT_TOLERANCES, Tolerances, read_tolerances
 from flows.settings import Settings
+
+# Third-party loggers that narrate every operation at INFO (build123d logs each sketch step).
+_CHATTY = ("httpx", "build123d", "prefect.task_runs", "prefect.events", "prefect._internal")
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -23,7 +33,13 @@ def main(argv: list[str] | None = None) -> int:
     parser = _parser()
     args = parser.parse_args(argv)
     logging.basicConfig(level=logging.INFO, format="%(levelname)s %(name)s: %(message)s")
-    logging.getLogger("httpx").setLevel(logging.WARNING)  # one line per API call otherwise
+    for name in _CHATTY:
+        logging.getLogger(name).setLevel(logging.WARNING)
+    try:
+        args.tolerances = _tolerances(args)
+    except (ValueError, OSError) as exc:
+        print(f"mateqa {args.command}: {exc}", file=sys.stderr)
+        return 2
     try:
         return int(args.func(args))
     except KeyboardInterrupt:
@@ -63,8 +79,7 @@ def _parser() -> argparse.ArgumentParser:
                        description="Extract the ground-truth mates of one STEP assembly into "
                        "WS/mates/<assembly>.parquet and print a summary.")
     p.add_argument("step", type=Path, metavar="STEP", help="a STEP assembly")
-    p.add_argument("--workspace", type=Path, default=settings.workspace,
-                   help=f"workspace folder (default {settings.workspace})")
+    _workspace_and_tolerances(p, settings)
     p.set_defaults(func=_cmd_mates)
 
     p = sub.add_parser("capture", help="render RGB-D views of a STEP file or a scene to MCAP",
@@ -72,8 +87,7 @@ def _parser() -> argparse.ArgumentParser:
                        "part or assembly, or of a scene id of WS/scenes.parquet, into "
                        "WS/captures/<name>.mcap.")
     p.add_argument("target", metavar="STEP_OR_SCENE", help="a STEP file or a scene id")
-    p.add_argument("--workspace", type=Path, default=settings.workspace,
-                   help=f"workspace folder (default {settings.workspace})")
+    _workspace_and_tolerances(p, settings)
     p.add_argument("--views", type=int, default=125, help="views to render (default 125)")
     p.add_argument("--noise", action="store_true", help="switch the depth noise model on")
     p.set_defaults(func=_cmd_capture)
@@ -81,13 +95,23 @@ def _parser() -> argparse.ArgumentParser:
     p = sub.add_parser("samples", help="generate the built-in sample library",
                        description="Write the built-in sample STEP library into OUT.")
     p.add_argument("out", type=Path, metavar="OUT", help="output folder")
-    p.set_defaults(func=_cmd_samples)
+    p.set_defaults(func=_cmd_samples, tol=[], tolerances_file=None)
     return parser
 
 
-def _common(p: argparse.ArgumentParser, settings: Settings) -> None:
+def _workspace_and_tolerances(p: argparse.ArgumentParser, settings: Settings) -> None:
     p.add_argument("--workspace", type=Path, default=settings.workspace,
                    help=f"workspace folder (default {settings.workspace})")
+    p.add_argument("--tol", action="append", default=[], metavar="NAME=VALUE",
+                   help="override one tolerance (repeatable), e.g. --tol contact_mm=0.2; "
+                   f"names: {', '.join(DEFAULT_TOLERANCES.as_dict())}")
+    p.add_argument("--tolerances", dest="tolerances_file", type=Path, default=None,
+                   metavar="FILE", help="JSON object of tolerance overrides (a run's "
+                   "tolerances.json reads back); --tol applies on top")
+
+
+def _common(p: argparse.ArgumentParser, settings: Settings) -> None:
+    _workspace_and_tolerances(p, settings)
     p.add_argument("--voxel-sizes", type=int, nargs="+", default=None,
                    help="occupancy grid sizes (default 32 64)")
     p.add_argument("--workers", type=int, default=settings.workers,
@@ -100,17 +124,43 @@ def _common(p: argparse.ArgumentParser, settings: Settings) -> None:
                    help="files larger than this are skipped, MB")
 
 
+def _tolerances(args: argparse.Namespace) -> Tolerances:
+    """The run's tolerances: the defaults, then ``--tolerances FILE``, then each ``--tol``."""
+    tol = read_tolerances(args.tolerances_file) if args.tolerances_file else DEFAULT_TOLERANCES
+    overrides = {}
+    for item in args.tol:
+        name, sep, value = item.partition("=")
+        if not sep:
+            raise ValueError(f"--tol takes NAME=VALUE, got {item!r}")
+        overrides[name.strip()] = value.strip()
+    return tol.with_overrides(overrides)
+
+
+@contextmanager
+def _progress(description: str, total: int) -> Iterator[Callable[[str], None]]:
+    """A progress bar on stderr; yields the function that advances it by one item."""
+    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TimeElapsedColumn
+
+    columns = (*Progress.get_default_columns()[:1], BarColumn(), MofNCompleteColumn(),
+               TimeElapsedColumn())
+    with Progress(*columns, transient=True) as bar:
+        task = bar.add_task(description, total=total)
+        yield lambda item: bar.advance(task)
+
+
 def _cmd_ingest(args: argparse.Namespace) -> int:
-    from cadio.cad.ingest import ingest
-    from cadio.errors import InputFileError
+    from cadio.cad.ingest import discover, ingest
     from flows.settings import ingest_config
-    from reports.ingest import build_ingest_report
+    from reports.render import build_ingest_report
 
     settings = Settings(workers=args.workers, file_timeout_s=args.timeout,
                         file_memory_mb=args.memory_mb, max_file_mb=args.max_file_mb)
-    cfg = ingest_config(settings, args.voxel_sizes, default_workers=os.cpu_count() or 1)
+    cfg = ingest_config(settings, args.voxel_sizes, args.tolerances,
+                        default_workers=os.cpu_count() or 1)
     try:
-        catalog = ingest(args.library, args.workspace, cfg)
+        total = len(discover(args.library))
+        with _progress("ingest", total) as advance:
+            catalog = ingest(args.library, args.workspace, cfg, on_file=advance)
     except InputFileError as exc:
         print(f"mateqa ingest: {exc}", file=sys.stderr)
         return 2
@@ -128,12 +178,11 @@ def _cmd_samples(args: argparse.Namespace) -> int:
 
 
 def _cmd_mates(args: argparse.Namespace) -> int:
-    from cadio.errors import InputFileError
     from cadio.truth.mates import read_assembly_mates, write_mates
     from cadio.workspace import Workspace
 
     try:
-        result = read_assembly_mates(args.step)
+        result = read_assembly_mates(args.step, args.tolerances)
     except InputFileError as exc:
         print(f"mateqa mates: {exc}", file=sys.stderr)
         return 2
@@ -148,15 +197,15 @@ def _cmd_mates(args: argparse.Namespace) -> int:
 
 def _cmd_capture(args: argparse.Namespace) -> int:
     from cadio.capture.scan import ScanConfig, capture_step
-    from cadio.errors import InputFileError
 
-    cfg = ScanConfig(views_per_scene=args.views, noise=args.noise)
+    cfg = ScanConfig(views_per_scene=args.views, noise=args.noise, tolerances=args.tolerances)
     try:
-        summary = capture_step(args.target, args.workspace, cfg)
+        with _progress("capture", args.views) as advance:
+            summary = capture_step(args.target, args.workspace, cfg, on_frame=advance)
     except InputFileError as exc:
         print(f"mateqa capture: {exc}", file=sys.stderr)
         return 2
-    print(json.dumps(summary, indent=1))
+    print(json.dumps(summary.to_dict(), indent=1))
     return 0
 
 
@@ -171,10 +220,6 @@ def _cmd_nightly(args: argparse.Namespace) -> int:
         print(f"starting a local Prefect server on SQLite in {home} ...", flush=True)
         proc = start_server(home, settings.server_port)
         print(f"Prefect API at {os.environ['PREFECT_API_URL']}", flush=True)
-    os.environ["MATEQA_WORKERS"] = str(args.workers or 1)
-    os.environ["MATEQA_FILE_TIMEOUT_S"] = str(args.timeout)
-    os.environ["MATEQA_FILE_MEMORY_MB"] = str(args.memory_mb)
-    os.environ["MATEQA_MAX_FILE_MB"] = str(args.max_file_mb)
     try:
         return _run_nightly(args)
     finally:
@@ -188,20 +233,25 @@ def _run_nightly(args: argparse.Namespace) -> int:
     state = nightly(
         library=str(args.library) if args.library else None,
         workspace=str(args.workspace),
+        tolerances=args.tolerances,
         voxel_sizes=args.voxel_sizes,
         pairs_per_relation=args.pairs_per_relation,
         views_per_scene=args.views_per_scene,
         noise=args.noise,
         captures=str(args.captures) if args.captures else None,
+        workers=args.workers or 1,
+        file_timeout_s=args.timeout,
+        file_memory_mb=args.memory_mb,
+        max_file_mb=args.max_file_mb,
         return_state=True,
     )
     if not state.is_completed():
         print(f"mateqa nightly: the run failed: {state.message}", file=sys.stderr)
         return 1
     summary = state.result()
-    print(Path(summary["report"]).read_text())
-    print(Path(summary["stages_report"]).read_text())
-    print(json.dumps(summary, indent=1))
+    print(Path(summary.ingest_report).read_text())
+    print(Path(summary.stages_report).read_text())
+    print(json.dumps(asdict(summary), indent=1))
     return 0
 
 

@@ -1,20 +1,21 @@
-"""The nightly flow: the main job. Ingest -> mates -> scenes -> captures -> report.
+"""The nightly flow, the main job: ingest -> mates -> scenes -> captures -> report.
 
-Later stages (completion, relations, export) are added to this same flow. Tasks
-are thin: resolve paths, call one library function, write its output, return a path or a small
-summary. Tasks are coarse (a batch of files) because SQLite-backed servers struggle with
-thousands of tiny task runs.
+Later stages (completion, relations, export) join this same flow. Each task is one call into
+the packages; the flow only fans work out in coarse batches (SQLite-backed servers struggle
+with thousands of tiny task runs) and logs one line per stage. Results are cached on content
+hashes: a rerun over unchanged files does no CAD work again.
 """
 
 from __future__ import annotations
 
 import hashlib
 import json
+import time
+from dataclasses import asdict, dataclass, is_dataclass
 from datetime import UTC, datetime
 from pathlib import Path
 from typing import Any
 
-import pandas as pd
 from prefect import flow, get_run_logger, task
 from prefect.artifacts import create_markdown_artifact
 from prefect.context import TaskRunContext
@@ -28,21 +29,57 @@ from cadio.cad.ingest import (
     ingest_files,
     mark_duplicates,
 )
-from cadio.capture.scan import ScanConfig, capture_scenes, scan_inputs
-from cadio.catalog import read_catalog, to_frame, write_catalog
-from cadio.errors import CaptureError
-from cadio.sandbox import Job, Limits, run_isolated
-from cadio.truth.scenes import (
-    SceneConfig,
-    generate_scenes,
-    read_scene_parts,
-    read_scenes,
-    write_scenes,
-)
+from cadio.capture.scan import ScanConfig, capture_batch, read_captures
+from cadio.catalog import CatalogRow, read_catalog, to_frame, write_catalog
+from cadio.contracts import CaptureSummary, MatesSummary, ScenesSummary
+from cadio.sandbox import Limits
+from cadio.tolerances import DEFAULT_TOLERANCES, Tolerances, write_tolerances
+from cadio.truth.assemblies import AssemblyJob, assembly_jobs, extract_assembly_mates
+from cadio.truth.scenes import SceneConfig, build_scenes, read_scenes
 from cadio.workspace import Workspace, write_json
 from flows.settings import Settings, ingest_config
-from reports.ingest import build_ingest_report, markdown_table
-from reports.stages import captures_table, joints_table, mates_table, scenes_table
+from reports.render import (
+    IngestTotals,
+    StageTotals,
+    build_ingest_report,
+    build_stage_report,
+    write_ingest_report,
+    write_stage_report,
+)
+
+
+@dataclass(frozen=True)
+class Run:
+    """One night: its id, workspace, report folder, and the token of the workspace's life."""
+
+    run_id: str
+    workspace: str
+    run_dir: str
+    epoch: str
+
+
+@dataclass(frozen=True)
+class NightlySummary:
+    """What a nightly run returns: where its reports are and the totals of each stage."""
+
+    run_id: str
+    library: str
+    workspace: str
+    run_dir: str
+    ingest_report: str
+    stages_report: str
+    ingest: IngestTotals
+    stages: StageTotals
+
+
+def start_run(workspace: str, tolerances: Tolerances) -> Run:
+    """Create the run folder and write the tolerances the run uses beside its results."""
+    ws = Workspace(Path(workspace).resolve())
+    run_id = datetime.now(UTC).strftime("%Y%m%dT%H%M%S%fZ")
+    run_dir = ws.run_dir(run_id)
+    run_dir.mkdir(parents=True, exist_ok=True)
+    write_tolerances(run_dir / "tolerances.json", tolerances)
+    return Run(run_id, str(ws.root), str(run_dir), _workspace_epoch(ws))
 
 
 def _workspace_epoch(ws: Workspace) -> str:
@@ -54,16 +91,26 @@ def _workspace_epoch(ws: Workspace) -> str:
     return marker.read_text()
 
 
-def _batch_cache_key(ctx: TaskRunContext, params: dict[str, Any]) -> str:
-    """Content hashes of the batch's files + ingest config + workspace epoch."""
-    digest = hashlib.sha256()
-    digest.update(params["config_key"].encode())
-    digest.update(params["epoch"].encode())
-    for path, category in params["batch"]:
-        p = Path(path)
-        digest.update(f"{path}\0{category}\0".encode())
-        digest.update(file_sha256(p).encode() if p.is_file() else b"not-a-file")
-    return f"ingest-batch-{digest.hexdigest()}"
+def _plain(value: Any) -> Any:
+    """JSON form of task parameters for cache keys (dataclasses as dicts, paths as text)."""
+    return asdict(value) if is_dataclass(value) and not isinstance(value, type) else str(value)
+
+
+def _content_key(ctx: TaskRunContext, params: dict[str, Any]) -> str:
+    """Content hashes of the files a task reads + its other parameters + workspace epoch.
+
+    ``params["files"]`` lists the paths whose bytes matter; every other parameter is hashed
+    by value (dataclasses field by field).
+    """
+    others = {k: v for k, v in params.items() if k != "files"}
+    digest = hashlib.sha256(json.dumps(others, sort_keys=True, default=_plain).encode())
+    for path in map(Path, params["files"]):
+        digest.update(f"{path}\0".encode())
+        digest.update(file_sha256(path).encode() if path.is_file() else b"not-a-file")
+    return f"{ctx.task.name}-{digest.hexdigest()}"
+
+
+# ---------------------------------------------------------------- tasks: one call each
 
 
 @task(name="generate-sample-library")
@@ -72,171 +119,120 @@ def generate_library_task(workspace: str) -> str:
     from cadio.samples.library import generate_library
 
     out = Workspace(Path(workspace)).library
-    paths = generate_library(out)
-    get_run_logger().info("sample library: %d STEP files in %s", len(paths), out)
+    generate_library(out)
     return str(out)
 
 
-@task(name="discover")
-def discover_task(library: str) -> list[tuple[str, str]]:
-    """Every STEP path under the library with its category."""
-    return [(str(f.path), f.category) for f in discover(Path(library))]
-
-
-@task(name="ingest-batch", cache_key_fn=_batch_cache_key, persist_result=True)
-def ingest_batch_task(
-    batch: list[tuple[str, str]], workspace: str, config_key: str, epoch: str, cfg: IngestConfig
-) -> list[dict[str, Any]]:
-    """Ingest a batch of files in isolated workers; returns catalog rows."""
-    assert config_key == cfg.key()
+@task(name="ingest-batch", cache_key_fn=_content_key, persist_result=True)
+def ingest_batch_task(files: list[str], categories: list[str], workspace: str, epoch: str,
+                      cfg: IngestConfig) -> list[CatalogRow]:
+    """Catalog rows of a batch of files, each read in an isolated worker."""
+    found = [Found(Path(p), c) for p, c in zip(files, categories, strict=True)]
     ws = Workspace(Path(workspace))
-    found = [Found(Path(p), c) for p, c in batch]
-    rows = ingest_files(found, ws.root, cfg, read_catalog(ws.catalog))
-    failed = sum(r["status"] != "ok" for r in rows)
-    get_run_logger().info("batch of %d files: %d rows, %d not ok", len(batch), len(rows), failed)
-    return rows
+    return ingest_files(found, ws.root, cfg, read_catalog(ws.catalog))
 
 
 @task(name="write-catalog")
-def write_catalog_task(batches: list[list[dict[str, Any]]], workspace: str) -> str:
-    rows = mark_duplicates([row for batch in batches for row in batch])
+def write_catalog_task(batches: list[list[CatalogRow]], workspace: str) -> str:
+    """Write the catalog of every batch (duplicates across batches marked)."""
+    rows = mark_duplicates(row for batch in batches for row in batch)
     path = Workspace(Path(workspace)).catalog
     write_catalog(path, to_frame(rows))
     return str(path)
 
 
-@task(name="ingest-report")
-def ingest_report_task(catalog_path: str, run_dir: str) -> dict[str, Any]:
-    """Write the ingest report (Markdown + JSON) and publish it as an artifact."""
-    report = build_ingest_report(read_catalog(Path(catalog_path)))
-    out = Path(run_dir)
-    out.mkdir(parents=True, exist_ok=True)
-    text = report.markdown()
-    (out / "ingest.md").write_text(text)
-    write_json(out / "ingest.json", {
-        "totals": report.totals,
-        "per_category": report.per_category.to_dict("records"),
-        "problems": report.problems.to_dict("records"),
-    })
-    create_markdown_artifact(key="nightly-ingest", markdown=text, description="Ingest report")
-    return report.totals
-
-
-def _file_cache_key(ctx: TaskRunContext, params: dict[str, Any]) -> str:
-    """Content hashes of the files a task reads + its other parameters + workspace epoch."""
-    digest = hashlib.sha256(json.dumps(
-        {k: v for k, v in params.items() if k != "items"}, sort_keys=True, default=str
-    ).encode())
-    for item in params["items"]:
-        p = Path(item["path"])
-        digest.update(file_sha256(p).encode() if p.is_file() else b"not-a-file")
-    return f"{ctx.task.name}-{digest.hexdigest()}"
-
-
-@task(name="mates", cache_key_fn=_file_cache_key, persist_result=True)
-def mates_task(items: list[dict[str, Any]], workspace: str, epoch: str,
-               timeout_s: float, memory_mb: int) -> list[dict[str, Any]]:
-    """Mates of a batch of assemblies, each in an isolated worker; one summary per assembly."""
-    jobs = [Job(item["path"], {**item, "workspace": workspace}) for item in items]
-    out = []
-    limits = Limits(seconds=timeout_s, memory_mb=memory_mb, workers=1)
-    for outcome in run_isolated("cadio.truth.mates:mates_job", jobs, limits):
-        item = outcome.job.payload
-        base = {"assembly": item["assembly"], "category": item["category"],
-                "source": item["path"], "seconds": outcome.seconds}
-        if outcome.error is None:
-            out.append({**base, **outcome.result, "status": "ok", "error": ""})
-        else:
-            out.append({**base, "status": "failed", "error": outcome.error.reason})
-    return out
+@task(name="mates", cache_key_fn=_content_key, persist_result=True)
+def mates_task(files: list[str], jobs: list[AssemblyJob], epoch: str,
+               limits: Limits) -> list[MatesSummary]:
+    """Mates of a batch of assemblies, each in an isolated worker; one summary each."""
+    return list(extract_assembly_mates(jobs, limits))
 
 
 @task(name="scenes")
-def scenes_task(catalog_path: str, workspace: str, pairs_per_relation: int,
-                seed: int) -> dict[str, Any]:
-    """Generate the scene table from the catalog's single parts; returns its path and count."""
-    ws = Workspace(Path(workspace))
-    parts = read_scene_parts(read_catalog(Path(catalog_path)), ws.root)
-    cfg = SceneConfig(seed=seed, pairs_per_relation=pairs_per_relation)
-    table = generate_scenes(parts, cfg)
-    write_scenes(ws.scenes, table)
-    return {"path": str(ws.scenes), "scenes": len(table), "parts": len(parts)}
+def scenes_task(catalog: str, workspace: str, cfg: SceneConfig) -> ScenesSummary:
+    """Scenes of the catalog's single parts, written to the workspace."""
+    return build_scenes(read_catalog(Path(catalog)), Path(workspace), cfg)
 
 
 @task(name="capture")
-def capture_task(scene_ids: list[str], workspace: str, cfg: ScanConfig) -> list[dict[str, Any]]:
-    """Render a batch of scenes to MCAP and derive their learning inputs (view 0)."""
-    ws = Workspace(Path(workspace))
-    scenes = read_scenes(ws.scenes)
-    scenes = scenes[scenes["scene_id"].isin(scene_ids)]
-    captured = capture_scenes(scenes, read_catalog(ws.catalog), ws, cfg).to_dict("records")
-    for row in captured:
-        if not row["error"]:
-            row.update(_inputs_summary(Path(row["path"]), ws, cfg))
-    return captured
+def capture_task(scene_ids: list[str], workspace: str, cfg: ScanConfig) -> list[CaptureSummary]:
+    """Render a batch of scenes to MCAP and derive their learning inputs."""
+    return capture_batch(scene_ids, Workspace(Path(workspace)), cfg)
 
 
 @task(name="read-captures")
-def read_captures_task(captures_dir: str, workspace: str, cfg: ScanConfig) -> list[dict[str, Any]]:
-    """Read captures recorded elsewhere (real logs) into learning inputs; one row per file."""
-    ws = Workspace(Path(workspace))
-    rows = []
-    for path in sorted(Path(captures_dir).rglob("*.mcap")):
-        row = {"scene_id": path.stem, "path": str(path), "bytes": path.stat().st_size,
-               "frames": 0, "parts": 0, "error": ""}
-        row.update(_inputs_summary(path, ws, cfg))
-        rows.append(row)
-    return rows
+def read_captures_task(captures: str, workspace: str, cfg: ScanConfig) -> list[CaptureSummary]:
+    """Learning inputs of captures recorded elsewhere (real logs)."""
+    return read_captures(Path(captures), Workspace(Path(workspace)), cfg)
 
 
-def _inputs_summary(path: Path, ws: Workspace, cfg: ScanConfig) -> dict[str, Any]:
-    try:
-        summary = scan_inputs(path, ws, cfg)
-    except CaptureError as exc:
-        return {"error": exc.reason}
-    return {"frames": summary["frames"], "input_parts": summary["parts"],
-            "seg_mean_iou": summary.get("seg_mean_iou", float("nan"))}
+@task(name="report")
+def report_task(run: Run, catalog: str, mates: list[MatesSummary], scenes: str | None,
+                captures: list[CaptureSummary]) -> tuple[IngestTotals, StageTotals]:
+    """Write the run's reports and publish them as artifacts."""
+    out = Path(run.run_dir)
+    ingest = build_ingest_report(read_catalog(Path(catalog)))
+    write_ingest_report(out, ingest)
+    stages = build_stage_report(mates, read_scenes(Path(scenes)) if scenes else None, captures)
+    write_stage_report(out, stages)
+    create_markdown_artifact(key="nightly-ingest", markdown=ingest.markdown(),
+                             description="Ingest report")
+    create_markdown_artifact(key="nightly-stages", markdown=stages.markdown(),
+                             description="Mates, scenes and captures per category")
+    return ingest.totals, stages.totals
+
+
+# ---------------------------------------------------------------- stages: fan-out only
 
 
 def _batches(items: list[Any], size: int) -> list[list[Any]]:
     return [items[i:i + size] for i in range(0, len(items), size)]
 
 
-@task(name="stage-report")
-def stage_report_task(run_dir: str, mates: list[dict[str, Any]], scenes_path: str | None,
-                      captures: list[dict[str, Any]]) -> dict[str, Any]:
-    """Per-category tables of mates, scenes and captures: report.md, JSON and an artifact."""
-    scenes = read_scenes(Path(scenes_path)) if scenes_path else None
-    capture_frame = pd.DataFrame(captures)
-    tables = {"mates": mates_table(mates), "joints": joints_table(mates)}
-    if scenes is not None:
-        tables["scenes"] = scenes_table(scenes)
-        tables["captures"] = captures_table(capture_frame, scenes)
-    out = Path(run_dir)
-    text = "\n".join(f"## {name.capitalize()}\n\n{markdown_table(t)}\n"
-                     for name, t in tables.items())
-    failures = [m for m in mates if m["status"] != "ok"]
-    if failures:
-        text += "\n## Failed assemblies\n\n" + markdown_table(
-            pd.DataFrame(failures)[["category", "source", "error"]]) + "\n"
-    (out / "stages.md").write_text(text)
-    write_json(out / "stages.json", {k: t.to_dict("records") for k, t in tables.items()}
-               | {"captures_detail": capture_frame.to_dict("records")})
-    create_markdown_artifact(key="nightly-stages", markdown=text,
-                             description="Mates, scenes and captures per category")
-    return {
-        "assemblies": len(mates), "assemblies_failed": len(failures),
-        "face_mates": int(sum(m.get("face_mates", 0) for m in mates)),
-        "joints": int(sum(m.get("joints", 0) for m in mates)),
-        "scenes": 0 if scenes is None else len(scenes),
-        "captures": len(captures), "frames": int(sum(c.get("frames", 0) for c in captures)),
-    }
+def ingest_stage(library: str, run: Run, cfg: IngestConfig, batch_size: int) -> str:
+    """Every STEP file of the library in batches of ``batch_size``; the catalog's path."""
+    found = discover(Path(library))
+    futures = [ingest_batch_task.submit([str(f.path) for f in b], [f.category for f in b],
+                                        run.workspace, run.epoch, cfg)
+               for b in _batches(found, batch_size)]
+    return write_catalog_task([f.result() for f in futures], run.workspace)
+
+
+def mates_stage(catalog: str, run: Run, tol: Tolerances, limits: Limits) -> list[MatesSummary]:
+    """Mates of every assembly of the catalog, four assemblies per task."""
+    jobs = assembly_jobs(read_catalog(Path(catalog)), Path(run.workspace), tol)
+    futures = [mates_task.submit([j.path for j in b], b, run.epoch, limits)
+               for b in _batches(jobs, 4)]
+    return [m for f in futures for m in f.result()]
+
+
+def capture_stage(scenes: ScenesSummary, run: Run, cfg: ScanConfig,
+                  captures: str | None) -> list[CaptureSummary]:
+    """Render the scenes ten per task, or read the recordings of ``captures``."""
+    if captures:
+        return read_captures_task(captures, run.workspace, cfg)
+    ids = read_scenes(Path(scenes.path))["scene_id"].astype(str).tolist()
+    futures = [capture_task.submit(b, run.workspace, cfg) for b in _batches(ids, 10)]
+    return [c for f in futures for c in f.result()]
+
+
+class _Stopwatch:
+    """Seconds since the last lap, for the one log line of each stage."""
+
+    def __init__(self) -> None:
+        self.last = time.perf_counter()
+
+    def lap(self) -> float:
+        now = time.perf_counter()
+        elapsed, self.last = now - self.last, now
+        return elapsed
 
 
 @flow(name="nightly", task_runner=ThreadPoolTaskRunner(max_workers=2))  # type: ignore[arg-type]
 def nightly(
     library: str | None = None,
     workspace: str = "workspace",
+    tolerances: Tolerances = DEFAULT_TOLERANCES,
     voxel_sizes: list[int] | None = None,
     batch_size: int = 12,
     pairs_per_relation: int = 4,
@@ -244,12 +240,17 @@ def nightly(
     noise: bool = False,
     captures: str | None = None,
     seed: int = 0,
-) -> dict[str, Any]:
+    workers: int | None = None,
+    file_timeout_s: float | None = None,
+    file_memory_mb: int | None = None,
+    max_file_mb: float | None = None,
+) -> NightlySummary:
     """Ingest the library, extract assembly mates, generate scenes, capture them, report.
 
     Args:
         library: folder of STEP files (categories are its sub-folders); None = built-in samples.
         workspace: the workspace folder.
+        tolerances: every geometric tolerance of the run (written to ``tolerances.json``).
         voxel_sizes: occupancy grid sizes to write (default 32 and 64).
         batch_size: files per ingest task.
         pairs_per_relation: scenes per relation (over all splits).
@@ -257,62 +258,44 @@ def nightly(
         noise: switch the depth sensor noise model on.
         captures: folder of MCAP captures to read instead of rendering (real logs).
         seed: seed of the scene generator.
+        workers, file_timeout_s, file_memory_mb, max_file_mb: CAD worker processes per task
+            and per-file limits (None: the ``MATEQA_*`` settings).
 
     Returns:
-        A small summary: run id, paths of the report files, totals per stage.
+        The run id, the paths of the report files and the totals of each stage.
     """
-    logger = get_run_logger()
-    settings = Settings()
-    ws = Workspace(Path(workspace).resolve())
-    run_id = datetime.now(UTC).strftime("%Y%m%dT%H%M%SZ")
-    run_dir = ws.run_dir(run_id)
-    cfg = ingest_config(settings, voxel_sizes)
-    lib = library or generate_library_task(str(ws.root))
-    found = discover_task(lib)
-    epoch = _workspace_epoch(ws)
-    futures = [
-        ingest_batch_task.submit(b, str(ws.root), cfg.key(), epoch, cfg)
-        for b in _batches(found, batch_size)
-    ]
-    catalog = write_catalog_task([f.result() for f in futures], str(ws.root))
-    totals = ingest_report_task(catalog, str(run_dir))
-    logger.info("ingest: %s", json.dumps(totals))
-
-    assemblies = _assembly_items(read_catalog(Path(catalog)))
-    mate_futures = [mates_task.submit(b, str(ws.root), epoch, settings.file_timeout_s,
-                                      settings.file_memory_mb)
-                    for b in _batches(assemblies, 4)]
-    mates = [m for f in mate_futures for m in f.result()]
-
+    log, clock = get_run_logger(), _Stopwatch()
+    env = Settings()
+    settings = env.model_copy(update={
+        "workers": env.workers if workers is None else workers,
+        "file_timeout_s": file_timeout_s or env.file_timeout_s,
+        "file_memory_mb": file_memory_mb or env.file_memory_mb,
+        "max_file_mb": max_file_mb or env.max_file_mb})
+    cfg = ingest_config(settings, voxel_sizes, tolerances)
+    run = start_run(workspace, tolerances)
+    lib = library or generate_library_task(run.workspace)
+    log.info("library: %s (%.1f s)", lib, clock.lap())
+    catalog = ingest_stage(lib, run, cfg, batch_size)
+    t = build_ingest_report(read_catalog(Path(catalog))).totals
+    log.info("ingest: %d files (%d ok, %d failed, %d skipped), %d parts, %d reused (%.1f s)",
+             t.files, t.ok, t.failed, t.skipped, t.parts, t.cached, clock.lap())
+    mates = mates_stage(catalog, run, tolerances, cfg.limits)
+    log.info("mates: %d assemblies, %d failed, %d face mates (%.1f s)", len(mates),
+             sum(not m.ok for m in mates), sum(m.face_mates for m in mates), clock.lap())
+    scene_cfg = SceneConfig(seed=seed, pairs_per_relation=pairs_per_relation,
+                            tolerances=tolerances)
+    scenes = scenes_task(catalog, run.workspace, scene_cfg)
+    log.info("scenes: %d from %d parts (%.1f s)", scenes.scenes, scenes.parts, clock.lap())
     scan_cfg = ScanConfig(views_per_scene=views_per_scene, noise=noise,
-                          grid_sizes=cfg.voxel_sizes, grid_margin=cfg.voxel_margin)
-    scenes = scenes_task(catalog, str(ws.root), pairs_per_relation, seed)
-    if captures:
-        captured = read_captures_task(captures, str(ws.root), scan_cfg)
-    else:
-        ids = read_scenes(Path(scenes["path"]))["scene_id"].tolist()
-        capture_futures = [capture_task.submit(b, str(ws.root), scan_cfg)
-                           for b in _batches(ids, 10)]
-        captured = [c for f in capture_futures for c in f.result()]
-    stages = stage_report_task(str(run_dir), mates, scenes["path"], captured)
-    logger.info("stages: %s", json.dumps(stages))
-    summary = {"run_id": run_id, "library": str(lib), "workspace": str(ws.root),
-               "report": str(run_dir / "ingest.md"), "stages_report": str(run_dir / "stages.md"),
-               "ingest": totals, "stages": stages}
-    write_json(run_dir / "summary.json", summary)
+                          grid_sizes=cfg.voxel_sizes, tolerances=tolerances)
+    captured = capture_stage(scenes, run, scan_cfg, captures)
+    log.info("captures: %d, %d failed, %d frames (%.1f s)", len(captured),
+             sum(bool(c.error) for c in captured), sum(c.frames for c in captured), clock.lap())
+    ingest, stages = report_task(run, catalog, mates, scenes.path, captured)
+    log.info("report: %s (%.1f s)", run.run_dir, clock.lap())
+    summary = NightlySummary(
+        run_id=run.run_id, library=str(lib), workspace=run.workspace, run_dir=run.run_dir,
+        ingest_report=str(Path(run.run_dir) / "ingest.md"),
+        stages_report=str(Path(run.run_dir) / "stages.md"), ingest=ingest, stages=stages)
+    write_json(Path(run.run_dir) / "summary.json", asdict(summary))
     return summary
-
-
-def _assembly_items(catalog: pd.DataFrame) -> list[dict[str, Any]]:
-    """Files with several ok solids: their path, category, name and part ids by solid index."""
-    ok = catalog[(catalog["status"] == "ok") & (catalog["n_solids"] > 1)]
-    items = []
-    for source, rows in ok.groupby("source", sort=True):
-        items.append({
-            "path": str(source), "category": str(rows["category"].iloc[0]),
-            "assembly": Path(str(source)).stem,
-            "part_ids": {int(i): str(p) for i, p in zip(rows["solid_index"], rows["part_id"],
-                                                         strict=True)},
-        })
-    return items
-

@@ -1,14 +1,18 @@
-"""Environment settings of mateqa (``MATEQA_*`` variables): the one place that reads them."""
+"""Environment settings of mateqa (``MATEQA_*`` variables): the one place that reads them.
+
+Library code never reads the environment; the CLI and the flows turn these settings into the
+typed configuration of each stage (``ingest_config``), and command-line options override them.
+"""
 
 from __future__ import annotations
 
-from dataclasses import replace
 from pathlib import Path
 
 from pydantic_settings import BaseSettings, SettingsConfigDict
 
 from cadio.cad.ingest import IngestConfig
 from cadio.sandbox import Limits
+from cadio.tolerances import DEFAULT_TOLERANCES, Tolerances
 
 
 class Settings(BaseSettings):
@@ -17,7 +21,8 @@ class Settings(BaseSettings):
     model_config = SettingsConfigDict(env_prefix="MATEQA_")
 
     workspace: Path = Path("workspace")
-    # Worker processes for CAD work; 0 means one per CPU core.
+    # Worker processes for CAD work; 0 means the caller's default (one per core for the CLI's
+    # ingest, one per task in the flow, whose tasks already run side by side).
     workers: int = 0
     # Per-file limits of the isolated CAD reader.
     file_timeout_s: float = 300.0
@@ -27,11 +32,16 @@ class Settings(BaseSettings):
     server_port: int = 4200
     prefect_home: Path = Path(".prefect")
 
+    def limits(self, default_workers: int = 1) -> Limits:
+        """Worker limits of these settings (``workers`` 0 means ``default_workers``)."""
+        return Limits(seconds=self.file_timeout_s, memory_mb=self.file_memory_mb,
+                      workers=self.workers or default_workers)
+
 
 def ingest_config(settings: Settings, voxel_sizes: list[int] | None = None,
+                  tolerances: Tolerances = DEFAULT_TOLERANCES,
                   default_workers: int = 1) -> IngestConfig:
-    """The ingest configuration for these settings (``workers`` 0 means ``default_workers``)."""
-    limits = Limits(seconds=settings.file_timeout_s, memory_mb=settings.file_memory_mb,
-                    workers=settings.workers or default_workers)
-    cfg = IngestConfig(limits=limits, max_file_mb=settings.max_file_mb)
-    return replace(cfg, voxel_sizes=tuple(voxel_sizes)) if voxel_sizes else cfg
+    """The ingest configuration for these settings, grid sizes and tolerances."""
+    return IngestConfig(voxel_sizes=tuple(voxel_sizes or IngestConfig.voxel_sizes),
+                        max_file_mb=settings.max_file_mb,
+                        limits=settings.limits(default_workers), tolerances=tolerances)

@@ -5,7 +5,11 @@ from __future__ import annotations
 import ctypes
 import time
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:
+    from cadio.cad.ingest import IngestJob
+    from cadio.catalog import CatalogRow
 
 
 def misbehave(payload: str) -> str:
@@ -22,10 +26,10 @@ def misbehave(payload: str) -> str:
     return payload.removeprefix("ok:")
 
 
-def process_or_crash(payload: dict[str, Any]) -> list[dict[str, Any]]:
+def process_or_crash(job: IngestJob) -> list[CatalogRow]:
     """The real per-file ingest job, except that a file named *segfault* crashes the process."""
     from cadio.cad.ingest import process_file
 
-    if "segfault" in Path(payload["path"]).name:
+    if "segfault" in Path(job.path).name:
         ctypes.string_at(0)
-    return process_file(payload)
+    return process_file(job)

@@ -5,12 +5,14 @@ from __future__ import annotations
 
 import json
 import shutil
+from dataclasses import asdict
 from pathlib import Path
 
 import pytest
 from prefect.testing.utilities import prefect_test_harness
 
 from cadio.catalog import read_catalog
+from cadio.tolerances import DEFAULT_TOLERANCES, read_tolerances
 
 
 @pytest.fixture(scope="module")
@@ -32,26 +34,67 @@ def test_nightly_ingests_reports_and_caches(harness: object, tmp_path: Path,
 
     first = nightly(library=str(lib), workspace=str(ws), voxel_sizes=[16], batch_size=1,
                     views_per_scene=2)
-    assert first["ingest"]["files"] == 2
-    assert first["ingest"]["ok"] == 1 and first["ingest"]["failed"] == 1
-    report = Path(first["report"]).read_text()
+    assert first.ingest.files == 2
+    assert first.ingest.ok == 1 and first.ingest.failed == 1
+    report = Path(first.ingest_report).read_text()
     assert "truncated STEP file" in report and "casters-wheels-trolleys" in report
-    written = json.loads((Path(first["report"]).parent / "ingest.json").read_text())
-    assert written["totals"] == first["ingest"]
+    written = json.loads((Path(first.run_dir) / "ingest.json").read_text())
+    assert written["totals"] == asdict(first.ingest)
+    assert read_tolerances(Path(first.run_dir) / "tolerances.json") == DEFAULT_TOLERANCES
 
-    stages = first["stages"]
-    assert stages["scenes"] > 0 and stages["captures"] == stages["scenes"]
-    assert stages["frames"] == 2 * stages["captures"]
-    assert len(list((ws / "captures").glob("*.mcap"))) == stages["captures"]
+    stages = first.stages
+    assert stages.scenes > 0 and stages.captures == stages.scenes
+    assert stages.frames == 2 * stages.captures
+    assert len(list((ws / "captures").glob("*.mcap"))) == stages.captures
 
     meshes = sorted((ws / "meshes").glob("*.ply"))
     stamps = [m.stat().st_mtime_ns for m in meshes]
     second = nightly(library=str(lib), workspace=str(ws), voxel_sizes=[16], batch_size=1,
                      views_per_scene=2, captures=str(ws / "captures"))
     # unchanged files: the ingest tasks are cached on content hashes, nothing is rewritten
-    assert second["ingest"] == first["ingest"]
+    assert second.ingest == first.ingest
     assert [m.stat().st_mtime_ns for m in meshes] == stamps and meshes
     assert len(read_catalog(ws / "catalog.parquet")) == 2
     # read back instead of rendered: same captures, same frames
-    assert second["stages"]["captures"] == stages["captures"]
-    assert second["stages"]["frames"] == stages["frames"]
+    assert second.stages.captures == stages.captures
+    assert second.stages.frames == stages.frames
+
+
+def _gap_assembly(path: Path, gap_mm: float) -> None:
+    """A block standing ``gap_mm`` above a plate: a coincident mate only if gap <= contact."""
+    import build123d as bd
+
+    from cadio.cad.step import write_step
+
+    plate = bd.Box(40, 40, 5, align=(bd.Align.CENTER, bd.Align.CENTER, bd.Align.MIN))
+    block = bd.Pos(0, 0, 5 + gap_mm) * bd.Box(
+        20, 20, 10, align=(bd.Align.CENTER, bd.Align.CENTER, bd.Align.MIN))
+    plate.label, block.label = "plate", "block"
+    write_step(bd.Compound(children=[plate, block], label="gap"), path)
+
+
+def test_a_tolerance_set_on_the_cli_reaches_the_mates_of_the_run(
+        harness: object, tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    from prefect.settings import PREFECT_API_URL
+
+    from cadio.truth.mates import read_mates
+    from flows.cli import main
+
+    monkeypatch.setenv("PREFECT_API_URL", str(PREFECT_API_URL.value()))  # the harness server
+    lib = tmp_path / "lib" / "assemblies"
+    lib.mkdir(parents=True)
+    _gap_assembly(lib / "gap.step", 0.2)
+
+    def coincident(ws: Path, *tol: str) -> tuple[int, float]:
+        args = ["nightly", "--library", str(lib.parent), "--workspace", str(ws),
+                "--voxel-sizes", "16", "--views-per-scene", "1"]
+        assert main(args + [a for t in tol for a in ("--tol", t)]) == 0
+        table = read_mates(ws / "mates" / "gap.parquet")
+        run = max((ws / "runs").iterdir())
+        written = read_tolerances(run / "tolerances.json").as_dict()
+        assert table.attrs["tolerances"] == written
+        face = table[table["level"] == "face"]
+        return int((face["relation"] == "coincident").sum()), written["contact_mm"]
+
+    assert coincident(tmp_path / "default") == (0, DEFAULT_TOLERANCES.contact_mm)
+    assert coincident(tmp_path / "loose", "contact_mm=0.3") == (1, 0.3)

@@ -10,6 +10,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 import pytest
+from sandbox_targets import process_or_crash
 
 from cadio.cad.ingest import IngestConfig, discover, ingest
 from cadio.catalog import read_catalog
@@ -153,7 +154,7 @@ def test_a_real_reader_crash_does_not_stop_the_batch(tmp_path: Path, box_step: P
     shutil.copy(box_step, lib / "before.step")
     (lib / "segfault.step").write_bytes(box_step.read_bytes().replace(b"box", b"seg"))
     (lib / "zafter.step").write_bytes(box_step.read_bytes().replace(b"box", b"aft"))
-    cfg = replace(FAST, worker_target="sandbox_targets:process_or_crash",
+    cfg = replace(FAST, worker=process_or_crash,
                   limits=Limits(seconds=120, workers=1))
     catalog = ingest(lib.parent, tmp_path / "ws", cfg)
     crashed = _row(catalog, "segfault.step")

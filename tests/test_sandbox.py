@@ -2,14 +2,14 @@
 
 from __future__ import annotations
 
+from sandbox_targets import misbehave
+
 from cadio.errors import WorkerError
 from cadio.sandbox import Job, Limits, run_isolated
 
-TARGET = "sandbox_targets:misbehave"
-
 
 def _run(payloads: list[str], limits: Limits) -> dict[str, object]:
-    outcomes = run_isolated(TARGET, [Job(p, p) for p in payloads], limits)
+    outcomes = run_isolated(misbehave, [Job(p, p) for p in payloads], limits)
     return {o.job.key: (o.error if o.error is not None else o.result) for o in outcomes}
 
 

@@ -50,14 +50,14 @@ def test_views_are_spread_over_the_circle() -> None:
 def test_scenes_capture_to_mcap_with_labels(ws: Workspace) -> None:
     scenes = pd.read_parquet(ws.scenes).head(3)
     captured = capture_scenes(scenes, read_catalog(ws.catalog), ws, CFG)
-    assert (captured["error"] == "").all()
-    assert (captured["frames"] == 2).all()
-    for row, scene in zip(captured.to_dict("records"), scenes.to_dict("records"), strict=True):
-        meta = read_scene_meta(Path(row["path"]))
+    assert [c.error for c in captured] == ["", "", ""]
+    assert [c.frames for c in captured] == [2, 2, 2]
+    for row, scene in zip(captured, scenes.to_dict("records"), strict=True):
+        meta = read_scene_meta(Path(row.path))
         assert meta is not None
         assert meta["labels"]["pair"] == [scene["part_a"], scene["part_b"]]
         assert meta["labels"]["relations"]["left"] == bool(scene["left"])
-        frames = list(read_capture(Path(row["path"])))
+        frames = list(read_capture(Path(row.path)))
         assert len(frames) == 2
         assert set(np.unique(frames[0].instance)) >= {1, 2}
 
@@ -65,9 +65,9 @@ def test_scenes_capture_to_mcap_with_labels(ws: Workspace) -> None:
 def test_inputs_are_aligned_with_the_truth_grid(ws: Workspace) -> None:
     scene = pd.read_parquet(ws.scenes).iloc[0]
     captured = capture_scenes(scene.to_frame().T, read_catalog(ws.catalog), ws, CFG)
-    summary = scan_inputs(Path(captured["path"].iloc[0]), ws, CFG)
-    assert summary["has_ids"] and summary["parts"] == 2
-    assert summary["seg_mean_iou"] > 0.5
+    summary = scan_inputs(Path(captured[0].path), ws, CFG)
+    assert summary.has_ids and summary.parts == 2
+    assert summary.seg_mean_iou > 0.5
     for pid in (scene["part_a"], scene["part_b"]):
         with np.load(ws.inputs(str(scene["scene_id"]), pid)) as z:
             points = z["points"]
@@ -81,6 +81,6 @@ def test_inputs_are_aligned_with_the_truth_grid(ws: Workspace) -> None:
 
 def test_capture_a_step_file(tmp_path: Path, box_step: Path) -> None:
     summary = capture_step(str(box_step), tmp_path, ScanConfig(views_per_scene=3))
-    assert summary["frames"] == 3 and summary["parts"] == 1
-    frames = list(read_capture(Path(summary["path"])))
+    assert summary.frames == 3 and summary.parts == 1
+    frames = list(read_capture(Path(summary.path)))
     assert len(frames) == 3 and all((f.depth > 0).any() for f in frames)

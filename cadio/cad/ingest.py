@@ -2,10 +2,10 @@
 
 Files are found recursively (``.step``/``.stp`` in any letter case), hashed, and checked cheaply
 in this process (size limit, not a regular file, unreadable, duplicate content). The real work,
-reading through OpenCascade and deriving geometry, runs in crash-isolated worker processes
-(``cadio.sandbox``). Every file found is accounted for by at least one catalog row:
-ok + failed + skipped = found. A rerun reuses the rows of files whose content hash and
-configuration are unchanged.
+reading through OpenCascade and deriving geometry (``process_file``, the worker's job), runs in
+crash-isolated worker processes (``cadio.sandbox``). Every file found is accounted for by at
+least one ``CatalogRow``: ok + failed + skipped = found. A rerun reuses the rows of files whose
+content hash and configuration are unchanged.
 """
 
 from __future__ import annotations
@@ -14,10 +14,9 @@ import hashlib
 import json
 import logging
 import time
-from collections.abc import Iterable, Sequence
-from dataclasses import asdict, dataclass, field
+from collections.abc import Callable, Iterable, Sequence
+from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
-from typing import Any
 
 import pandas as pd
 
@@ -25,7 +24,7 @@ from cadio.cad.features import extract_features
 from cadio.cad.step import STEP_SUFFIXES, StepSolid, read_step
 from cadio.cad.tessellate import brep_volume, mesh_volume, tessellate
 from cadio.cad.voxels import voxelize
-from cadio.catalog import empty_row, read_catalog, to_frame, write_catalog
+from cadio.catalog import CatalogRow, catalog_rows, read_catalog, to_frame, write_catalog
 from cadio.errors import GeometryError, InputFileError, WorkerError
 from cadio.sandbox import Job, Limits, run_isolated
 from cadio.tolerances import DEFAULT_TOLERANCES, Tolerances
@@ -34,7 +33,23 @@ from cadio.workspace import Workspace, write_features, write_mesh, write_voxels
 log = logging.getLogger(__name__)
 
 # Bump when the derived artefacts change meaning, so cached rows are recomputed.
-INGEST_VERSION = "1"
+INGEST_VERSION = "2"
+
+
+@dataclass(frozen=True)
+class IngestJob:
+    """One STEP file for an isolated worker: where it is, where its artefacts go, and how."""
+
+    path: str
+    category: str
+    sha256: str
+    workspace: str
+    voxel_sizes: tuple[int, ...]
+    tolerances: Tolerances
+    config_key: str
+
+
+IngestWorker = Callable[[IngestJob], list[CatalogRow]]
 
 
 @dataclass(frozen=True)
@@ -44,19 +59,16 @@ class IngestConfig:
     # 32^3 feeds the CPU-sized completion network, 64^3 the paper's input; 256 is opt-in
     # (0.2-2 s and ~2 MB a part).
     voxel_sizes: tuple[int, ...] = (32, 64)
-    voxel_margin: float = 0.05
     max_file_mb: float = 200.0
     limits: Limits = field(default_factory=Limits)
     tolerances: Tolerances = DEFAULT_TOLERANCES
-    # The job each worker runs per file ("module:function"); tests swap in a crashing one.
-    worker_target: str = "cadio.cad.ingest:process_file"
+    # The job each worker runs per file (default ``process_file``); tests swap in a crashing one.
+    worker: IngestWorker | None = None
 
     def key(self) -> str:
         """Hash of everything that changes the derived artefacts (not limits)."""
-        blob = json.dumps(
-            [INGEST_VERSION, list(self.voxel_sizes), self.voxel_margin, asdict(self.tolerances)],
-            sort_keys=True,
-        )
+        blob = json.dumps([INGEST_VERSION, list(self.voxel_sizes), asdict(self.tolerances)],
+                          sort_keys=True)
         return hashlib.sha256(blob.encode()).hexdigest()[:12]
 
 
@@ -74,6 +86,9 @@ def discover(root: Path) -> list[Found]:
     Directories and broken links with such names are returned too, so that they are reported
     rather than silently ignored. The category is the first folder below ``root``; files lying
     directly in ``root`` take its own name (so pointing at one category folder works).
+
+    Raises:
+        InputFileError: ``root`` is not a folder.
     """
     root = Path(root)
     if not root.is_dir():
@@ -95,126 +110,130 @@ def file_sha256(path: Path) -> str:
     return digest.hexdigest()
 
 
-def ingest(root: Path, workspace: Path, cfg: IngestConfig | None = None) -> pd.DataFrame:
+def ingest(root: Path, workspace: Path, cfg: IngestConfig | None = None,
+           on_file: Callable[[str], None] | None = None) -> pd.DataFrame:
     """Ingest every STEP file under ``root`` into ``workspace`` and write its catalog.
+
+    Args:
+        on_file: called with each file's path once it is done (for progress bars).
 
     Returns:
         The catalog (also written to ``workspace/catalog.parquet``).
+
+    Raises:
+        InputFileError: ``root`` is not a folder.
     """
     cfg = cfg or IngestConfig()
     ws = Workspace(Path(workspace))
     previous = read_catalog(ws.catalog)
-    rows = ingest_files(discover(root), ws.root, cfg, previous)
+    rows = ingest_files(discover(root), ws.root, cfg, previous, on_file)
     frame = to_frame(rows)
     write_catalog(ws.catalog, frame)
     return frame
 
 
 def ingest_files(
-    found: Sequence[Found], workspace: Path, cfg: IngestConfig, previous: pd.DataFrame | None
-) -> list[dict[str, Any]]:
+    found: Sequence[Found], workspace: Path, cfg: IngestConfig, previous: pd.DataFrame | None,
+    on_file: Callable[[str], None] | None = None,
+) -> list[CatalogRow]:
     """Catalog rows for ``found``: reused from ``previous``, rejected cheaply, or processed.
 
     Duplicates (same bytes as an earlier file in ``found``) are skipped with a reason.
     """
     ws = Workspace(Path(workspace))
     cached = _cached_rows(previous, cfg.key())
-    rows: list[dict[str, Any]] = []
-    jobs: list[Job] = []
+    done = on_file or (lambda path: None)
+    rows: list[CatalogRow] = []
+    jobs: list[Job[IngestJob]] = []
     for item in found:
         row, sha = _screen(item, cfg)
         if row is not None:
             rows.append(row)
         elif sha in cached:
-            rows.extend({**r, "source": str(item.path), "category": item.category,
-                         "cached": True} for r in cached[sha])
+            rows.extend(replace(r, source=str(item.path), category=item.category, cached=True)
+                        for r in cached[sha])
         else:
-            jobs.append(Job(str(item.path), _payload(item, sha, ws, cfg)))
-    rows.extend(_run_jobs(jobs, cfg))
+            jobs.append(Job(str(item.path), _job(item, sha, ws, cfg)))
+            continue
+        done(str(item.path))
+    rows.extend(_run_jobs(jobs, cfg, done))
     return mark_duplicates(rows)
 
 
-def mark_duplicates(rows: list[dict[str, Any]]) -> list[dict[str, Any]]:
+def mark_duplicates(rows: Iterable[CatalogRow]) -> list[CatalogRow]:
     """Keep the first file (by path) of each content hash; later copies become skipped rows."""
     first: dict[str, str] = {}
-    out: list[dict[str, Any]] = []
-    for row in sorted(rows, key=lambda r: (str(r["source"]), int(r["solid_index"]))):
-        sha, src = str(row.get("source_sha256") or ""), str(row["source"])
-        if not sha or row["status"] == "skipped" or first.setdefault(sha, src) == src:
+    out: list[CatalogRow] = []
+    for row in sorted(rows, key=lambda r: (r.source, r.solid_index)):
+        sha, src = row.source_sha256, row.source
+        if not sha or row.status == "skipped" or first.setdefault(sha, src) == src:
             out.append(row)
-        elif int(row["solid_index"]) <= 0 or row["part_id"].endswith("-x"):
-            base = {"category": row["category"], "source": src, "source_sha256": sha}
-            out.append(_row(base, "skipped", f"duplicate of {first[sha]} (same content)",
-                            Path(src)))
+        elif row.solid_index <= 0 or row.part_id.endswith("-x"):
+            base = CatalogRow(category=row.category, source=src, source_sha256=sha)
+            out.append(_row(base, "skipped", f"duplicate of {first[sha]} (same content)"))
     return out
 
 
-def _screen(item: Found, cfg: IngestConfig) -> tuple[dict[str, Any] | None, str]:
+def _screen(item: Found, cfg: IngestConfig) -> tuple[CatalogRow | None, str]:
     """A final row for inputs that need no CAD kernel, else (None, content hash)."""
     path = item.path
-    base = {"category": item.category, "source": str(path)}
+    base = CatalogRow(category=item.category, source=str(path))
     if path.is_dir():
-        return _row(base, "skipped", "is a directory, not a STEP file", path), ""
+        return _row(base, "skipped", "is a directory, not a STEP file"), ""
     size_mb = path.stat().st_size / 1e6 if path.exists() else 0.0
     if size_mb > cfg.max_file_mb:
         reason = f"file is {size_mb:.1f} MB, over the {cfg.max_file_mb:g} MB limit"
-        return _row(base, "skipped", reason, path), ""
+        return _row(base, "skipped", reason), ""
     try:
         sha = file_sha256(path)
     except OSError as exc:
-        return _row(base, "failed", f"cannot be read: {exc.strerror or exc}", path), ""
+        return _row(base, "failed", f"cannot be read: {exc.strerror or exc}"), ""
     return None, sha
 
 
-def _row(base: dict[str, Any], status: str, error: str, path: Path) -> dict[str, Any]:
+def _row(base: CatalogRow, status: str, error: str) -> CatalogRow:
     # Rows without a solid are keyed by the path: two bad copies of one file stay distinct.
-    pid = hashlib.sha256(str(path).encode()).hexdigest()
-    return {**empty_row(), **base, "part_id": f"{pid[:16]}-x", "status": status, "error": error}
+    pid = hashlib.sha256(base.source.encode()).hexdigest()
+    return replace(base, part_id=f"{pid[:16]}-x", status=status, error=error)
 
 
-def _cached_rows(previous: pd.DataFrame | None, key: str) -> dict[str, list[dict[str, Any]]]:
+def _cached_rows(previous: pd.DataFrame | None, key: str) -> dict[str, list[CatalogRow]]:
     """Rows of earlier runs by file hash: all ok, or failed with a deterministic reason."""
-    out: dict[str, list[dict[str, Any]]] = {}
+    out: dict[str, list[CatalogRow]] = {}
     if previous is None or previous.empty:
         return out
-    for row in previous.to_dict("records"):
-        if row["config_key"] != key or row["status"] == "skipped" or not row["source_sha256"]:
+    for row in catalog_rows(previous):
+        if row.config_key != key or row.status == "skipped" or not row.source_sha256:
             continue
-        out.setdefault(str(row["source_sha256"]), []).append(row)
+        out.setdefault(row.source_sha256, []).append(row)
     return out
 
 
-def _payload(item: Found, sha: str, ws: Workspace, cfg: IngestConfig) -> dict[str, Any]:
-    return {
-        "path": str(item.path), "category": item.category, "sha256": sha,
-        "workspace": str(ws.root), "voxel_sizes": list(cfg.voxel_sizes),
-        "voxel_margin": cfg.voxel_margin, "tolerances": asdict(cfg.tolerances),
-        "config_key": cfg.key(),
-    }
+def _job(item: Found, sha: str, ws: Workspace, cfg: IngestConfig) -> IngestJob:
+    return IngestJob(path=str(item.path), category=item.category, sha256=sha,
+                     workspace=str(ws.root), voxel_sizes=tuple(cfg.voxel_sizes),
+                     tolerances=cfg.tolerances, config_key=cfg.key())
 
 
-def _run_jobs(jobs: Iterable[Job], cfg: IngestConfig) -> list[dict[str, Any]]:
-    rows: list[dict[str, Any]] = []
-    payloads = {job.key: job.payload for job in jobs}
-    for outcome in run_isolated(cfg.worker_target, _jobs(payloads), cfg.limits):
+def _run_jobs(jobs: Sequence[Job[IngestJob]], cfg: IngestConfig,
+              done: Callable[[str], None]) -> list[CatalogRow]:
+    rows: list[CatalogRow] = []
+    ordered = sorted(jobs, key=lambda job: job.key)  # a stable order for reproducible logs
+    for outcome in run_isolated(cfg.worker or process_file, ordered, cfg.limits):
+        job = outcome.job.payload
+        done(job.path)
         if outcome.error is None:
-            rows.extend(outcome.result)
+            rows.extend(outcome.result or [])
             continue
-        p = outcome.job.payload
-        base = {"category": p["category"], "source": p["path"], "source_sha256": p["sha256"],
-                "seconds": outcome.seconds, "config_key": _failure_key(outcome.error, p)}
-        rows.append(_row(base, "failed", outcome.error.reason, Path(p["path"])))
+        base = CatalogRow(category=job.category, source=job.path, source_sha256=job.sha256,
+                          seconds=outcome.seconds, config_key=_failure_key(outcome.error, job))
+        rows.append(_row(base, "failed", outcome.error.reason))
     return rows
 
 
-def _jobs(payloads: dict[str, dict[str, Any]]) -> list[Job]:
-    """Jobs in a stable order (by path) for reproducible logs."""
-    return [Job(key, payloads[key]) for key in sorted(payloads)]
-
-
-def _failure_key(error: InputFileError, payload: dict[str, Any]) -> str:
+def _failure_key(error: InputFileError, job: IngestJob) -> str:
     """Deterministic input errors are cached; time-outs and crashes are retried next run."""
-    return "" if isinstance(error, WorkerError) else str(payload["config_key"])
+    return "" if isinstance(error, WorkerError) else job.config_key
 
 
 # --------------------------------------------------------------- the worker's job
@@ -225,48 +244,38 @@ def part_id(sha256: str, index: int) -> str:
     return f"{sha256[:16]}-{index}"
 
 
-def process_file(payload: dict[str, Any]) -> list[dict[str, Any]]:
+def process_file(job: IngestJob) -> list[CatalogRow]:
     """Read one STEP file and write the geometry of each solid (runs in a worker process).
 
-    Args:
-        payload: path, category, sha256, workspace, voxel_sizes, voxel_margin, tolerances,
-            config_key (see ``cadio.cad.ingest._payload``).
-
     Returns:
-        One catalog row (dict) per solid.
+        One catalog row per solid.
 
     Raises:
         StepReadError: the file cannot be read into solids.
     """
-    path = Path(payload["path"])
+    path = Path(job.path)
     solids = read_step(path)
-    base = {
-        "category": payload["category"], "source": str(path), "source_sha256": payload["sha256"],
-        "n_solids": len(solids), "config_key": payload["config_key"],
-    }
-    return [_process_solid(solid, base, payload) for solid in solids]
+    base = CatalogRow(category=job.category, source=str(path), source_sha256=job.sha256,
+                      n_solids=len(solids), config_key=job.config_key)
+    return [_process_solid(solid, base, job) for solid in solids]
 
 
-def _process_solid(solid: StepSolid, base: dict[str, Any], payload: dict[str, Any]) -> dict:
+def _process_solid(solid: StepSolid, base: CatalogRow, job: IngestJob) -> CatalogRow:
     start = time.perf_counter()
     info = solid.info
-    row = {
-        **empty_row(), **base, "part_id": part_id(payload["sha256"], info.index),
-        "solid_index": info.index, "name": info.name, "colour": info.colour,
-        "path_in_assembly": info.path_in_assembly, "placement": info.placement.ravel().tolist(),
-    }
+    row = replace(base, part_id=part_id(job.sha256, info.index), solid_index=info.index,
+                  name=info.name, colour=info.colour, path_in_assembly=info.path_in_assembly,
+                  placement=tuple(info.placement.ravel().tolist()))
     try:
-        row.update(_geometry(solid, row["part_id"], payload))
-        row["status"] = "ok"
+        row = _geometry(solid, row, job)
     except Exception as exc:  # an OCCT failure on one solid must not lose the file's others
-        row["error"] = f"solid {info.index} ({info.name}): {type(exc).__name__}: {exc}"
-    row["seconds"] = time.perf_counter() - start
-    return row
+        row = replace(row, error=f"solid {info.index} ({info.name}): {type(exc).__name__}: {exc}")
+    return replace(row, seconds=time.perf_counter() - start)
 
 
-def _geometry(solid: StepSolid, pid: str, payload: dict[str, Any]) -> dict[str, Any]:
-    tol = Tolerances(**payload["tolerances"])
-    ws = Workspace(Path(payload["workspace"]))
+def _geometry(solid: StepSolid, row: CatalogRow, job: IngestJob) -> CatalogRow:
+    """Mesh, features and voxels of one solid written to the workspace; the row, ok."""
+    tol, ws, pid = job.tolerances, Workspace(Path(job.workspace)), row.part_id
     volume = brep_volume(solid.shape)
     if volume <= 0:
         reason = f"non-positive B-rep volume {volume:.3g} mm^3 (open or inverted shell)"
@@ -275,17 +284,15 @@ def _geometry(solid: StepSolid, pid: str, payload: dict[str, Any]) -> dict[str, 
     features = extract_features(solid.shape, tol)
     write_mesh(ws.mesh(pid), mesh)
     write_features(ws.features(pid), features)
-    for n in payload["voxel_sizes"]:
-        write_voxels(ws.voxels(pid, n), voxelize(mesh, n, margin=payload["voxel_margin"]))
+    for n in job.voxel_sizes:
+        write_voxels(ws.voxels(pid, n), voxelize(mesh, n, margin=tol.grid_margin))
     mvol = mesh_volume(mesh)
-    return {
-        "bbox_min": features.bbox_min.tolist(), "bbox_max": features.bbox_max.tolist(),
-        "volume": volume, "mesh_volume": mvol,
-        "volume_rel_error": (mvol - volume) / volume if volume > 0 else float("nan"),
-        "n_triangles": len(mesh.triangles), "n_faces": features.n_faces,
-        "mesh_missing_faces": mesh.missing_faces,
-        "warning": (f"{mesh.missing_faces} face(s) could not be meshed: the mesh has holes and "
-                    f"its volume is off by {100 * (mvol - volume) / volume:.1f}%"
-                    if mesh.missing_faces else ""),
-        "voxel_sizes": list(payload["voxel_sizes"]),
-    }
+    warning = (f"{mesh.missing_faces} face(s) could not be meshed: the mesh has holes and its "
+               f"volume is off by {100 * (mvol - volume) / volume:.1f}%"
+               if mesh.missing_faces else "")
+    return replace(
+        row, status="ok", bbox_min=tuple(features.bbox_min.tolist()),
+        bbox_max=tuple(features.bbox_max.tolist()), volume=volume, mesh_volume=mvol,
+        volume_rel_error=(mvol - volume) / volume, n_triangles=len(mesh.triangles),
+        n_faces=features.n_faces, mesh_missing_faces=mesh.missing_faces, warning=warning,
+        voxel_sizes=tuple(job.voxel_sizes))

@@ -1,17 +1,21 @@
 """From scenes to captures and learning inputs: the capture stage of the nightly flow.
 
-``capture_scene`` places a scene's parts (meshes from the workspace, poses from the scene table),
-renders its views and writes one MCAP per scene with the ground-truth labels on ``/scene``.
-``scan_inputs`` reads any capture back (ours, or a real recording without instance ids, which is
-then segmented by support-plane removal and clustering) and turns one view into what the learned
-stages eat: each part's partial occupancy grid, aligned voxel for voxel with the part's truth
-grid, and 600 points in the part's own frame.
+``capture_scene`` places a scene's parts (meshes from the workspace, poses from the scene
+table), renders its views and writes one MCAP per scene with the ground-truth labels on
+``/scene``; ``capture_batch`` does that for a batch of scene ids and derives their learning
+inputs, and ``read_captures`` derives them from recordings made elsewhere. ``scan_inputs`` reads
+any capture (ours, or a real recording without instance ids, which is then segmented by
+support-plane removal and clustering) and turns one view into what the learned stages eat: each
+part's partial occupancy grid, aligned voxel for voxel with the part's truth grid, and 600
+points in the part's own frame.
 """
 
 from __future__ import annotations
 
 import logging
-from dataclasses import dataclass, field
+import math
+from collections.abc import Callable
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
@@ -28,8 +32,10 @@ from cadio.capture.pointcloud import (
 from cadio.capture.render import CaptureConfig, PlacedPart, render_views, scene_meta
 from cadio.capture.segment import segment_clusters, segmentation_score
 from cadio.catalog import read_catalog
+from cadio.contracts import CaptureSummary
 from cadio.errors import CaptureError, InputFileError
 from cadio.records import Relation, RgbdFrame
+from cadio.tolerances import DEFAULT_TOLERANCES, Tolerances
 from cadio.truth.scenes import read_scenes, scene_poses
 from cadio.workspace import Workspace, atomic_write, read_mesh
 
@@ -47,12 +53,29 @@ class ScanConfig:
     noise: bool = False
     grid_sizes: tuple[int, ...] = (32, 64)
     n_points: int = 600
-    grid_margin: float = 0.05  # must equal the ingest's voxel margin for the grids to align
+    # ``grid_margin`` must equal the ingest's for the partial grids to align with the truth.
+    tolerances: Tolerances = DEFAULT_TOLERANCES
 
     def capture_config(self) -> CaptureConfig:
-        from dataclasses import replace
-
         return replace(self.capture, noise=NoiseConfig() if self.noise else None)
+
+
+@dataclass(frozen=True)
+class InputsSummary:
+    """What ``scan_inputs`` made of one capture.
+
+    parts: parts with learning inputs written. has_ids: the capture has instance ids.
+    clusters: clusters found without ids. seg_mean_iou, seg_ari: those clusters scored
+    against the ids (NaN without ids).
+    """
+
+    capture: str
+    frames: int
+    parts: int
+    has_ids: bool
+    clusters: int
+    seg_mean_iou: float = math.nan
+    seg_ari: float = math.nan
 
 
 def view_indices(cfg: ScanConfig) -> list[int]:
@@ -86,51 +109,83 @@ def scene_labels(scene: dict[str, Any]) -> dict[str, Any]:
 
 
 def capture_scene(scene: dict[str, Any], ws: Workspace, colours: dict[str, str],
-                  cfg: ScanConfig) -> dict[str, Any]:
+                  cfg: ScanConfig, on_frame: Callable[[str], None] | None = None
+                  ) -> CaptureSummary:
     """Render a scene's views into ``captures/<scene_id>.mcap``.
 
     Returns:
-        A small summary: path, frames, parts, bytes on disk.
+        Path, frames, parts and bytes on disk (no inputs yet).
     """
     parts = placed_parts(scene, ws, colours)
-    capture_cfg = cfg.capture_config()
     path = ws.capture(str(scene["scene_id"]))
+    frames = _write_views(path, parts, cfg, scene_labels(scene), on_frame)
+    return CaptureSummary(scene_id=str(scene["scene_id"]), path=str(path), frames=frames,
+                          parts=len(parts), bytes=path.stat().st_size)
+
+
+def _write_views(path: Path, parts: list[PlacedPart], cfg: ScanConfig,
+                 labels: dict[str, Any], on_frame: Callable[[str], None] | None = None) -> int:
+    """Render the views of ``cfg`` into one MCAP file; the number of frames written."""
+    capture_cfg = cfg.capture_config()
     frames = 0
     with CaptureWriter(path) as writer:
-        writer.write_scene(scene_meta(parts, capture_cfg, scene_labels(scene)))
+        writer.write_scene(scene_meta(parts, capture_cfg, labels))
         for frame in render_views(parts, capture_cfg, view_indices(cfg)):
             writer.write_frame(frame)
             frames += 1
-    return {"scene_id": str(scene["scene_id"]), "path": str(path), "frames": frames,
-            "parts": len(parts), "bytes": path.stat().st_size}
+            if on_frame is not None:
+                on_frame(str(path))
+    return frames
 
 
 def capture_scenes(scenes: pd.DataFrame, catalog: pd.DataFrame, ws: Workspace,
-                   cfg: ScanConfig) -> pd.DataFrame:
-    """Capture every scene row; a scene that fails becomes a row with its error."""
+                   cfg: ScanConfig) -> list[CaptureSummary]:
+    """Capture every scene row; a scene that fails becomes a summary with its error."""
     colours = dict(zip(catalog["part_id"], catalog["colour"], strict=True))
-    rows = []
+    out = []
     for scene in scenes.to_dict("records"):
         try:
-            summary = capture_scene(scene, ws, colours, cfg)
-            rows.append({**summary, "error": ""})
+            out.append(capture_scene(scene, ws, colours, cfg))
         except (OSError, ValueError, CaptureError) as exc:
             log.warning("scene %s: %s", scene["scene_id"], exc)
-            rows.append({"scene_id": scene["scene_id"], "path": "", "frames": 0, "parts": 0,
-                         "bytes": 0, "error": str(exc)})
-    return pd.DataFrame(rows)
+            out.append(CaptureSummary(scene_id=str(scene["scene_id"]), path="", error=str(exc)))
+    return out
 
 
-def scan_inputs(path: Path, ws: Workspace, cfg: ScanConfig, view: int = 0) -> dict[str, Any]:
+def capture_batch(scene_ids: list[str], ws: Workspace, cfg: ScanConfig) -> list[CaptureSummary]:
+    """Render a batch of the workspace's scenes and derive their learning inputs (view 0)."""
+    scenes = read_scenes(ws.scenes)
+    scenes = scenes[scenes["scene_id"].isin(scene_ids)]
+    captured = capture_scenes(scenes, read_catalog(ws.catalog), ws, cfg)
+    return [c if c.error else with_inputs(c, ws, cfg) for c in captured]
+
+
+def read_captures(captures_dir: Path, ws: Workspace, cfg: ScanConfig) -> list[CaptureSummary]:
+    """Learning inputs of every capture recorded elsewhere (``*.mcap`` under the folder)."""
+    out = []
+    for path in sorted(Path(captures_dir).rglob("*.mcap")):
+        summary = CaptureSummary(scene_id=path.stem, path=str(path), bytes=path.stat().st_size)
+        out.append(with_inputs(summary, ws, cfg))
+    return out
+
+
+def with_inputs(capture: CaptureSummary, ws: Workspace, cfg: ScanConfig) -> CaptureSummary:
+    """The capture's summary after deriving its learning inputs (or with the reason it failed)."""
+    try:
+        inputs = scan_inputs(Path(capture.path), ws, cfg)
+    except CaptureError as exc:
+        return replace(capture, error=exc.reason)
+    return replace(capture, frames=inputs.frames, input_parts=inputs.parts,
+                   seg_mean_iou=inputs.seg_mean_iou)
+
+
+def scan_inputs(path: Path, ws: Workspace, cfg: ScanConfig, view: int = 0) -> InputsSummary:
     """Learning inputs from view ``view`` of a capture, written to ``inputs/<capture>/``.
 
     With instance ids (our captures) each part's pixels are known; without them (a real
     recording) the support plane is removed and the rest clustered, and the clusters are
     scored against the ids when both exist. Parts are known only through the scene meta: a
     recording without it yields clusters but no part-aligned grids.
-
-    Returns:
-        Summary: frames read, parts with inputs, segmentation scores, paths written.
 
     Raises:
         CaptureError: the capture is corrupt before the requested view, or has no frame.
@@ -141,22 +196,22 @@ def scan_inputs(path: Path, ws: Workspace, cfg: ScanConfig, view: int = 0) -> di
         raise CaptureError(path, "no RGB-D frame in the capture")
     frame = frames[min(view, len(frames) - 1)]
     clusters = segment_clusters(frame)
-    summary: dict[str, Any] = {"capture": str(path), "frames": len(frames), "parts": 0,
-                               "has_ids": frame.instance is not None,
-                               "clusters": int(clusters.max())}
+    summary = InputsSummary(capture=str(path), frames=len(frames), parts=0,
+                            has_ids=frame.instance is not None, clusters=int(clusters.max()))
     if frame.instance is not None:
         score = segmentation_score(clusters, frame.instance, frame.depth > 0)
-        summary.update(seg_mean_iou=score.mean_iou, seg_ari=score.ari)
+        summary = replace(summary, seg_mean_iou=score.mean_iou, seg_ari=score.ari)
     if not meta.get("parts"):
         return summary
     labels = None if frame.instance is not None else clusters
-    summary["parts"] = len(_write_inputs(frame, meta, labels, path.stem, ws, cfg))
-    return summary
+    written = _write_inputs(frame, meta, labels, path.stem, ws, cfg)
+    return replace(summary, parts=len(written))
 
 
 def _write_inputs(frame: RgbdFrame, meta: dict[str, Any], labels: Any, name: str,
                   ws: Workspace, cfg: ScanConfig) -> list[Path]:
     clouds = part_clouds(frame, meta, labels)
+    margin = cfg.tolerances.grid_margin
     written = []
     for part in meta["parts"]:
         pid, points = str(part["part_id"]), clouds.get(int(part["instance_id"]))
@@ -164,8 +219,8 @@ def _write_inputs(frame: RgbdFrame, meta: dict[str, Any], labels: Any, name: str
             continue
         mesh = read_mesh(ws.mesh(pid))
         arrays: dict[str, Any] = {
-            f"grid{n}": np.packbits(partial_grid(points, mesh, n, cfg.grid_margin)
-                                    .occupancy.ravel()) for n in cfg.grid_sizes
+            f"grid{n}": np.packbits(partial_grid(points, mesh, n, margin).occupancy.ravel())
+            for n in cfg.grid_sizes
         }
         arrays.update(points=sample_points(points, cfg.n_points),
                       grid_sizes=np.array(cfg.grid_sizes), observed=len(points))
@@ -176,9 +231,12 @@ def _write_inputs(frame: RgbdFrame, meta: dict[str, Any], labels: Any, name: str
     return written
 
 
-
-def capture_step(target: str, workspace: Path, cfg: ScanConfig) -> dict[str, Any]:
+def capture_step(target: str, workspace: Path, cfg: ScanConfig,
+                 on_frame: Callable[[str], None] | None = None) -> CaptureSummary:
     """Capture a STEP file (all its solids, as placed in the file) or a scene id of the table.
+
+    Args:
+        on_frame: called once per frame written (for progress bars).
 
     Raises:
         InputFileError: ``target`` is neither a readable STEP file nor a known scene id.
@@ -186,32 +244,26 @@ def capture_step(target: str, workspace: Path, cfg: ScanConfig) -> dict[str, Any
     ws = Workspace(Path(workspace))
     path = Path(target)
     if path.is_file():
-        return _capture_file(path, ws, cfg)
+        return _capture_file(path, ws, cfg, on_frame)
     if ws.scenes.exists():
         scenes = read_scenes(ws.scenes)
         match = scenes[scenes["scene_id"].astype(str) == str(target)]
         if len(match):
             catalog = read_catalog(ws.catalog)
             colours = dict(zip(catalog["part_id"], catalog["colour"], strict=True))
-            return capture_scene(match.iloc[0].to_dict(), ws, colours, cfg)
+            return capture_scene(match.iloc[0].to_dict(), ws, colours, cfg, on_frame)
     raise InputFileError(target, "neither a STEP file nor a scene id of the workspace")
 
 
-def _capture_file(path: Path, ws: Workspace, cfg: ScanConfig) -> dict[str, Any]:
+def _capture_file(path: Path, ws: Workspace, cfg: ScanConfig,
+                  on_frame: Callable[[str], None] | None) -> CaptureSummary:
     from cadio.cad.step import read_step
     from cadio.cad.tessellate import tessellate
 
-    parts = [PlacedPart(instance_id=s.info.index + 1, mesh=tessellate(s.shape), pose=np.eye(4),
-                        colour=s.info.colour or "#b4b4b4", part_id=str(s.info.index),
-                        label=s.info.name) for s in read_step(path)]
-    capture_cfg = cfg.capture_config()
+    parts = [PlacedPart(instance_id=s.info.index + 1, mesh=tessellate(s.shape, cfg.tolerances),
+                        pose=np.eye(4), colour=s.info.colour or "#b4b4b4",
+                        part_id=str(s.info.index), label=s.info.name) for s in read_step(path)]
     out = ws.capture(path.stem)
-    with CaptureWriter(out) as writer:
-        writer.write_scene(scene_meta(parts, capture_cfg, {"source": str(path)}))
-        frames = 0
-        for frame in render_views(parts, capture_cfg, view_indices(cfg)):
-            writer.write_frame(frame)
-            frames += 1
-    size = out.stat().st_size
-    return {"path": str(out), "frames": frames, "parts": len(parts), "bytes": size,
-            "bytes_per_view": size // max(frames, 1)}
+    frames = _write_views(out, parts, cfg, {"source": str(path)}, on_frame)
+    return CaptureSummary(scene_id=path.stem, path=str(out), frames=frames, parts=len(parts),
+                          bytes=out.stat().st_size)

@@ -426,31 +426,3 @@ class _Clock:
         now = time.perf_counter()
         self.seconds[phase] = self.seconds.get(phase, 0.0) + now - self._last
         self._last = now
-
-
-def mates_job(payload: dict[str, Any]) -> dict[str, Any]:
-    """Extract and write one assembly's mates (the job of an isolated worker in the flow).
-
-    Args:
-        payload: ``path`` (STEP), ``assembly`` (name), ``workspace``, ``part_ids`` (solid
-            index -> catalog part id).
-
-    Returns:
-        Counts for the report: parts, pairs, pairs in contact, face mates, true part-level
-        relations, joints, joints by suggested type, seconds per phase, the parquet path.
-    """
-    from cadio.workspace import Workspace
-
-    result = read_assembly_mates(Path(payload["path"]),
-                                 part_ids={int(k): v for k, v in payload["part_ids"].items()})
-    out = Workspace(Path(payload["workspace"])).mates(str(payload["assembly"]))
-    write_mates(out, result.table)
-    joints = result.level("joint")
-    return {
-        "path": str(out), "n_parts": result.n_parts, "n_pairs": result.n_pairs,
-        "n_box_pairs": result.n_box_pairs, "n_contact_pairs": result.n_contact_pairs,
-        "face_mates": len(result.level("face")), "relations": len(result.level("part")),
-        "joints": len(joints),
-        "joint_types": {str(k): int(v) for k, v in joints["relation"].value_counts().items()},
-        "phase_seconds": result.seconds,
-    }

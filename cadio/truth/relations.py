@@ -19,7 +19,7 @@ from __future__ import annotations
 
 import json
 import math
-from collections.abc import Iterable, Sequence
+from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Any
 
@@ -222,15 +222,6 @@ def relate(
         view_axis=(float(view_axis[0]), float(view_axis[1]), float(view_axis[2])),
         tolerances=tol,
     )
-
-
-def relate_many(
-    pairs: Iterable[tuple[Features, Features]],
-    view_axis: Vector3 = CAD_VIEW_AXIS,
-    tol: Tolerances = DEFAULT_TOLERANCES,
-) -> list[RelationResult]:
-    """``relate`` over many ordered pairs (same view axis and tolerances)."""
-    return [relate(a, b, view_axis, tol) for a, b in pairs]
 
 
 def _inside(value: Any, limit: float) -> Any:

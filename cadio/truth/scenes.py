@@ -30,6 +30,7 @@ import pandas as pd
 import pyarrow as pa
 import pyarrow.parquet as pq
 
+from cadio.contracts import ScenesSummary
 from cadio.records import DIRECTIONAL, Features, FloatArray, Relation
 from cadio.tolerances import DEFAULT_TOLERANCES, Tolerances
 from cadio.truth.relations import (
@@ -40,7 +41,7 @@ from cadio.truth.relations import (
     principal_plane_group,
     relate,
 )
-from cadio.workspace import atomic_write
+from cadio.workspace import Workspace, atomic_write, read_features
 
 log = logging.getLogger(__name__)
 
@@ -345,9 +346,11 @@ def _pose(rot: FloatArray, t: Any = (0.0, 0.0, 0.0)) -> FloatArray:
 
 def _rot(axis: FloatArray, deg: float) -> FloatArray:
     """Rotation matrix (3, 3) about a unit axis by ``deg`` degrees (Rodrigues)."""
-    k = np.array([[0, -axis[2], axis[1]], [axis[2], 0, -axis[0]], [-axis[1], axis[0], 0]])
+    k = np.array([[0, -axis[2], axis[1]], [axis[2], 0, -axis[0]], [-axis[1], axis[0], 0]],
+                 dtype=np.float64)
     th = math.radians(deg)
-    return np.eye(3) + math.sin(th) * k + (1 - math.cos(th)) * (k @ k)
+    rot: FloatArray = np.eye(3) + math.sin(th) * k + (1 - math.cos(th)) * (k @ k)
+    return rot
 
 
 def _spin(rng: np.random.Generator) -> FloatArray:
@@ -372,7 +375,8 @@ def _tilt(axis: FloatArray, deg: float, rng: np.random.Generator) -> FloatArray:
     side = np.cross(axis, other)
     side = _rot(axis, rng.uniform(0.0, 360.0)) @ (side / np.linalg.norm(side))
     th = math.radians(deg)
-    return math.cos(th) * axis + math.sin(th) * side
+    tilted: FloatArray = math.cos(th) * axis + math.sin(th) * side
+    return tilted
 
 
 def _rel_box(f: Features) -> tuple[FloatArray, FloatArray]:
@@ -383,12 +387,12 @@ def _rel_box(f: Features) -> tuple[FloatArray, FloatArray]:
 def _separation(box_a: tuple[FloatArray, FloatArray], box_b: tuple[FloatArray, FloatArray],
                 u: FloatArray) -> float:
     """Smallest t >= 0 (mm) such that box_a moved by t*u no longer overlaps box_b."""
-    ts = []
+    ts: list[float] = []
     for k in range(3):
         if u[k] > 1e-9:
-            ts.append((box_b[1][k] - box_a[0][k]) / u[k])
+            ts.append(float((box_b[1][k] - box_a[0][k]) / u[k]))
         elif u[k] < -1e-9:
-            ts.append((box_b[0][k] - box_a[1][k]) / u[k])
+            ts.append(float((box_b[0][k] - box_a[1][k]) / u[k]))
     return max(0.0, min(ts))
 
 
@@ -407,13 +411,20 @@ def _lateral(a0: Features, b0: Features, rng: np.random.Generator) -> FloatArray
     return np.array([rng.uniform(-half[0], half[0]), rng.uniform(-half[1], half[1]), 0.0])
 
 
+def build_scenes(catalog: pd.DataFrame, workspace: Path, cfg: SceneConfig) -> ScenesSummary:
+    """The scenes stage: scenes of the catalog's single parts, written to ``scenes.parquet``."""
+    ws = Workspace(Path(workspace))
+    parts = read_scene_parts(catalog, ws.root)
+    table = generate_scenes(parts, cfg)
+    write_scenes(ws.scenes, table)
+    return ScenesSummary(path=str(ws.scenes), scenes=len(table), parts=len(parts))
+
+
 def read_scene_parts(catalog: pd.DataFrame, workspace: Path) -> list[ScenePart]:
     """Catalog parts usable in scenes: ok solids of single-part files, with their features.
 
     Solids of assemblies are left out: they are placed in their assembly, not free parts.
     """
-    from cadio.workspace import Workspace, read_features
-
     ws = Workspace(Path(workspace))
     rows = catalog[(catalog["status"] == "ok") & (catalog["n_solids"] == 1)]
     return [ScenePart(str(r.part_id), str(r.category), read_features(ws.features(str(r.part_id))))

@@ -1,0 +1,104 @@
+"""Per-category tables of each stage, and Markdown tables. Pure pandas, no CAD, no torch.
+
+Inputs are the catalog and the typed summaries the stages return (``cadio.contracts``);
+outputs are DataFrames that ``reports.render`` puts into the run's report files.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+import pandas as pd
+
+from cadio.contracts import CaptureSummary, MatesSummary
+
+
+def markdown_table(frame: pd.DataFrame) -> str:
+    """A GitHub-flavoured Markdown table (no optional dependency on tabulate)."""
+    cols = [str(c) for c in frame.columns]
+    out = ["| " + " | ".join(cols) + " |", "|" + "---|" * len(cols)]
+    for row in frame.itertuples(index=False):
+        out.append("| " + " | ".join(str(v).replace("|", "/") for v in row) + " |")
+    return "\n".join(out)
+
+
+def files_table(catalog: pd.DataFrame) -> pd.DataFrame:
+    """One row per source file: ok if any of its solids is ok, parts ok, parts reused."""
+    if catalog.empty:
+        return pd.DataFrame(columns=["category", "source", "file_status", "parts", "cached"])
+    return (
+        catalog.groupby(["category", "source"], sort=True)
+        .agg(file_status=("status", lambda s: "ok" if (s == "ok").any() else str(s.iloc[0])),
+             parts=("status", lambda s: int((s == "ok").sum())),
+             cached=("cached", lambda s: int(s.sum())))
+        .reset_index()
+    )
+
+
+def ingest_table(files: pd.DataFrame) -> pd.DataFrame:
+    """Per category: files found, ok, failed, skipped, parts, parts reused from the cache."""
+    return (
+        files.groupby("category", sort=True)
+        .agg(files=("source", "count"),
+             ok=("file_status", lambda s: int((s == "ok").sum())),
+             failed=("file_status", lambda s: int((s == "failed").sum())),
+             skipped=("file_status", lambda s: int((s == "skipped").sum())),
+             parts=("parts", "sum"),
+             cached=("cached", "sum"))
+        .reset_index()
+    )
+
+
+def mates_table(assemblies: Sequence[MatesSummary]) -> pd.DataFrame:
+    """Per category: assemblies, failures, parts, pairs, pairs in contact, face mates, part
+    relations and joints (counts of the assemblies that went through)."""
+    columns = ["category", "assemblies", "failed", "parts", "pairs", "contact_pairs",
+               "face_mates", "relations", "joints"]
+    if not assemblies:
+        return pd.DataFrame(columns=columns)
+    frame = pd.DataFrame([{
+        "category": a.category, "assemblies": 1, "failed": int(not a.ok), "parts": a.n_parts,
+        "pairs": a.n_pairs, "contact_pairs": a.n_contact_pairs, "face_mates": a.face_mates,
+        "relations": a.relations, "joints": a.joints} for a in assemblies])
+    return frame.groupby("category", sort=True).sum().reset_index()[columns]
+
+
+def joints_table(assemblies: Sequence[MatesSummary]) -> pd.DataFrame:
+    """Joint types found, per category (suggested CAD joint names)."""
+    rows = [{"category": a.category, "joint": j, "count": n}
+            for a in assemblies if a.ok for j, n in a.joint_types.items()]
+    if not rows:
+        return pd.DataFrame(columns=["category", "joint", "count"])
+    return (pd.DataFrame(rows).groupby(["category", "joint"], sort=True)["count"].sum()
+            .reset_index())
+
+
+def scenes_table(scenes: pd.DataFrame) -> pd.DataFrame:
+    """Scenes per split and intended relation, with the share where the intent holds."""
+    if scenes.empty:
+        return pd.DataFrame(columns=["split", "intended", "scenes", "holds"])
+    holds = [bool(row[row["intended"]]) for row in scenes.to_dict("records")]
+    table = (scenes.assign(holds=holds).groupby(["split", "intended"], sort=True)
+             .agg(scenes=("scene_id", "count"), holds=("holds", "mean")).reset_index())
+    table["holds"] = table["holds"].round(3)
+    return table
+
+
+def captures_table(captures: Sequence[CaptureSummary], scenes: pd.DataFrame) -> pd.DataFrame:
+    """Per category: captures, frames and part views captured (a pair counts in both parts'
+    categories), bytes on disk, failures. Captures of no known scene count as "unknown"."""
+    columns = ["category", "captures", "frames", "part_views", "mbytes", "failed"]
+    if not captures:
+        return pd.DataFrame(columns=columns)
+    cats = {str(r["scene_id"]): (str(r["category_a"]), str(r["category_b"]))
+            for r in scenes.to_dict("records")}
+    rows = []
+    for c in captures:
+        pair = cats.get(c.scene_id, ("unknown", "unknown"))
+        for cat in sorted(set(pair)):
+            rows.append({"category": cat, "captures": 1, "frames": c.frames,
+                         "part_views": c.frames * pair.count(cat) * (c.error == ""),
+                         "mbytes": c.bytes / 1e6, "failed": int(c.error != "")})
+    table = pd.DataFrame(rows).groupby("category", sort=True).sum().reset_index()
+    table["mbytes"] = table["mbytes"].round(2)
+    return table[columns]
