@@ -25,7 +25,11 @@ from cadio.tolerances import DEFAULT_TOLERANCES, Tolerances, read_tolerances
 from flows.settings import Settings
 
 # Third-party loggers that narrate every operation at INFO (build123d logs each sketch step).
-_CHATTY = ("httpx", "build123d", "prefect.task_runs", "prefect.events", "prefect._internal")
+_CHATTY = ("httpx", "build123d")
+# Prefect configures its own loggers when imported; this override (a default the user's
+# environment may replace) keeps one "Finished in state Completed()" per task off the console:
+# the flow logs one line per stage instead.
+_PREFECT_QUIET = {"PREFECT_LOGGING_LOGGERS_PREFECT_TASK_RUNS_LEVEL": "WARNING"}
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -214,6 +218,8 @@ def _cmd_nightly(args: argparse.Namespace) -> int:
 
     settings = Settings()
     proc = None
+    for key, value in _PREFECT_QUIET.items():
+        os.environ.setdefault(key, value)
     if "PREFECT_API_URL" not in os.environ:
         home = settings.prefect_home
         os.environ.update(server_env(home, settings.server_port))
