@@ -54,8 +54,9 @@ class Workspace:
         return self.root / "scenes.parquet"
 
     def inputs(self, capture: str, part_id: str) -> Path:
-        """Learning inputs of one part seen in one capture: partial grids and 600 points."""
-        return self.root / "inputs" / capture / f"{part_id}.npz"
+        """Learning inputs of one part seen in one capture: its completion examples (one
+        ``<protocol>-<views>.npz`` each) and ``points.npz`` (600 observed points)."""
+        return self.root / "inputs" / capture / part_id
 
     def run_dir(self, run_id: str) -> Path:
         return self.root / "runs" / run_id

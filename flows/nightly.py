@@ -286,8 +286,7 @@ def nightly(
                             tolerances=tolerances)
     scenes = scenes_task(catalog, run.workspace, scene_cfg)
     log.info("scenes: %d from %d parts (%.1f s)", scenes.scenes, scenes.parts, clock.lap())
-    scan_cfg = ScanConfig(views_per_scene=views_per_scene, noise=noise,
-                          grid_sizes=cfg.voxel_sizes, tolerances=tolerances)
+    scan_cfg = ScanConfig(views_per_scene=views_per_scene, noise=noise, tolerances=tolerances)
     captured = capture_stage(scenes, run, scan_cfg, captures)
     log.info("captures: %d, %d failed, %d frames (%.1f s)", len(captured),
              sum(bool(c.error) for c in captured), sum(c.frames for c in captured), clock.lap())

@@ -1,4 +1,4 @@
-"""Tests of cadio.capture.pointcloud: back-projection, segmentation, partial grids and sampling."""
+"""Tests of cadio.capture.pointcloud and .segment: back-projection, segmentation, sampling."""
 
 from __future__ import annotations
 
@@ -7,14 +7,11 @@ import math
 import numpy as np
 import open3d as o3d
 import pytest
-from scipy.ndimage import binary_dilation
 
-from cadio.cad.voxels import voxelize
 from cadio.capture.noise import NoiseConfig
 from cadio.capture.pointcloud import (
     backproject,
     part_clouds,
-    partial_grid,
     sample_points,
     to_part_frame,
     valid_depth,
@@ -115,31 +112,6 @@ def test_adjusted_rand_index_invariants() -> None:
     assert adjusted_rand_index(a, a) == pytest.approx(1.0)
     assert adjusted_rand_index(a, (a + 1) % 4) == pytest.approx(1.0)  # relabelled
     assert abs(adjusted_rand_index(a, rng.integers(0, 4, 500))) < 0.05  # chance level
-
-
-@pytest.mark.parametrize("n", [32, 64])
-def test_partial_grid_is_aligned_with_the_truth_grid(clean: RgbdFrame, n: int) -> None:
-    meta = scene_meta(pair(), CFG)
-    clouds = part_clouds(clean, meta)
-    for part in pair():
-        truth = voxelize(part.mesh, n)
-        seen = partial_grid(clouds[part.instance_id], part.mesh, n)
-        assert np.array_equal(seen.grid_to_part, truth.grid_to_part)
-        occupied = np.count_nonzero(seen.occupancy)
-        near_truth = seen.occupancy & binary_dilation(truth.occupancy)
-        assert occupied > 50
-        assert np.count_nonzero(near_truth) / occupied > 0.95  # a surface shell of the solid
-        # A single view sees one side: far fewer voxels than the solid has.
-        assert occupied < np.count_nonzero(truth.occupancy)
-
-
-def test_partial_grid_of_a_noisy_view_stays_near_the_truth(noisy: RgbdFrame) -> None:
-    meta = scene_meta(pair(), NOISY)
-    part = pair()[0]
-    truth = voxelize(part.mesh, 32)
-    seen = partial_grid(part_clouds(noisy, meta)[1], part.mesh, 32)
-    near = seen.occupancy & binary_dilation(truth.occupancy, iterations=2)
-    assert np.count_nonzero(near) / np.count_nonzero(seen.occupancy) > 0.9
 
 
 def test_sample_points_gives_600_spread_points(clean: RgbdFrame) -> None:

@@ -10,14 +10,23 @@ import pytest
 from scipy import ndimage
 
 from cadio.cad.ingest import IngestConfig, ingest
+from cadio.capture.examples import part_views, read_example
 from cadio.capture.mcap_io import read_capture, read_scene_meta
-from cadio.capture.scan import ScanConfig, capture_scenes, capture_step, scan_inputs, view_indices
+from cadio.capture.scan import (
+    ScanConfig,
+    capture_scenes,
+    capture_step,
+    part_examples,
+    part_to_world,
+    scan_inputs,
+    view_indices,
+)
 from cadio.catalog import read_catalog
 from cadio.sandbox import Limits
 from cadio.truth.scenes import SceneConfig, generate_scenes, read_scene_parts, write_scenes
-from cadio.workspace import Workspace, read_voxels
+from cadio.workspace import Workspace, read_mesh, read_voxels
 
-CFG = ScanConfig(views_per_scene=2, grid_sizes=(32,))
+CFG = ScanConfig(views_per_scene=2, n_in=32, n_out=32, lengths=(2,))
 
 
 @pytest.fixture(scope="module")
@@ -62,21 +71,55 @@ def test_scenes_capture_to_mcap_with_labels(ws: Workspace) -> None:
         assert set(np.unique(frames[0].instance)) >= {1, 2}
 
 
-def test_inputs_are_aligned_with_the_truth_grid(ws: Workspace) -> None:
+def test_inputs_are_examples_of_each_part_in_both_protocols(ws: Workspace) -> None:
     scene = pd.read_parquet(ws.scenes).iloc[0]
     captured = capture_scenes(scene.to_frame().T, read_catalog(ws.catalog), ws, CFG)
     summary = scan_inputs(Path(captured[0].path), ws, CFG)
     assert summary.has_ids and summary.parts == 2
     assert summary.seg_mean_iou > 0.5
     for pid in (scene["part_a"], scene["part_b"]):
-        with np.load(ws.inputs(str(scene["scene_id"]), pid)) as z:
-            points = z["points"]
-            partial = np.unpackbits(z["grid32"], count=32**3).astype(bool).reshape(32, 32, 32)
+        folder = ws.inputs(str(scene["scene_id"]), pid)
+        names = sorted(p.stem for p in folder.glob("*-*.npz"))
+        assert all(n.startswith(("observed-", "oracle-box-")) for n in names)
+        assert len(names) == summary.examples // 2 and names
+        with np.load(folder / "points.npz") as z:
+            assert z["points"].shape == (600, 3)
         truth = read_voxels(ws.voxels(pid, 32)).occupancy
-        assert points.shape == (600, 3)
-        assert partial.any()
+        oracle = read_example(next(folder.glob("oracle-box-0.npz")))
+        # the oracle-box protocol is the ingest's truth grid: observed voxels sit on the truth
+        partial = oracle.inputs[0]
+        assert partial.any() and oracle.target is not None
+        assert np.array_equal(oracle.target, truth)
         near_truth = ndimage.binary_dilation(truth, iterations=1)
         assert (partial & near_truth).sum() >= 0.95 * partial.sum()
+
+
+def test_observed_inputs_ignore_the_truth_in_the_capture(ws: Workspace) -> None:
+    """Changing every truth field of the scene meta (poses, scale) changes the oracle-box
+    examples and the targets, never the observed protocol's inputs."""
+    scene = pd.read_parquet(ws.scenes).iloc[0]
+    captured = capture_scenes(scene.to_frame().T, read_catalog(ws.catalog), ws, CFG)
+    path = Path(captured[0].path)
+    frames = list(read_capture(path))
+    meta = read_scene_meta(path)
+    assert meta is not None
+    part = meta["parts"][0]
+    views = part_views(frames, [f.instance for f in frames], int(part["instance_id"]))
+    mesh = read_mesh(ws.mesh(str(part["part_id"])))
+    honest = part_examples(views, mesh, part_to_world(meta, part), CFG)
+    lied = {**meta, "scale_m_per_mm": 2 * meta["scale_m_per_mm"]}
+    wrong_pose = np.asarray(part["pose_mm"]) @ np.diag([1, -1, -1, 1])
+    wrong = part_examples(views, mesh, part_to_world(lied, {**part, "pose_mm": wrong_pose}), CFG)
+    for name, example in honest.items():
+        other = wrong[name]
+        if name.startswith("observed"):
+            assert np.array_equal(example.inputs, other.inputs)
+            assert np.array_equal(example.depth, other.depth)
+            assert np.array_equal(example.carve, other.carve)
+            assert example.grid.grid_to_world(4) == pytest.approx(other.grid.grid_to_world(4))
+            assert not np.array_equal(example.target, other.target)  # the truth did move
+        else:  # the oracle-box grid goes with the part: the observed voxels move in it
+            assert not np.array_equal(example.inputs, other.inputs)
 
 
 def test_capture_a_step_file(tmp_path: Path, box_step: Path) -> None:

@@ -100,6 +100,26 @@ def voxelize(mesh: Mesh, n: int, margin: float = 0.05) -> VoxelGrid:
     if len(mesh.triangles) == 0:
         raise GeometryError("voxelize", "mesh has no triangles")
     transform = grid_transform(mesh.vertices.min(axis=0), mesh.vertices.max(axis=0), n, margin)
+    return VoxelGrid(occupancy=occupancy_in(mesh, transform, n), grid_to_part=transform)
+
+
+def occupancy_in(mesh: Mesh, grid_to_part: FloatArray, n: int) -> BoolArray:
+    """Solid occupancy of a closed mesh at the voxel centres of any n^3 grid.
+
+    Args:
+        mesh: closed triangle mesh, mm, part coordinates.
+        grid_to_part: (4, 4) affine map of (i, j, k, 1) to voxel centres in part coordinates
+            (mm); it may rotate and scale, e.g. a grid placed by a camera's view.
+        n: voxels along each axis.
+
+    Returns:
+        (n, n, n) bool, True where the voxel centre is inside the mesh.
+
+    Raises:
+        GeometryError: when the mesh has no triangles.
+    """
+    if len(mesh.triangles) == 0:
+        raise GeometryError("voxelize", "mesh has no triangles")
     scene = o3d.t.geometry.RaycastingScene()
     scene.add_triangles(
         o3d.core.Tensor.from_numpy(np.ascontiguousarray(mesh.vertices, dtype=np.float32)),
@@ -109,10 +129,10 @@ def voxelize(mesh: Mesh, n: int, margin: float = 0.05) -> VoxelGrid:
     slab = max(1, CHUNK_POINTS // (n * n))
     for start in range(0, n, slab):
         stop = min(n, start + slab)
-        points = o3d.core.Tensor.from_numpy(voxel_centres(transform, n, start, stop))
+        points = o3d.core.Tensor.from_numpy(voxel_centres(grid_to_part, n, start, stop))
         inside = scene.compute_occupancy(points, nsamples=OCCUPANCY_RAYS)
         occupancy[start:stop] = inside.numpy().astype(bool)
-    return VoxelGrid(occupancy=occupancy, grid_to_part=transform)
+    return occupancy
 
 
 def points_to_grid(points: FloatArray, grid_to_part: FloatArray, n: int) -> BoolArray:

@@ -1,11 +1,11 @@
-"""From RGB-D frames to per-part point clouds, partial occupancy grids and point samples.
+"""From RGB-D frames to per-part point clouds and point samples.
 
 Depth is back-projected to points in the frame's world frame, in **metres** (the capture's
 world is the scene frame scaled by ``scale_m_per_mm``). The ground truth of a part lives in its
-own millimetre coordinates, so ``to_part_frame`` undoes the scale and the part's pose; a partial
-grid binned there shares its ``grid_to_part`` with ``voxels.voxelize`` of the same mesh, voxel
-for voxel. Parts are separated with the instance ids when a capture has them, else with the
-labels of ``cadio.capture.segment``.
+own millimetre coordinates, so ``to_part_frame`` undoes the scale and the part's pose: that
+needs the truth, so it serves checks against the CAD only; the learning inputs are built from
+the world points and the cameras alone (``cadio.capture.observe``). Parts are separated with
+the instance ids when a capture has them, else with the labels of ``cadio.capture.segment``.
 """
 
 from __future__ import annotations
@@ -15,8 +15,7 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
-from cadio.cad.voxels import grid_transform, points_to_grid
-from cadio.records import FloatArray, Mesh, RgbdFrame, VoxelGrid, apply_pose
+from cadio.records import FloatArray, RgbdFrame, apply_pose
 
 IntImage = npt.NDArray[np.int32]
 
@@ -71,22 +70,6 @@ def part_clouds(frame: RgbdFrame, scene: dict[str, Any],
     return {int(p["instance_id"]): to_part_frame(backproject(frame, ids == p["instance_id"]),
                                                  np.asarray(p["pose_mm"]), scale)
             for p in scene["parts"]}
-
-
-def partial_grid(points_part_mm: FloatArray, mesh: Mesh, n: int,
-                 margin: float = 0.05) -> VoxelGrid:
-    """Occupancy of a part's observed points on the part's own truth grid.
-
-    The grid is ``voxels.grid_transform`` of the mesh's bounding box, exactly as
-    ``voxels.voxelize(mesh, n, margin)`` builds it, so the two grids align voxel for voxel.
-
-    Args:
-        points_part_mm: (m, 3) mm in part coordinates (``to_part_frame``).
-        mesh: the part's mesh, mm, part coordinates.
-        n: grid size (64 as in the paper, 32 on a CPU).
-    """
-    g2p = grid_transform(mesh.vertices.min(axis=0), mesh.vertices.max(axis=0), n, margin)
-    return VoxelGrid(occupancy=points_to_grid(points_part_mm, g2p, n), grid_to_part=g2p)
 
 
 def sample_points(points: FloatArray, k: int = 600, seed: int = 0,

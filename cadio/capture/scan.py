@@ -22,19 +22,28 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
+from cadio.capture.examples import (
+    OBSERVED,
+    PROTOCOLS,
+    Example,
+    ExampleConfig,
+    PartView,
+    observed_example,
+    oracle_example,
+    part_views,
+    view_sets,
+    with_truth,
+    write_example,
+)
 from cadio.capture.mcap_io import CaptureWriter, read_capture, read_scene_meta
 from cadio.capture.noise import NoiseConfig
-from cadio.capture.pointcloud import (
-    part_clouds,
-    partial_grid,
-    sample_points,
-)
+from cadio.capture.pointcloud import sample_points
 from cadio.capture.render import CaptureConfig, PlacedPart, render_views, scene_meta
 from cadio.capture.segment import segment_clusters, segmentation_score
 from cadio.catalog import read_catalog
 from cadio.contracts import CaptureSummary
 from cadio.errors import CaptureError, InputFileError
-from cadio.records import Relation, RgbdFrame
+from cadio.records import FloatArray, Mesh, Relation
 from cadio.tolerances import DEFAULT_TOLERANCES, Tolerances
 from cadio.truth.scenes import read_scenes, scene_poses
 from cadio.workspace import Workspace, atomic_write, read_mesh
@@ -51,22 +60,31 @@ class ScanConfig:
     views_per_scene: int = 8
     capture: CaptureConfig = field(default_factory=CaptureConfig)
     noise: bool = False
-    grid_sizes: tuple[int, ...] = (32, 64)
+    # Completion examples of each part: every view on its own, and sequences of these lengths
+    # (in both protocols), at the completion network's resolutions.
+    n_in: int = 32
+    n_out: int = 64
+    lengths: tuple[int, ...] = (2, 4, 8)
+    protocols: tuple[str, ...] = PROTOCOLS
     n_points: int = 600
-    # ``grid_margin`` must equal the ingest's for the partial grids to align with the truth.
+    # ``grid_margin`` must equal the ingest's: the oracle-box grid is the part's truth grid.
     tolerances: Tolerances = DEFAULT_TOLERANCES
 
     def capture_config(self) -> CaptureConfig:
         return replace(self.capture, noise=NoiseConfig() if self.noise else None)
+
+    def example_config(self) -> ExampleConfig:
+        return ExampleConfig(n_in=self.n_in, n_out=self.n_out,
+                             grid_margin=self.tolerances.grid_margin)
 
 
 @dataclass(frozen=True)
 class InputsSummary:
     """What ``scan_inputs`` made of one capture.
 
-    parts: parts with learning inputs written. has_ids: the capture has instance ids.
-    clusters: clusters found without ids. seg_mean_iou, seg_ari: those clusters scored
-    against the ids (NaN without ids).
+    parts: parts with learning inputs written; examples: completion examples written.
+    has_ids: the capture has instance ids. clusters: clusters found without ids.
+    seg_mean_iou, seg_ari: those clusters scored against the ids (NaN without ids).
     """
 
     capture: str
@@ -74,6 +92,7 @@ class InputsSummary:
     parts: int
     has_ids: bool
     clusters: int
+    examples: int = 0
     seg_mean_iou: float = math.nan
     seg_ari: float = math.nan
 
@@ -179,56 +198,79 @@ def with_inputs(capture: CaptureSummary, ws: Workspace, cfg: ScanConfig) -> Capt
                    seg_mean_iou=inputs.seg_mean_iou)
 
 
-def scan_inputs(path: Path, ws: Workspace, cfg: ScanConfig, view: int = 0) -> InputsSummary:
-    """Learning inputs from view ``view`` of a capture, written to ``inputs/<capture>/``.
+def scan_inputs(path: Path, ws: Workspace, cfg: ScanConfig) -> InputsSummary:
+    """Learning inputs of every part of a capture, written to ``inputs/<capture>/<part>/``.
 
-    With instance ids (our captures) each part's pixels are known; without them (a real
-    recording) the support plane is removed and the rest clustered, and the clusters are
-    scored against the ids when both exist. Parts are known only through the scene meta: a
-    recording without it yields clusters but no part-aligned grids.
+    Parts are told apart by the instance ids (our captures) or, in a recording without them,
+    by removing the support plane and clustering (scored against the ids when both exist).
+    Each part seen in the scene meta gets its completion examples (``part_examples``) and 600
+    observed points of the first view that sees it (world metres, for the relation network).
+    A recording without scene meta yields clusters but no part to score.
 
     Raises:
-        CaptureError: the capture is corrupt before the requested view, or has no frame.
+        CaptureError: the capture is corrupt before its first frame, or has no frame.
     """
     meta = read_scene_meta(path) or {}
     frames = list(read_capture(path))
     if not frames:
         raise CaptureError(path, "no RGB-D frame in the capture")
-    frame = frames[min(view, len(frames) - 1)]
-    clusters = segment_clusters(frame)
+    clusters = segment_clusters(frames[0])
     summary = InputsSummary(capture=str(path), frames=len(frames), parts=0,
-                            has_ids=frame.instance is not None, clusters=int(clusters.max()))
-    if frame.instance is not None:
-        score = segmentation_score(clusters, frame.instance, frame.depth > 0)
+                            has_ids=frames[0].instance is not None,
+                            clusters=int(clusters.max()))
+    if frames[0].instance is not None:
+        score = segmentation_score(clusters, frames[0].instance, frames[0].depth > 0)
         summary = replace(summary, seg_mean_iou=score.mean_iou, seg_ari=score.ari)
-    if not meta.get("parts"):
+    if not meta.get("parts") or any(f.instance is None for f in frames):
         return summary
-    labels = None if frame.instance is not None else clusters
-    written = _write_inputs(frame, meta, labels, path.stem, ws, cfg)
-    return replace(summary, parts=len(written))
-
-
-def _write_inputs(frame: RgbdFrame, meta: dict[str, Any], labels: Any, name: str,
-                  ws: Workspace, cfg: ScanConfig) -> list[Path]:
-    clouds = part_clouds(frame, meta, labels)
-    margin = cfg.tolerances.grid_margin
-    written = []
+    labels = [f.instance for f in frames if f.instance is not None]
+    parts = examples = 0
     for part in meta["parts"]:
-        pid, points = str(part["part_id"]), clouds.get(int(part["instance_id"]))
-        if points is None or len(points) == 0:
+        pid = str(part["part_id"])
+        views = part_views(frames, labels, int(part["instance_id"]))
+        if not views:
             continue
-        mesh = read_mesh(ws.mesh(pid))
-        arrays: dict[str, Any] = {
-            f"grid{n}": np.packbits(partial_grid(points, mesh, n, margin).occupancy.ravel())
-            for n in cfg.grid_sizes
-        }
-        arrays.update(points=sample_points(points, cfg.n_points),
-                      grid_sizes=np.array(cfg.grid_sizes), observed=len(points))
-        out = ws.inputs(name, pid)
-        with atomic_write(out) as fh:
-            np.savez_compressed(fh, **arrays)
-        written.append(out)
-    return written
+        written = part_examples(views, read_mesh(ws.mesh(pid)), part_to_world(meta, part), cfg)
+        for name, example in written.items():
+            write_example(ws.inputs(path.stem, pid) / f"{name}.npz", example,
+                          {"part_id": pid, "capture": path.stem})
+        _write_points(ws.inputs(path.stem, pid) / "points.npz", views[0].points, cfg)
+        parts, examples = parts + 1, examples + len(written)
+    return replace(summary, parts=parts, examples=examples)
+
+
+def part_to_world(meta: dict[str, Any], part: dict[str, Any]) -> FloatArray:
+    """(4, 4) part mm -> world metres of a part of the scene meta: the truth side only."""
+    scale = float(meta["scale_m_per_mm"])
+    pose: FloatArray = np.diag([scale, scale, scale, 1.0]) @ np.asarray(part["pose_mm"],
+                                                                        dtype=np.float64)
+    return pose
+
+
+def part_examples(views: list[PartView], mesh: Mesh, to_world: FloatArray,
+                  cfg: ScanConfig) -> dict[str, Example]:
+    """A part's examples, by name (``<protocol>-<views>``): each view alone and the
+    sequences of ``cfg.lengths`` views, in each protocol, with targets for the score.
+
+    The observed protocol's inputs come from the views alone; ``mesh`` and ``to_world`` (the
+    truth) place the oracle-box grid and voxelize the targets.
+    """
+    ecfg = cfg.example_config()
+    out = {}
+    for chosen in view_sets(len(views), len(views), cfg.lengths):
+        seq = [views[i] for i in chosen]
+        for protocol in cfg.protocols:
+            example = (observed_example(seq, ecfg) if protocol == OBSERVED
+                       else oracle_example(seq, mesh, to_world, ecfg))
+            name = f"{protocol}-{'-'.join(str(v.view) for v in seq)}"
+            out[name] = with_truth(example, mesh, to_world, ecfg)
+    return out
+
+
+def _write_points(path: Path, points: FloatArray, cfg: ScanConfig) -> None:
+    with atomic_write(path) as fh:
+        np.savez_compressed(fh, points=sample_points(points, cfg.n_points),
+                            observed=len(points))
 
 
 def capture_step(target: str, workspace: Path, cfg: ScanConfig,

@@ -40,6 +40,7 @@ from cadio.samples.parts import (
     fastener_builders,
     motion_builders,
 )
+from cadio.samples.variants import draw_variants
 from cadio.workspace import write_json
 
 logger = logging.getLogger(__name__)
@@ -58,6 +59,10 @@ class SampleConfig:
     step_timestamp: str = "2000-01-01T00:00:00"
     # Involute gears are the slowest parts (~0.3-1 s each); off leaves 14 motion parts.
     gears: bool = True
+    # Parametric variants per paper category (``cadio.samples.variants``), for training the
+    # learned stages; the nightly's built-in library has none.
+    variants: int = 0
+    variant_seed: int = 0
 
 
 @dataclass(frozen=True)
@@ -68,6 +73,8 @@ class SampleSpec:
     name: str
     description: str
     build: Callable[[], bd.Shape[Any]]
+    # A variant whose draw does not build into one valid solid is left out (logged), not fatal.
+    optional: bool = False
 
 
 @dataclass(frozen=True)
@@ -112,6 +119,8 @@ def sample_specs(cfg: SampleConfig | None = None) -> list[SampleSpec]:
              for cat, items, colour in groups for name, desc, build in items]
     specs += [SampleSpec(ASSEMBLIES, name, desc, _compound(build, name))
               for name, desc, build in assembly_builders()]
+    specs += [SampleSpec(v.category, f"variants/{v.name}", v.description, v.build, optional=True)
+              for v in draw_variants(cfg.variants, cfg.variant_seed)]
     return specs
 
 
@@ -132,9 +141,18 @@ def _labels(shape: bd.Shape[Any]) -> tuple[str, ...]:
     return (shape.label,)
 
 
-def _write_sample(out_dir: Path, spec: SampleSpec, cfg: SampleConfig) -> LibraryEntry:
-    """Build one spec and write its STEP file unless identical bytes are already there."""
-    shape = spec.build()
+def _write_sample(out_dir: Path, spec: SampleSpec, cfg: SampleConfig) -> LibraryEntry | None:
+    """Build one spec and write its STEP file unless identical bytes are already there.
+
+    Returns None for an optional spec that does not build (a variant drawn out of range).
+    """
+    try:
+        shape = spec.build()
+    except Exception as exc:  # the kernel's errors share no base class but Exception
+        if not spec.optional:
+            raise
+        logger.warning("variant %s (%s) left out: %s", spec.name, spec.description, exc)
+        return None
     rel = f"{spec.category}/{spec.name}.step"
     write_step(shape, out_dir / rel, cfg.step_timestamp)
     return LibraryEntry(path=rel, category=spec.category, name=spec.name,
@@ -193,7 +211,8 @@ def generate_library(out_dir: Path, cfg: SampleConfig | None = None) -> list[Pat
         return current
     start = time.perf_counter()
     _, previous = _previous(out_dir)
-    entries = [_write_sample(out_dir, spec, cfg) for spec in sample_specs(cfg)]
+    written = [_write_sample(out_dir, spec, cfg) for spec in sample_specs(cfg)]
+    entries = [e for e in written if e is not None]
     write_json(out_dir / LIBRARY_INDEX, {"stamp": stamp, "files": [asdict(e) for e in entries]})
     for stale in sorted(set(previous) - {e.path for e in entries}):
         if stale.endswith(".step") and ".." not in Path(stale).parts:  # never leave out_dir
