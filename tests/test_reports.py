@@ -116,7 +116,7 @@ def test_markdown_table_escapes_pipes() -> None:
 
 
 def test_reports_import_no_cad_kernel_torch_or_renderer() -> None:
-    code = ("import sys, reports.render, reports.tables; "
+    code = ("import sys, reports.render, reports.tables, reports.metrics, reports.completion; "
             "print(sorted(m for m in ('OCP', 'torch', 'open3d', 'prefect', 'build123d') "
             "if m in sys.modules))")
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
