@@ -15,6 +15,7 @@ from collections.abc import Callable, Mapping, Sequence
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
+import numpy as np
 import pandas as pd
 
 from cadio.capture.examples import (
@@ -32,6 +33,7 @@ from cadio.capture.examples import (
 from cadio.capture.noise import NoiseConfig
 from cadio.capture.render import CaptureConfig
 from cadio.sandbox import Job, Limits, run_isolated
+from cadio.truth.scenes import assign_splits
 from cadio.workspace import Workspace, atomic_path, read_mesh
 
 log = logging.getLogger(__name__)
@@ -163,3 +165,24 @@ def write_index(path: Path, index: pd.DataFrame) -> None:
 
 def read_index(path: Path) -> pd.DataFrame:
     return pd.read_parquet(path)
+
+
+def unique_parts(catalog: pd.DataFrame) -> pd.DataFrame:
+    """The catalog's ok parts, one per distinct geometry: assemblies repeat their bolts and
+    nuts, and a repeated part would sit in one split many times (size and volume identical to
+    a micrometre and a cubic millimetre count as the same geometry)."""
+    ok = catalog[catalog["status"] == "ok"].copy()
+    extent = [tuple(sorted(np.round(np.subtract(hi, lo), 3)))
+              for lo, hi in zip(ok["bbox_min"], ok["bbox_max"], strict=True)]
+    ok["_key"] = [f"{v:.0f}|{f}|{e}" for v, f, e in zip(ok["volume"], ok["n_faces"], extent,
+                                                         strict=True)]
+    return ok.sort_values("part_id").drop_duplicates("_key").drop(columns="_key")
+
+
+def corpus_splits(parts: pd.DataFrame, held_out: Callable[[str], bool], seed: int = 0,
+                  val_fraction: float = 0.1, test_fraction: float = 0.2) -> dict[str, str]:
+    """Split of each part (by part, from a hash of the seed and the part id); parts whose
+    source file ``held_out`` names (the nightly's own sample library) are always "test"."""
+    drawn = assign_splits(sorted(map(str, parts["part_id"])), seed, val_fraction, test_fraction)
+    return {str(pid): "test" if held_out(str(src)) else drawn[str(pid)]
+            for pid, src in zip(parts["part_id"], parts["source"], strict=True)}
