@@ -51,6 +51,8 @@ OBSERVED, ORACLE = "observed", "oracle-box"
 PROTOCOLS = (OBSERVED, ORACLE)
 # Fewer observed points than this and a view says too little to place a grid on.
 MIN_POINTS = 30
+# Observed points kept with an example, for registering the completion onto the scan.
+POINTS_KEPT = 2048
 
 
 @dataclass(frozen=True)
@@ -90,8 +92,10 @@ class Example:
     depth: npt.NDArray[np.float32]
     visible: npt.NDArray[np.bool_]
     carve: npt.NDArray[np.bool_]
+    points: FloatArray = field(default_factory=lambda: np.zeros((0, 3)))  # observed, world m
     target: npt.NDArray[np.bool_] | None = None
     coverage: float = math.nan  # share of the part's volume inside the cube
+    voxel_mm: float = math.nan  # an output voxel's edge in the part's millimetres (scoring)
     meta: dict[str, Any] = field(default_factory=dict)
 
 
@@ -157,7 +161,16 @@ def _inputs(protocol: str, views: Sequence[PartView], grid: CubeGrid,
         inputs=np.stack([observed_occupancy(v.points, grid, cfg.n_in) for v in views]),
         depth=np.stack([depth_view(v.points, grid, cfg.d) for v in views]),
         visible=observed_occupancy(points, grid, cfg.n_out),
-        carve=carve([v.evidence for v in views], grid, cfg.n_out))
+        carve=carve([v.evidence for v in views], grid, cfg.n_out),
+        points=_sample(points, POINTS_KEPT))
+
+
+def _sample(points: FloatArray, k: int) -> FloatArray:
+    """At most k of the points, a seeded random choice (the registration's scan side)."""
+    if len(points) <= k:
+        return points
+    keep = np.random.default_rng(0).choice(len(points), k, replace=False)
+    return points[np.sort(keep)]
 
 
 def with_truth(example: Example, mesh: Mesh, part_to_world: FloatArray,
@@ -169,7 +182,8 @@ def with_truth(example: Example, mesh: Mesh, part_to_world: FloatArray,
     volume_m3 = _mesh_volume(mesh) * scale**3
     inside_m3 = float(target.sum()) * example.grid.voxel_m(cfg.n_out) ** 3
     coverage = min(1.0, inside_m3 / volume_m3) if volume_m3 > 0 else math.nan
-    return replace(example, target=target, coverage=coverage)
+    return replace(example, target=target, coverage=coverage,
+                   voxel_mm=example.grid.voxel_m(cfg.n_out) / scale)
 
 
 def _mesh_volume(mesh: Mesh) -> float:
@@ -231,10 +245,12 @@ def write_example(path: Path, example: Example, meta: dict[str, Any]) -> None:
     g = example.grid
     info = {**meta, **example.meta, "protocol": example.protocol, "views": list(example.views),
             "azimuths": list(example.azimuths), "coverage": example.coverage,
+            "voxel_mm": example.voxel_mm,
             "grid": {"rotation": g.rotation.tolist(), "corner": g.corner.tolist(),
                      "side": g.side}}
     arrays: dict[str, Any] = {"inputs": example.inputs, "depth": example.depth.astype(np.float16),
                               "visible": example.visible, "carve": example.carve,
+                              "points": example.points.astype(np.float32),
                               "meta": np.array(json.dumps(info))}
     if example.target is not None:
         arrays["target"] = example.target
@@ -252,6 +268,11 @@ def read_example(path: Path) -> Example:
             azimuths=tuple(info["azimuths"]),
             grid=CubeGrid(np.array(g["rotation"]), np.array(g["corner"]), float(g["side"])),
             inputs=z["inputs"], depth=z["depth"].astype(np.float32), visible=z["visible"],
-            carve=z["carve"], target=z["target"] if "target" in z else None,
-            coverage=float(info["coverage"]) if info["coverage"] is not None else math.nan,
+            carve=z["carve"], points=z["points"].astype(np.float64),
+            target=z["target"] if "target" in z else None,
+            coverage=_float(info.get("coverage")), voxel_mm=_float(info.get("voxel_mm")),
             meta=info)
+
+
+def _float(value: Any) -> float:
+    return math.nan if value is None else float(value)

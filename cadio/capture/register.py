@@ -49,5 +49,6 @@ def register(completed: FloatArray, scan: FloatArray, max_distance: float,
         o3d.pipelines.registration.TransformationEstimationPointToPoint(),
         o3d.pipelines.registration.ICPConvergenceCriteria(max_iteration=iterations))
     scan_to_completion = np.asarray(result.transformation, dtype=np.float64)
-    return Registration(transform=np.linalg.inv(scan_to_completion),
+    back: FloatArray = np.linalg.inv(scan_to_completion).astype(np.float64)
+    return Registration(transform=back,
                         fitness=float(result.fitness), residual=float(result.inlier_rmse))
