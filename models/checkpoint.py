@@ -1,0 +1,165 @@
+"""Self-describing checkpoints of the completion models, safe to load with ``weights_only``.
+
+A checkpoint is a plain dict of plain values and tensors (so ``torch.load(path,
+weights_only=True)`` reads it without running any code from the file)::
+
+    format        "mateqa.checkpoint/1"
+    method        "gan_lstm" | "ae" | "gan" | "lstm" | "r2n2"
+    config        the method's config dataclass as a plain dict: it alone rebuilds the module
+    state_dict    the model's weights; float16 on disk when ``precision`` says so (halves a
+                  shipped file; converted back to float32 on load)
+    precision     "float16" | "float32"
+    step          training steps done
+    metrics       floats (validation IoU, losses, ...) at that step
+    code_version  package version + a hash of the models/ sources
+    data          what the caller says about the data (split sizes, sources)
+    created       ISO-8601 UTC time
+    train_state   only in resumable snapshots: critic weights, optimiser states, history and
+                  the best checkpoint so far (float32 throughout, so a resume is exact)
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import hashlib
+import json
+import os
+import pickle
+import tempfile
+from collections.abc import Mapping
+from datetime import UTC, datetime
+from importlib import metadata
+from pathlib import Path
+from typing import Any
+
+import torch
+from torch import nn
+
+from models.baselines import R2N2, R2N2Config
+from models.completion import CompletionConfig, Generator
+from models.errors import CheckpointError
+
+FORMAT = "mateqa.checkpoint/1"
+KEYS = ("format", "method", "config", "state_dict", "precision", "step", "metrics",
+        "code_version", "data", "created")
+
+Config = CompletionConfig | R2N2Config
+Checkpoint = dict[str, Any]
+
+
+def code_version() -> str:
+    """``<package version>+<first 12 hex of a SHA-256 over models/*.py>``."""
+    try:
+        version = metadata.version("mateqa")
+    except metadata.PackageNotFoundError:
+        version = "unknown"
+    digest = hashlib.sha256()
+    for path in sorted(Path(__file__).parent.glob("*.py")):
+        digest.update(path.name.encode() + b"\0" + path.read_bytes())
+    return f"{version}+{digest.hexdigest()[:12]}"
+
+
+def config_from_dict(method: str, config: Mapping[str, Any]) -> Config:
+    """The config dataclass of ``method`` from its plain dict.
+
+    Raises:
+        ValueError: unknown fields, bad values, or a config of another method.
+    """
+    try:
+        cfg: Config = (R2N2Config if method == "r2n2" else CompletionConfig)(**config)
+    except TypeError as exc:
+        raise ValueError(f"config does not fit method {method!r}: {exc}") from exc
+    if cfg.method != method:
+        raise ValueError(f"config describes method {cfg.method!r}, not {method!r}")
+    return cfg
+
+
+def build_model(cfg: Config) -> Generator | R2N2:
+    """A freshly initialised module for ``cfg`` (uses torch's global RNG)."""
+    return R2N2(cfg) if isinstance(cfg, R2N2Config) else Generator(cfg)
+
+
+def _plain(value: Any, what: str) -> Any:
+    """A JSON round trip: only plain containers of str, numbers, bools and None pass."""
+    try:
+        return json.loads(json.dumps(value, allow_nan=True))
+    except (TypeError, ValueError) as exc:
+        raise ValueError(f"{what} must hold only plain values: {exc}") from exc
+
+
+def state_copy(module: nn.Module, half: bool) -> dict[str, torch.Tensor]:
+    """A detached CPU copy of the module's weights, float tensors in float16 when ``half``."""
+    out = {}
+    for k, v in module.state_dict().items():
+        v = v.detach().to("cpu", copy=True)
+        out[k] = v.half() if half and v.is_floating_point() else v
+    return out
+
+
+def make_checkpoint(model: Generator | R2N2, step: int, metrics: Mapping[str, float],
+                    data: Mapping[str, Any] | None = None, half: bool = True,
+                    train_state: Mapping[str, Any] | None = None) -> Checkpoint:
+    """The checkpoint dict of ``model`` (weights copied, so later training leaves it alone)."""
+    ckpt: Checkpoint = {
+        "format": FORMAT,
+        "method": model.cfg.method,
+        "config": dataclasses.asdict(model.cfg),
+        "state_dict": state_copy(model, half),
+        "precision": "float16" if half else "float32",
+        "step": int(step),
+        "metrics": {k: float(v) for k, v in metrics.items()},
+        "code_version": code_version(),
+        "data": _plain(dict(data or {}), "data"),
+        "created": datetime.now(UTC).isoformat(timespec="seconds"),
+    }
+    if train_state is not None:
+        ckpt["train_state"] = dict(train_state)
+    return ckpt
+
+
+def model_from_checkpoint(ckpt: Mapping[str, Any]) -> Generator | R2N2:
+    """Rebuild the module from the checkpoint's method and config, load float32 weights, eval.
+
+    Raises:
+        CheckpointError: another format, or weights that do not fit the config.
+    """
+    where = str(ckpt.get("created", "<checkpoint>"))
+    if ckpt.get("format") != FORMAT or any(k not in ckpt for k in KEYS):
+        raise CheckpointError(where, f"not a {FORMAT} checkpoint")
+    try:
+        model = build_model(config_from_dict(ckpt["method"], ckpt["config"]))
+        weights = {k: v.float() if v.is_floating_point() else v
+                   for k, v in ckpt["state_dict"].items()}
+        model.load_state_dict(weights)
+    except (ValueError, RuntimeError) as exc:
+        raise CheckpointError(where, f"weights do not fit the config: {exc}") from exc
+    return model.eval()
+
+
+def save_checkpoint(ckpt: Mapping[str, Any], path: Path | str) -> Path:
+    """Write atomically (temp file + rename) and return the path."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(dir=path.parent, suffix=".pt.tmp")
+    with os.fdopen(fd, "wb") as f:
+        torch.save(dict(ckpt), f)
+    os.replace(tmp, path)
+    return path
+
+
+def load_checkpoint(path: Path | str) -> Checkpoint:
+    """Read a checkpoint with ``weights_only=True`` and check its format.
+
+    Raises:
+        CheckpointError: unreadable, not loadable as weights only, or another format.
+    """
+    try:
+        ckpt = torch.load(path, map_location="cpu", weights_only=True)
+    except (OSError, RuntimeError, EOFError, pickle.UnpicklingError) as exc:
+        raise CheckpointError(path, f"cannot be read as a weights-only checkpoint: {exc}") from exc
+    if not isinstance(ckpt, dict) or ckpt.get("format") != FORMAT:
+        raise CheckpointError(path, f"not a {FORMAT} checkpoint")
+    missing = [k for k in KEYS if k not in ckpt]
+    if missing:
+        raise CheckpointError(path, f"missing keys {missing}")
+    return ckpt

@@ -1,0 +1,233 @@
+"""Training examples for shape completion: the data pipeline's contract, shards and batches.
+
+One example is one part seen from a sequence of V (1..8) views, all in one cubic grid placed
+from the observed points and the camera; the truth is voxelized into the same grid. Examples
+come from lists of arrays or from ``.npz`` shards (one example each, keys ``inputs``, ``depth``,
+``target``, ``meta``), which are read lazily so a large set never sits in memory at once.
+
+Batches are drawn as pure functions of (seed, step): which examples, how many views and which
+ones. So a resumed run sees exactly the batches an uninterrupted one would, with no sampler
+state to save.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import tempfile
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import numpy.typing as npt
+import torch
+from torch import Tensor
+from torch.utils.data import Dataset
+
+from models.errors import ShardError
+
+MAX_VIEWS = 8  # the contract's upper bound on V
+SHARD_KEYS = ("inputs", "depth", "target", "meta")
+
+
+@dataclass(frozen=True, eq=False)
+class Example:
+    """One part from V views in one grid (x right, y away from the first camera, z up).
+
+    inputs: (V, n_in, n_in, n_in) bool, the observed occupancy of each view.
+    depth: (V, 2, 2 n_in, 2 n_in) float32 or None: channel 0 the distance along +y of the
+        nearest observed point of each (x, z) cell over the grid side (1 where none), channel 1
+        the observed mask. Only the ``r2n2`` baseline reads it.
+    target: (n_out, n_out, n_out) bool, the part's solid.
+    meta: the pipeline's metadata (part_id, category, split, azimuths, grid_to_world, ...).
+
+    Raises:
+        ValueError: an array breaks these shapes; the message names the shape found.
+    """
+
+    inputs: npt.NDArray[np.bool_]
+    target: npt.NDArray[np.bool_]
+    depth: npt.NDArray[np.float32] | None = None
+    meta: dict[str, Any] = field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        inputs, target = np.asarray(self.inputs), np.asarray(self.target)
+        shape = inputs.shape
+        if inputs.ndim != 4 or not 1 <= shape[0] <= MAX_VIEWS or len(set(shape[1:])) != 1:
+            raise ValueError(f"inputs must be (V <= {MAX_VIEWS}, n, n, n); got {shape}")
+        if target.ndim != 3 or len(set(target.shape)) != 1:
+            raise ValueError(f"target must be (n_out, n_out, n_out); got {target.shape}")
+        object.__setattr__(self, "inputs", inputs.astype(bool, copy=False))
+        object.__setattr__(self, "target", target.astype(bool, copy=False))
+        if self.depth is not None:
+            d = 2 * shape[1]
+            depth = np.asarray(self.depth, dtype=np.float32)
+            if depth.shape != (shape[0], 2, d, d):
+                raise ValueError(f"depth must be ({shape[0]}, 2, {d}, {d}); got {depth.shape}")
+            object.__setattr__(self, "depth", depth)
+
+    @property
+    def n_views(self) -> int:
+        return int(self.inputs.shape[0])
+
+
+def read_shard(path: Path | str) -> Example:
+    """One example from an ``.npz`` shard written by the data pipeline.
+
+    Raises:
+        ShardError: unreadable, keys other than ``SHARD_KEYS``, bad meta JSON or bad shapes.
+    """
+    try:
+        with np.load(path, allow_pickle=False) as z:
+            if sorted(z.files) != sorted(SHARD_KEYS):
+                raise ShardError(path, f"keys {sorted(z.files)}, expected {list(SHARD_KEYS)}")
+            arrays = {k: z[k] for k in SHARD_KEYS}
+        meta = json.loads(arrays.pop("meta").item())
+        return Example(arrays["inputs"], arrays["target"], arrays["depth"], meta)
+    except (OSError, ValueError) as exc:
+        raise ShardError(path, str(exc)) from exc
+
+
+def write_shard(path: Path | str, example: Example) -> None:
+    """Write ``example`` as a compressed shard, atomically (temp file + rename)."""
+    if example.depth is None:
+        raise ValueError("a shard needs the depth views")
+    path = Path(path)
+    fd, tmp = tempfile.mkstemp(dir=path.parent, suffix=".npz")
+    with os.fdopen(fd, "wb") as f:
+        np.savez_compressed(f, inputs=example.inputs, depth=example.depth,
+                            target=example.target, meta=np.array(json.dumps(example.meta)))
+    os.replace(tmp, path)
+
+
+@dataclass(frozen=True)
+class Batch:
+    """Stacked examples with a common view count V, as float32 tensors."""
+
+    inputs: Tensor  # (B, V, n_in, n_in, n_in) 1 = observed
+    depth: Tensor | None  # (B, V, 2, 2 n_in, 2 n_in)
+    target: Tensor  # (B, 1, n_out, n_out, n_out) 1 = solid
+
+    def to(self, device: torch.device | str) -> Batch:
+        depth = None if self.depth is None else self.depth.to(device)
+        return Batch(self.inputs.to(device), depth, self.target.to(device))
+
+    def model_input(self, key: str) -> Tensor:
+        """The field a model reads (its ``input_key``: ``inputs`` or ``depth``)."""
+        x = getattr(self, key)
+        if x is None:
+            raise ValueError(f"the examples carry no {key!r} views, which this model reads")
+        return x
+
+
+class CompletionDataset(Dataset[dict[str, Tensor]]):
+    """Examples in memory or as shard paths (read on access); all share n_in and n_out."""
+
+    def __init__(self, examples: Sequence[Example] = (), paths: Sequence[Path | str] = ()) -> None:
+        if bool(examples) == bool(paths):
+            raise ValueError("give examples or shard paths, not both or neither")
+        self._examples = list(examples)
+        self._paths = [Path(p) for p in paths]
+        first = self._examples[0] if self._examples else read_shard(self._paths[0])
+        self.n_in, self.n_out = first.inputs.shape[1], first.target.shape[0]
+        for ex in self._examples:
+            self._check(ex)
+
+    @classmethod
+    def from_arrays(cls, inputs: Sequence[np.ndarray], target: Sequence[np.ndarray],
+                    depth: Sequence[np.ndarray] | None = None,
+                    meta: Sequence[dict[str, Any]] | None = None) -> CompletionDataset:
+        """Parallel lists of per-example arrays (shapes as in ``Example``)."""
+        n = len(inputs)
+        if len(target) != n or (depth is not None and len(depth) != n):
+            raise ValueError("inputs, target and depth must list the same number of examples")
+        depths = list(depth) if depth is not None else [None] * n
+        metas = list(meta) if meta is not None else [{} for _ in range(n)]
+        return cls([Example(*args) for args in zip(inputs, target, depths, metas, strict=True)])
+
+    @classmethod
+    def from_shards(cls, paths: Sequence[Path | str]) -> CompletionDataset:
+        return cls(paths=paths)
+
+    def _check(self, ex: Example) -> Example:
+        if (ex.inputs.shape[1], ex.target.shape[0]) != (self.n_in, self.n_out):
+            raise ValueError(f"example grids {ex.inputs.shape[1:]} -> {ex.target.shape} differ "
+                             f"from the dataset's {self.n_in} -> {self.n_out}")
+        return ex
+
+    def __len__(self) -> int:
+        return len(self._examples) or len(self._paths)
+
+    def example(self, i: int) -> Example:
+        return self._examples[i] if self._examples else self._check(read_shard(self._paths[i]))
+
+    def __getitem__(self, i: int) -> dict[str, Tensor]:
+        """Example i with all its views: inputs (V, n^3), depth (V, 2, d, d), target (m^3)."""
+        ex = self.example(i)
+        item = {"inputs": torch.from_numpy(ex.inputs).float(),
+                "target": torch.from_numpy(ex.target).float()}
+        if ex.depth is not None:
+            item["depth"] = torch.from_numpy(ex.depth)
+        return item
+
+    def batch(self, indices: Sequence[int], views: Sequence[Sequence[int]]) -> Batch:
+        """Examples ``indices`` with the given views each (every list of the same length)."""
+        exs = [self.example(i) for i in indices]
+        inputs = np.stack([ex.inputs[list(v)] for ex, v in zip(exs, views, strict=True)])
+        target = np.stack([ex.target for ex in exs])[:, None]
+        depth = None
+        if all(ex.depth is not None for ex in exs):
+            depth = torch.from_numpy(np.stack([ex.depth[list(v)]  # type: ignore[index]
+                                               for ex, v in zip(exs, views, strict=True)]))
+        return Batch(torch.from_numpy(inputs).float(), depth, torch.from_numpy(target).float())
+
+    def view_counts(self) -> list[int]:
+        """V of every example (reads every shard once when lazy)."""
+        return [self.example(i).n_views for i in range(len(self))]
+
+
+def sample_views(n_views: int, k: int, rng: np.random.Generator) -> list[int]:
+    """k of n_views views: the first (the grid's reference camera) and k - 1 others, in order."""
+    rest = rng.choice(np.arange(1, n_views), size=k - 1, replace=False)
+    return [0, *sorted(int(r) for r in rest)]
+
+
+def training_batch(data: CompletionDataset, counts: Sequence[int], step: int, batch_size: int,
+                   max_views: int, seed: int) -> Batch:
+    """The batch of training step ``step``: a pure function of (seed, step).
+
+    Examples are taken in a fresh permutation per pass over the data; the batch shares one
+    view count drawn from 1..min(max_views, fewest views in the batch), and each example keeps
+    its first view and a random ordered subset of the others.
+
+    Args:
+        counts: the view count of every example (``data.view_counts()``, computed once).
+    """
+    n = len(data)
+    positions = range(step * batch_size, (step + 1) * batch_size)
+    perms: dict[int, np.ndarray] = {}
+    indices = []
+    for p in positions:
+        if p // n not in perms:
+            perms[p // n] = np.random.default_rng([seed, p // n]).permutation(n)
+        indices.append(int(perms[p // n][p % n]))
+    rng = np.random.default_rng([seed, step, 1])
+    k = int(rng.integers(1, min(max_views, *(counts[i] for i in indices)) + 1))
+    return data.batch(indices, [sample_views(counts[i], k, rng) for i in indices])
+
+
+def eval_batches(data: CompletionDataset, counts: Sequence[int], batch_size: int,
+                 n_views: int) -> list[tuple[list[int], list[list[int]]]]:
+    """Fixed evaluation batches: every example with its first n_views views (fewer if it has
+    fewer), grouped so each batch shares one view count. Returns (indices, views) pairs."""
+    by_k: dict[int, list[int]] = {}
+    for i, c in enumerate(counts):
+        by_k.setdefault(min(c, n_views), []).append(i)
+    out = []
+    for k, idx in sorted(by_k.items()):
+        for s in range(0, len(idx), batch_size):
+            chunk = idx[s:s + batch_size]
+            out.append((chunk, [list(range(k))] * len(chunk)))
+    return out
