@@ -62,6 +62,18 @@ class Workspace:
         return self.root / "runs" / run_id
 
     @property
+    def latest(self) -> Path:
+        """``runs/latest``: a link to the newest finished run."""
+        return self.root / "runs" / "latest"
+
+    def mark_latest(self, run_id: str) -> None:
+        """Point ``runs/latest`` at a run (a relative link, replaced atomically)."""
+        tmp = self.latest.with_name(f".latest.{os.getpid()}")
+        tmp.unlink(missing_ok=True)
+        tmp.symlink_to(run_id, target_is_directory=True)
+        os.replace(tmp, self.latest)
+
+    @property
     def library(self) -> Path:
         return self.root / "library"
 

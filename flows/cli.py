@@ -257,6 +257,7 @@ def _run_nightly(args: argparse.Namespace) -> int:
     summary = state.result()
     print(Path(summary.ingest_report).read_text())
     print(Path(summary.stages_report).read_text())
+    print(Path(summary.completion_report).read_text())
     print(json.dumps(asdict(summary), indent=1))
     return 0
 

@@ -38,6 +38,13 @@ from cadio.truth.assemblies import AssemblyJob, assembly_jobs, extract_assembly_
 from cadio.truth.scenes import SceneConfig, build_scenes, read_scenes
 from cadio.workspace import Workspace, write_json
 from flows.settings import Settings, ingest_config
+from models.evaluate import (
+    SHIPPED,
+    Scores,
+    complete_parts,
+    part_inputs,
+    write_completion_report,
+)
 from reports.render import (
     IngestTotals,
     StageTotals,
@@ -68,6 +75,7 @@ class NightlySummary:
     run_dir: str
     ingest_report: str
     stages_report: str
+    completion_report: str
     ingest: IngestTotals
     stages: StageTotals
 
@@ -166,6 +174,19 @@ def read_captures_task(captures: str, workspace: str, cfg: ScanConfig) -> list[C
     return read_captures(Path(captures), Workspace(Path(workspace)), cfg)
 
 
+@task(name="complete")
+def complete_task(folders: list[str], models_dir: str, workspace: str) -> Scores:
+    """Complete and score a batch of captured parts with every method."""
+    return complete_parts([Path(f) for f in folders], Path(models_dir), Workspace(Path(
+        workspace)))
+
+
+@task(name="completion-report")
+def completion_report_task(run: Run, scores: list[Scores]) -> str:
+    """The completion report of the run (``completion_parts.parquet``, categories, Markdown)."""
+    return str(write_completion_report(Path(run.run_dir), scores))
+
+
 @task(name="report")
 def report_task(run: Run, catalog: str, mates: list[MatesSummary], scenes: str | None,
                 captures: list[CaptureSummary]) -> tuple[IngestTotals, StageTotals]:
@@ -206,6 +227,17 @@ def mates_stage(catalog: str, run: Run, tol: Tolerances, limits: Limits) -> list
     return [m for f in futures for m in f.result()]
 
 
+def complete_stage(captured: list[CaptureSummary], run: Run, models_dir: str) -> list[Scores]:
+    """Every captured part completed and scored (in the first capture that shows it), twenty
+    parts per task."""
+    ws = Workspace(Path(run.workspace))
+    folders = part_inputs([ws.root / "inputs" / Path(c.path).stem for c in captured
+                           if not c.error])
+    futures = [complete_task.submit(b, models_dir, run.workspace)
+               for b in _batches([str(f) for f in folders], 20)]
+    return [f.result() for f in futures]
+
+
 def capture_stage(scenes: ScenesSummary, run: Run, cfg: ScanConfig,
                   captures: str | None) -> list[CaptureSummary]:
     """Render the scenes ten per task, or read the recordings of ``captures``."""
@@ -239,6 +271,7 @@ def nightly(
     views_per_scene: int = 8,
     noise: bool = False,
     captures: str | None = None,
+    completion_models: str | None = None,
     seed: int = 0,
     workers: int | None = None,
     file_timeout_s: float | None = None,
@@ -257,6 +290,7 @@ def nightly(
         views_per_scene: rendered views per scene (spread over the paper's 125-view circle).
         noise: switch the depth sensor noise model on.
         captures: folder of MCAP captures to read instead of rendering (real logs).
+        completion_models: folder of completion checkpoints (default: the shipped ones).
         seed: seed of the scene generator.
         workers, file_timeout_s, file_memory_mb, max_file_mb: CAD worker processes per task
             and per-file limits (None: the ``MATEQA_*`` settings).
@@ -290,11 +324,18 @@ def nightly(
     captured = capture_stage(scenes, run, scan_cfg, captures)
     log.info("captures: %d, %d failed, %d frames (%.1f s)", len(captured),
              sum(bool(c.error) for c in captured), sum(c.frames for c in captured), clock.lap())
+    scores = complete_stage(captured, run, completion_models or str(SHIPPED))
+    completion = completion_report_task(run, scores)
+    log.info("completion: %d scores of %d examples, %d failed (%.1f s)",
+             sum(len(s.parts) for s in scores), sum(len(s.registration) for s in scores),
+             sum(len(s.failed) for s in scores), clock.lap())
     ingest, stages = report_task(run, catalog, mates, scenes.path, captured)
     log.info("report: %s (%.1f s)", run.run_dir, clock.lap())
     summary = NightlySummary(
         run_id=run.run_id, library=str(lib), workspace=run.workspace, run_dir=run.run_dir,
         ingest_report=str(Path(run.run_dir) / "ingest.md"),
-        stages_report=str(Path(run.run_dir) / "stages.md"), ingest=ingest, stages=stages)
+        stages_report=str(Path(run.run_dir) / "stages.md"), completion_report=completion,
+        ingest=ingest, stages=stages)
     write_json(Path(run.run_dir) / "summary.json", asdict(summary))
+    Workspace(Path(run.workspace)).mark_latest(run.run_id)
     return summary

@@ -16,9 +16,11 @@
 from __future__ import annotations
 
 import logging
+import time
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import pandas as pd
 
@@ -100,3 +102,83 @@ def _reuse_or_build(parts: pd.DataFrame, ws: Workspace, out: Path, splits: dict[
     merged = merged.reset_index(drop=True)
     write_index(index_path, merged)
     return merged
+
+
+# ---------------------------------------------------------------- training and evaluation
+
+
+@dataclass(frozen=True)
+class Trained:
+    """One trained checkpoint: where it went, its method and protocol, its best epoch."""
+
+    path: str
+    method: str
+    protocol: str
+    step: int
+    val_iou: float
+    seconds: float
+
+
+def split_rows(ws: Workspace, protocol: str, split: str) -> pd.DataFrame:
+    """The index rows of one protocol and split of the training dataset."""
+    index = read_index(dataset_dir(ws) / "index.parquet")
+    return index[(index["status"] == "ok") & (index["protocol"] == protocol)
+                 & (index["split"] == split)]
+
+
+def _files(ws: Workspace, rows: pd.DataFrame) -> list[Path]:
+    return [dataset_dir(ws) / f for f in rows["file"]]
+
+
+def train_model(ws: Workspace, method: str, protocol: str, steps: int, out_dir: Path,
+                on_step: Callable[[int, int, dict[str, float]], None] | None = None,
+                **overrides: Any) -> Trained:
+    """Train one method on one protocol's training split; the best checkpoint by validation
+    IoU goes to ``out_dir/completion-<method>-<protocol>.pt``, a resumable one beside the
+    dataset (a rerun resumes it)."""
+    from models.checkpoint import save_checkpoint
+    from models.data import CompletionDataset
+    from models.train import config_for, train_completion
+
+    rows = split_rows(ws, protocol, "train")
+    train, val = _files(ws, rows), _files(ws, split_rows(ws, protocol, "val"))
+    parts = sorted(set(rows["part_id"]))
+    cfg = config_for(method, **overrides)
+    snapshot = ws.root / "models" / f"completion-{method}-{protocol}.resume.pt"
+    clock = time.perf_counter()
+
+    def progress(event: Any) -> None:
+        if on_step is not None:
+            on_step(event.step, event.steps, event.losses)
+        if event.snapshot is not None:
+            save_checkpoint(event.snapshot, snapshot)
+
+    result = train_completion(
+        cfg, CompletionDataset(paths=train), CompletionDataset(paths=val) if val else None,
+        steps=steps, progress=progress, resume=snapshot if snapshot.exists() else None,
+        data_info={"protocol": protocol, "train_parts": parts, "train_examples": len(train),
+                   "val_examples": len(val), "dataset": str(dataset_dir(ws))})
+    path = save_checkpoint(result.checkpoint, out_dir / f"completion-{method}-{protocol}.pt")
+    best = result.checkpoint["metrics"]
+    return Trained(str(path), method, protocol, int(result.checkpoint["step"]),
+                   float(best.get("val_iou", float("nan"))), time.perf_counter() - clock)
+
+
+def evaluate_models(ws: Workspace, models_dir: Path, run_dir: Path,
+                    progress: Progress | None = None) -> pd.DataFrame:
+    """Every held-out example of the training dataset, completed by every method and scored;
+    the completion report and the registration table are written into ``run_dir``."""
+    from models.evaluate import load_models, score_files
+    from reports.completion import parts_frame, write_completion
+
+    index = read_index(dataset_dir(ws) / "index.parquet")
+    test = index[(index["status"] == "ok") & (index["split"] == "test")]
+    category = dict(zip(test["part_id"], test["category"], strict=False))
+    models = load_models(models_dir)
+    scores = score_files([dataset_dir(ws) / f for f in test["file"]], models,
+                         lambda pid: "test", lambda pid: category.get(pid, "unknown"), progress)
+    parts = parts_frame(scores.parts)
+    write_completion(run_dir, parts)
+    pd.DataFrame(scores.registration).to_csv(run_dir / "completion_registration.csv",
+                                             index=False)
+    return parts

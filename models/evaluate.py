@@ -1,0 +1,228 @@
+"""Completing parts with every method and scoring them against the truth, in one harness.
+
+The five methods of the completion report see the same examples (same parts, same views,
+same grid): ``visible`` and ``carve`` come with each example (no learning), ``ae``,
+``gan_lstm`` and ``r2n2`` are the checkpoints of a folder (one per method and protocol, the
+protocol read from each checkpoint's ``data``). ``ae`` has no LSTM: it sees the union of a
+sequence's views. Every prediction is scored by ``reports.completion`` (one row per part,
+method, protocol, number of views and first view), and ``gan_lstm``'s completion is registered
+onto the example's observed points by ICP (``cadio.capture.register``): its residual says how
+well the completed shape explains the scan, in the part's millimetres.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+from collections.abc import Callable, Iterable, Mapping
+from dataclasses import asdict, dataclass, fields
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import numpy.typing as npt
+import pandas as pd
+import torch
+
+from cadio.capture.examples import Example, read_example
+from cadio.capture.register import register
+from cadio.catalog import read_catalog
+from cadio.workspace import Workspace, atomic_path
+from models.checkpoint import load_checkpoint, model_from_checkpoint
+from models.train import Model, predict
+from reports.completion import CompletionCase, parts_frame, write_completion
+from reports.metrics import surface_points
+from reports.tables import markdown_table
+
+log = logging.getLogger(__name__)
+
+# The checkpoints shipped with the package (see their MODEL_CARD.md): the nightly needs no
+# training.
+SHIPPED = Path(__file__).resolve().parent / "checkpoints" / "completion"
+LEARNED = ("gan_lstm", "ae", "r2n2")
+FIXED = ("visible", "carve")
+THRESHOLD = 0.5  # probability above which a voxel is solid (as validation IoU is measured)
+
+
+@dataclass(frozen=True)
+class CompletionModels:
+    """Loaded checkpoints by (method, protocol), and what each says about itself."""
+
+    models: dict[tuple[str, str], Model]
+    cards: dict[tuple[str, str], dict[str, Any]]
+
+    def versions(self) -> dict[str, str]:
+        """"method/protocol" -> "step N, code <version>" for the report."""
+        return {f"{m}/{p}": f"step {c['step']}, code {c['code_version']}"
+                for (m, p), c in sorted(self.cards.items())}
+
+    def trained_on(self) -> set[str]:
+        """Part ids any of the checkpoints was trained on (never held out for them)."""
+        return {pid for c in self.cards.values() for pid in c.get("data", {}).get("train_parts",
+                                                                                 [])}
+
+
+def load_models(folder: Path = SHIPPED, device: str = "cpu") -> CompletionModels:
+    """Every ``*.pt`` checkpoint of ``folder`` (weights only), by method and protocol; none
+    when the folder does not exist (then only the baselines without learning run).
+
+    Raises:
+        CheckpointError: a file is not a completion checkpoint.
+    """
+    models, cards = {}, {}
+    for path in sorted(Path(folder).glob("*.pt")) if Path(folder).is_dir() else []:
+        ckpt = load_checkpoint(path)
+        key = (str(ckpt["method"]), str(ckpt["data"].get("protocol", "observed")))
+        models[key] = model_from_checkpoint(ckpt).to(torch.device(device))
+        cards[key] = {k: v for k, v in ckpt.items() if k not in ("state_dict", "train_state")}
+    return CompletionModels(models, cards)
+
+
+def complete(models: CompletionModels, example: Example) -> dict[str, npt.NDArray[np.bool_]]:
+    """Every method's solid for one example (methods without a checkpoint are left out)."""
+    out = {"visible": example.visible, "carve": example.carve}
+    for method in LEARNED:
+        model = models.models.get((method, example.protocol))
+        if model is None:
+            continue
+        views = _model_input(method, model, example)
+        out[method] = predict(model, [views], batch_size=1)[0] > THRESHOLD
+    return out
+
+
+def _model_input(method: str, model: Model, example: Example) -> npt.NDArray[Any]:
+    if model.input_key == "depth":
+        return example.depth
+    if method == "ae":  # no LSTM: the union of the views is its one input
+        union: npt.NDArray[np.bool_] = np.any(example.inputs, axis=0, keepdims=True)
+        return union
+    return example.inputs
+
+
+@dataclass(frozen=True)
+class RegistrationRow:
+    """ICP of one completion onto its scan: residual and fitness, part millimetres."""
+
+    part_id: str
+    protocol: str
+    n_views: int
+    view_deg: float
+    fitness: float
+    residual_mm: float
+
+
+def score_example(example: Example, preds: Mapping[str, npt.NDArray[np.bool_]],
+                  split: str, category: str) -> list[dict[str, Any]]:
+    """One ``completion_parts`` row per method for an example with a target."""
+    if example.target is None:
+        return []
+    rows = []
+    for method, pred in preds.items():
+        case = CompletionCase(part_id=str(example.meta["part_id"]), category=category,
+                              split=split, method=method, protocol=example.protocol,
+                              n_views=len(example.views), view_deg=example.azimuths[0] % 360)
+        rows.append(case.score(pred, example.target, example.voxel_mm))
+    return rows
+
+
+def register_completion(example: Example, solid: npt.NDArray[np.bool_],
+                        n_out: int) -> RegistrationRow:
+    """ICP of the completion's surface onto the example's observed points."""
+    voxel_m = example.grid.voxel_m(n_out)  # surface_points works in any unit: metres here
+    surface = surface_points(solid, voxel_m, example.grid.grid_to_world(n_out))
+    mm_per_world = example.voxel_mm / example.grid.voxel_m(n_out)
+    fit, residual = 0.0, math.nan
+    if len(surface) and len(example.points):
+        result = register(surface, example.points, 3 * example.grid.voxel_m(n_out))
+        fit, residual = result.fitness, result.residual * mm_per_world
+    return RegistrationRow(str(example.meta["part_id"]), example.protocol, len(example.views),
+                           example.azimuths[0] % 360, fit, residual)
+
+
+@dataclass(frozen=True)
+class Scores:
+    """The rows of ``completion_parts`` and of the registration table, and failures."""
+
+    parts: list[dict[str, Any]]
+    registration: list[dict[str, Any]]
+    failed: list[tuple[str, str]]
+
+
+def score_files(paths: Iterable[Path], models: CompletionModels,
+                split_of: Callable[[str], str], category_of: Callable[[str], str],
+                on_file: Callable[[str], None] | None = None) -> Scores:
+    """Complete and score every example file; a file that cannot be read is a failure row."""
+    parts: list[dict[str, Any]] = []
+    registration: list[dict[str, Any]] = []
+    failed: list[tuple[str, str]] = []
+    for path in paths:
+        try:
+            example = read_example(path)
+        except (OSError, ValueError, KeyError) as exc:
+            failed.append((str(path), f"{type(exc).__name__}: {exc}"))
+            continue
+        pid = str(example.meta["part_id"])
+        preds = complete(models, example)
+        parts += score_example(example, preds, split_of(pid), category_of(pid))
+        if "gan_lstm" in preds and example.target is not None:
+            row = register_completion(example, preds["gan_lstm"], example.target.shape[0])
+            registration.append(asdict(row))
+        if on_file is not None:
+            on_file(str(path))
+    return Scores(parts, registration, failed)
+
+
+def part_inputs(captures: Iterable[Path]) -> list[Path]:
+    """The input folder of each part in the first capture (by name) that shows it: a part in
+    several scenes is scored once, as ``completion_parts`` has one row per part and view."""
+    first: dict[str, Path] = {}
+    for capture in sorted(c for c in captures if Path(c).is_dir()):
+        for folder in sorted(p for p in Path(capture).iterdir() if p.is_dir()):
+            first.setdefault(folder.name, folder)
+    return [first[k] for k in sorted(first)]
+
+
+def complete_parts(folders: Iterable[Path], models_dir: Path, ws: Workspace) -> Scores:
+    """The completion stage of the nightly for some parts' input folders.
+
+    A part is held out ("test") unless a checkpoint was trained on it ("train"); its category
+    is the catalog's.
+    """
+    models = load_models(models_dir)
+    seen = models.trained_on()
+    catalog = read_catalog(ws.catalog)
+    category = dict(zip(catalog["part_id"].astype(str), catalog["category"].astype(str),
+                        strict=True))
+    paths = [p for folder in folders for p in sorted(Path(folder).glob("*-*.npz"))]
+    return score_files(paths, models, lambda pid: "train" if pid in seen else "test",
+                       lambda pid: category.get(pid, "unknown"))
+
+
+def write_completion_report(run_dir: Path, scores: Iterable[Scores]) -> Path:
+    """``completion_parts.parquet``, ``completion_categories.csv``, ``completion.md`` and
+    ``completion_registration.csv`` of the scores; returns the Markdown's path."""
+    batches = list(scores)
+    parts = parts_frame(row for s in batches for row in s.parts)
+    md = write_completion(run_dir, parts)
+    registration = pd.DataFrame([r for s in batches for r in s.registration],
+                                columns=[f.name for f in fields(RegistrationRow)])
+    with atomic_path(run_dir / "completion_registration.csv") as tmp:
+        registration.to_csv(tmp, index=False)
+    failed = [f for s in batches for f in s.failed]
+    if failed or len(registration):
+        with md.open("a") as fh:
+            fh.write(_registration_markdown(registration, failed))
+    return md
+
+
+def _registration_markdown(registration: pd.DataFrame, failed: list[tuple[str, str]]) -> str:
+    lines = ["", "## Registration of the completions onto the scans (ICP)", ""]
+    if len(registration):
+        by = registration.groupby("protocol")
+        table = pd.DataFrame({"parts": by["part_id"].nunique(),
+                              "median residual mm": by["residual_mm"].median().round(3),
+                              "mean fitness": by["fitness"].mean().round(3)}).reset_index()
+        lines.append(markdown_table(table))
+    for path, reason in failed:
+        lines.append(f"- {path}: {reason}")
+    return "\n".join(lines) + "\n"
