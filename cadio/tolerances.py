@@ -46,6 +46,10 @@ class Tolerances:
     fit_clearance_mm: float = 2.0
     # Coincident faces overlap by more than this, mm^2: faces sharing only an edge leave slivers.
     min_overlap_mm2: float = 1e-6
+    # Fuzzy value of the Boolean common of two faces laid on one plane, as freeform_fit_mm: a
+    # face's group normal is off its own by rounding (PM4 covers: 1e-7 rad), leaving exactly
+    # touching faces 1e-5 mm apart and sharing nothing without it; 0.1 mm blurs outlines.
+    overlap_fuzzy_mm: float = 1e-3
     # Groups of planar faces by normal direction: directions within this angle are one group.
     group_angle_deg: float = 0.5
 

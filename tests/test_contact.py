@@ -12,10 +12,13 @@ import math
 import build123d as bd
 import numpy as np
 import pytest
+from OCP.BRep import BRep_Tool
 from OCP.BRepExtrema import BRepExtrema_DistShapeShape
 from OCP.gp import gp_Trsf
+from OCP.TopAbs import TopAbs_EDGE, TopAbs_VERTEX
+from OCP.TopExp import TopExp_Explorer
 from OCP.TopLoc import TopLoc_Location
-from OCP.TopoDS import TopoDS, TopoDS_Shape
+from OCP.TopoDS import TopoDS, TopoDS_Face, TopoDS_Shape
 from scipy.spatial.transform import Rotation
 
 from cadio.cad.step import StepSolid
@@ -183,6 +186,17 @@ def opposed(a: TopoDS_Shape, b: TopoDS_Shape) -> tuple[PartGeometry, int, PartGe
     return pa, ka, pb, kb
 
 
+def tolerances(face: TopoDS_Face) -> list[float]:
+    """The tolerances of a face, its edges and its vertices, mm."""
+    out = [BRep_Tool.Tolerance_s(face)]
+    for kind, cast in ((TopAbs_EDGE, TopoDS.Edge_s), (TopAbs_VERTEX, TopoDS.Vertex_s)):
+        explorer = TopExp_Explorer(face, kind)
+        while explorer.More():
+            out.append(BRep_Tool.Tolerance_s(cast(explorer.Current())))
+            explorer.Next()
+    return out
+
+
 def overlap(pa: PartGeometry, ka: int, pb: PartGeometry, kb: int) -> tuple[float, np.ndarray]:
     return face_overlap(pa.faces[pa.plane_ids[ka]], pb.faces[pb.plane_ids[kb]],
                         pa.normals[ka], pa.centres[ka], pb.normals[kb], pb.centres[kb])
@@ -223,3 +237,24 @@ def test_overlap_is_unchanged_by_a_rigid_motion() -> None:
     assert area == pytest.approx(25.0, rel=1e-9)
     assert got == pytest.approx(area, rel=1e-9)
     np.testing.assert_allclose(got_where, ROT @ where + SHIFT, atol=1e-6)
+
+
+@pytest.mark.parametrize("size", [10.0, 100.0, 1000.0])
+def test_faces_touching_exactly_overlap_when_the_given_normal_is_off_by_rounding(
+        size: float) -> None:
+    """A plane group's normal is an area-weighted mean, off a face's own normal by rounding:
+    the Boolean needs its fuzzy value, or over a large face the two share nothing."""
+    a = solid(bd.Pos(0, 0, -5) * bd.Box(2 * size, 2 * size, 10))
+    b = solid(bd.Pos(0, 0, 2.5) * bd.Box(size, size, 5))
+    pa, ka, pb, kb = opposed(a, b)
+    tilt = 1e-7 * 100.0 / size  # 1e-5 mm of misfit across the face at every size
+    na = np.array([math.sin(tilt), 0.0, math.cos(tilt)])
+    fa, fb = pa.faces[pa.plane_ids[ka]], pb.faces[pb.plane_ids[kb]]
+    exact, _ = face_overlap(fa, fb, na, pa.centres[ka], pb.normals[kb], pb.centres[kb], 0.0)
+    assert exact == 0.0  # what an exact Boolean makes of it
+    before = tolerances(fa) + tolerances(fb)
+    area, _ = face_overlap(fa, fb, na, pa.centres[ka], pb.normals[kb], pb.centres[kb])
+    assert area == pytest.approx(size**2, rel=1e-6)
+    assert tolerances(fa) + tolerances(fb) == before  # the faces are left as they were
+    again, _ = face_overlap(fa, fb, na, pa.centres[ka], pb.normals[kb], pb.centres[kb], 0.0)
+    assert again == 0.0

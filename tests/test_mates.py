@@ -19,7 +19,8 @@ import pytest
 from OCP.Bnd import Bnd_Box
 from OCP.BRepAlgoAPI import BRepAlgoAPI_Cut, BRepAlgoAPI_Fuse
 from OCP.BRepBndLib import BRepBndLib
-from OCP.BRepPrimAPI import BRepPrimAPI_MakeBox, BRepPrimAPI_MakeCylinder
+from OCP.BRepBuilderAPI import BRepBuilderAPI_MakeFace, BRepBuilderAPI_MakePolygon
+from OCP.BRepPrimAPI import BRepPrimAPI_MakeBox, BRepPrimAPI_MakeCylinder, BRepPrimAPI_MakePrism
 from OCP.gp import gp_Ax2, gp_Dir, gp_Pnt, gp_Trsf, gp_Vec
 from OCP.TopAbs import TopAbs_SOLID
 from OCP.TopExp import TopExp_Explorer
@@ -149,6 +150,56 @@ def test_touching_along_an_edge_only_is_no_mate() -> None:
     assert result.n_contact_pairs == 1  # the exact distance is 0 ...
     assert rows(result.table, 0, 1, "face", "coincident").empty  # ... but no area in common
     assert rows(result.table, 0, 1, "joint").empty
+
+
+def prism(profile: list[tuple[float, float]], y0: float, width: float) -> TopoDS_Shape:
+    """A prism: the (x, z) polygon ``profile`` at y = y0, extruded ``width`` mm along +Y."""
+    polygon = BRepBuilderAPI_MakePolygon()
+    for x, z in profile:
+        polygon.Add(gp_Pnt(x, y0, z))
+    polygon.Close()
+    face = BRepBuilderAPI_MakeFace(polygon.Wire(), True).Face()
+    return BRepPrimAPI_MakePrism(face, gp_Vec(0, width, 0)).Shape()
+
+
+def seated_cover(gap: float) -> list[StepSolid]:
+    """A housing whose top rises 2e-6 mm per mm over a flat bottom, and a 10 mm cover plate
+    (40 x 30 mm) lying ``gap`` mm above that top, parallel to it. The housing's top and bottom
+    form one plane group whose normal lies between theirs, a micro-radian off the top's own."""
+    def top(x: float) -> float:
+        return 10.0 + 2e-6 * x
+
+    housing = prism([(0, 0), (100, 0), (100, top(100)), (0, top(0))], 0.0, 50.0)
+    cover = prism([(x, top(x) + gap + dz) for x, dz in ((30, 0), (70, 0), (70, 10), (30, 10))],
+                  10.0, 30.0)
+    return assembly(("housing", housing), ("cover", cover))
+
+
+@pytest.mark.parametrize(("gap", "mated"), [(0.0, True), (0.05, True), (0.2, False)])
+def test_cover_seated_on_its_housing_is_coincident_up_to_the_contact_tolerance(
+        gap: float, mated: bool) -> None:
+    result = extract_mates(seated_cover(gap))
+    mates = rows(result.table, 0, 1, "face", "coincident")
+    joints = rows(result.table, 0, 1, "joint")
+    assert len(mates) == int(mated) and len(joints) == int(mated)
+    assert result.n_contact_pairs == int(mated)
+    if mated:
+        assert mates.overlap_area_mm2.iloc[0] == pytest.approx(40 * 30, rel=1e-6)
+        assert mates.distance_mm.iloc[0] == pytest.approx(gap, abs=1e-6)
+        assert joints.kinematic.iloc[0] == "planar"
+
+
+@pytest.mark.shared
+def test_pm4_covers_are_coincident(shared_step_dir: Path) -> None:
+    """The PM4 pump's two covers meet on two faces whose planes differ by 1e-7 rad."""
+    from cadio.cad.step import read_step
+
+    solids = read_step(shared_step_dir / "assemblies" / "occt_pm4_rotor-pump-assembly.stp")
+    covers = [s for s in solids if s.info.name in ("Cover_Up", "Cover_Bottom")]
+    assert [s.info.name for s in covers] == ["Cover_Up", "Cover_Bottom"]
+    mates = rows(extract_mates(covers).table, 0, 1, "face", "coincident")
+    assert sorted(mates.overlap_area_mm2) == [pytest.approx(333.979, abs=1e-3),
+                                              pytest.approx(3399.162, abs=1e-3)]
 
 
 def test_block_in_a_guide_slides_and_in_a_corner_is_fastened() -> None:

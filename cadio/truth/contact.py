@@ -40,13 +40,14 @@ from OCP.TopAbs import TopAbs_EDGE, TopAbs_IN, TopAbs_VERTEX
 from OCP.TopExp import TopExp_Explorer
 from OCP.TopLoc import TopLoc_Location
 from OCP.TopoDS import TopoDS, TopoDS_Face, TopoDS_Shape
+from OCP.TopTools import TopTools_ListOfShape
 from scipy.spatial import cKDTree
 
 from cadio.cad.faces import CONE, indexed_faces
 from cadio.cad.features import extract_features
 from cadio.cad.step import StepSolid
 from cadio.records import AxisGroup, Features, FloatArray
-from cadio.tolerances import Tolerances
+from cadio.tolerances import DEFAULT_TOLERANCES, Tolerances
 
 log = logging.getLogger(__name__)
 
@@ -373,11 +374,15 @@ def _holds(outer: TopoDS_Shape, inner: TopoDS_Shape) -> bool:
 
 
 def face_overlap(fa: TopoDS_Face, fb: TopoDS_Face, na: FloatArray, ca: FloatArray,
-                 nb: FloatArray, cb: FloatArray) -> tuple[float, FloatArray]:
+                 nb: FloatArray, cb: FloatArray,
+                 fuzzy_mm: float = DEFAULT_TOLERANCES.overlap_fuzzy_mm) -> tuple[float, FloatArray]:
     """(area mm^2, centroid (3,) mm) of the overlap of two nearly coplanar, opposed faces.
 
     Face b is turned about its centroid until its normal is exactly -na and shifted onto a's
-    plane (a motion of at most ``mate_angle_deg`` and ``contact_mm``), then intersected with a.
+    plane (a motion of at most ``mate_angle_deg`` and ``contact_mm``), then intersected with a
+    by a Boolean common whose fuzzy value ``fuzzy_mm`` (``Tolerances.overlap_fuzzy_mm``) makes
+    the two one plane: ``na`` is a's plane group normal, off a's own by rounding, and over a
+    large face that alone leaves an exact Boolean with nothing in common.
     """
     axis = np.cross(nb, -na)
     sin = float(np.linalg.norm(axis))
@@ -388,7 +393,7 @@ def face_overlap(fa: TopoDS_Face, fb: TopoDS_Face, na: FloatArray, ca: FloatArra
     shift = gp_Trsf()
     shift.SetTranslation(gp_Vec(*(-float(np.dot(cb - ca, na)) * na)))
     moved = fb.Moved(TopLoc_Location(shift.Multiplied(turn)))
-    common = BRepAlgoAPI_Common(fa, moved)
+    common = _fuzzy_common(fa, moved, fuzzy_mm)
     if not common.IsDone():
         log.warning("Boolean common of two planar faces failed: no overlap assumed")
         return 0.0, ca
@@ -396,3 +401,21 @@ def face_overlap(fa: TopoDS_Face, fb: TopoDS_Face, na: FloatArray, ca: FloatArra
     BRepGProp.SurfaceProperties_s(common.Shape(), props)
     c = props.CentreOfMass()
     return float(props.Mass()), np.array([c.X(), c.Y(), c.Z()])
+
+
+def _fuzzy_common(a: TopoDS_Shape, b: TopoDS_Shape, fuzzy_mm: float) -> BRepAlgoAPI_Common:
+    """The Boolean common of a and b, sub-shapes within ``fuzzy_mm`` taken as coincident.
+
+    Non-destructive: by default a Boolean may raise the tolerances of its arguments' edges and
+    vertices in place, which would change the parts for every later distance and Boolean.
+    """
+    arguments, tools = TopTools_ListOfShape(), TopTools_ListOfShape()
+    arguments.Append(a)
+    tools.Append(b)
+    common = BRepAlgoAPI_Common()
+    common.SetArguments(arguments)
+    common.SetTools(tools)
+    common.SetFuzzyValue(fuzzy_mm)
+    common.SetNonDestructive(True)
+    common.Build()
+    return common

@@ -10,9 +10,10 @@ MATE, RELATION OR JOINT (``COLUMNS``, schema in ``write_mates``), for index_a < 
   ``fit_clearance_mm`` of radial clearance, "nested" for a larger gap, "aligned" for two holes or
   two shafts), and ``coincident`` between planar faces with opposite outward normals (within
   ``mate_angle_deg``), planes within ``contact_mm`` and an overlap of more than
-  ``min_overlap_mm2`` (a Boolean common of the two faces laid on one plane: touching along an edge
-  is no mate). Pairs in contact also get ``parallel``/``perpendicular`` rows for their largest
-  principal faces.
+  ``min_overlap_mm2`` (a Boolean common of the two faces laid on one plane, with the fuzzy value
+  ``overlap_fuzzy_mm`` so that exactly touching faces do not come out with nothing in common;
+  touching along an edge is no mate). Pairs in contact also get ``parallel``/``perpendicular``
+  rows for their largest principal faces.
 - level "part": the ten relations of ``cadio.truth.relations.relate`` (view axis +Y for CAD).
 - level "joint": the joint a CAD user would set, derived from the pair's coincident contacts and
   fits (``cadio.truth.joints``): ``relation`` is the suggested joint, ``kinematic`` the pure
@@ -292,7 +293,8 @@ def _coincident_rows(a: PartGeometry, b: PartGeometry, tol: Tolerances) -> list[
     for k, m in zip(*np.nonzero(opposed & (offset <= tol.contact_mm + SLACK) & near),
                     strict=True):
         area, centre = face_overlap(a.faces[a.plane_ids[k]], b.faces[b.plane_ids[m]],
-                                a.normals[k], a.centres[k], b.normals[m], b.centres[m])
+                                    a.normals[k], a.centres[k], b.normals[m], b.centres[m],
+                                    tol.overlap_fuzzy_mm)
         if area <= tol.min_overlap_mm2:
             continue
         angle = math.degrees(math.acos(min(1.0, -float(cos[k, m]))))
