@@ -26,7 +26,10 @@ from cadio.records import SolidInfo
 from cadio.tolerances import DEFAULT_TOLERANCES as TOL
 from cadio.truth.contact import (
     PartGeometry,
+    ProxyCache,
     box_pairs,
+    close_faces,
+    coaxial_bound,
     contact_proxy,
     describe_part,
     face_overlap,
@@ -105,6 +108,23 @@ def test_axis_lines_merge_coaxial_faces_with_their_extent_and_convexity() -> Non
     np.testing.assert_allclose(np.sort(face.ends[:, 2]), [-5, 5], atol=1e-9)
 
 
+def test_cone_faces_carry_their_radius_at_every_station() -> None:
+    """A 30 degree conical recess (r=3 at z=6 to r=5.31 at z=10) in a plate: the cone's radii
+    at its ends come from its boundary, whatever radius OCCT keeps as the cone's reference."""
+    slope = math.tan(math.radians(30))
+    plate = bd.Pos(0, 0, 5) * bd.Box(40, 40, 10) - bd.Pos(0, 0, 8) * bd.Cone(3.0, 3 + 4 * slope, 4)
+    (line,) = part(solid(bd.Pos(5, -3, 0) * plate)).lines
+    (cone,) = [f for f in line.faces if f.kind == "cone"]
+    assert not cone.convex
+    np.testing.assert_allclose(cone.radii, [3.0, 3 + 4 * slope])  # lowest end first
+    np.testing.assert_allclose(cone.ends[:, 2], [6.0, 10.0], atol=1e-9)
+    up = np.array([0.0, 0.0, 1.0])
+    assert cone.radius_at(np.array([5.0, -3.0, 8.0])) == pytest.approx(3 + 2 * slope, abs=1e-9)
+    assert cone.radius_at(np.array([5.0, -3.0, 12.0])) == pytest.approx(3 + 6 * slope, abs=1e-9)
+    assert cone.semi_angle_deg(up) == pytest.approx(30.0, abs=1e-9)
+    assert cone.semi_angle_deg(-up) == pytest.approx(-30.0, abs=1e-9)
+
+
 # ---------------------------------------------------------------- pruning and contact
 
 
@@ -151,8 +171,9 @@ def test_a_solid_held_inside_another_is_in_contact() -> None:
 def test_contact_proxy_bounds_every_face_by_its_samples() -> None:
     shape = solid(bd.Sphere(8) + bd.Pos(0, 0, 10) * bd.Cylinder(3, 20))
     proxy = contact_proxy(shape)
-    assert len(proxy.faces) == len(proxy.samples) == len(proxy.boxes)
-    for face, samples, box in zip(proxy.faces, proxy.samples, proxy.boxes, strict=True):
+    assert len(proxy.faces) == len(proxy.triangles) == len(proxy.boxes)
+    for k, (face, box) in enumerate(zip(proxy.faces, proxy.boxes, strict=True)):
+        samples = proxy.samples(k)
         assert samples is not None
         assert np.all(samples >= box[:3] - proxy.slack) and np.all(samples <= box[3:] + proxy.slack)
         vertex = bd.Vertex(*samples[len(samples) // 2]).wrapped
@@ -258,3 +279,61 @@ def test_faces_touching_exactly_overlap_when_the_given_normal_is_off_by_rounding
     assert tolerances(fa) + tolerances(fb) == before  # the faces are left as they were
     again, _ = face_overlap(fa, fb, na, pa.centres[ka], pb.normals[kb], pb.centres[kb], 0.0)
     assert again == 0.0
+
+
+# ---------------------------------------------------------------- coaxial faces
+
+
+def coaxial_pair(dz: float, gap: float, arc: float = 360.0) -> tuple[TopoDS_Shape, TopoDS_Shape]:
+    """A plate with a bore r=6, and a shaft r=6-gap (an ``arc`` degree sector of it) starting
+    dz mm above the plate's top face (z=10)."""
+    plate = solid(bd.Pos(0, 0, 5) * bd.Box(40, 40, 10) - bd.Cylinder(6, 30))
+    shaft = bd.Pos(0, 0, 10 + dz + 10) * bd.Cylinder(6 - gap, 20, arc_size=arc)
+    return plate, solid(shaft)
+
+
+@pytest.mark.parametrize(("dz", "gap", "arc"), [
+    (-15.0, 0.0, 360), (-15.0, 0.3, 360), (-15.0, 2.5, 360), (0.5, 0.0, 360), (3.0, 0.2, 360),
+    (-15.0, 0.3, 90), (8.0, 4.0, 200),
+])
+def test_coaxial_bound_never_exceeds_the_exact_distance(dz: float, gap: float,
+                                                        arc: float) -> None:
+    for a, b in (coaxial_pair(dz, gap, arc), (moved(coaxial_pair(dz, gap, arc)[0]),
+                                              moved(coaxial_pair(dz, gap, arc)[1]))):
+        pa, pb = part(a, 0), part(b, 1)
+        proxy_a, proxy_b = contact_proxy(a), contact_proxy(b)
+        (line,) = pa.lines
+        for fa in line.faces:
+            for fb in (f for ln in pb.lines for f in ln.faces):
+                exact = exact_distance(pa.faces[fa.face_id], pb.faces[fb.face_id])
+                bound = coaxial_bound(proxy_a, fa.face_id, proxy_b, fb.face_id, line.mid,
+                                      line.direction)
+                assert bound <= exact + 1e-9
+                assert bound >= exact - 2 * (proxy_a.mesh_slack + proxy_b.mesh_slack) - 1e-9
+
+
+def test_coaxial_bound_rules_out_a_nested_ring_the_boxes_cannot() -> None:
+    """A shaft 2.5 mm inside the bore: the boxes of the two cylinders overlap, the bound does
+    not."""
+    plate, shaft = coaxial_pair(-15.0, 2.5)
+    pa, pb = part(plate, 0), part(shaft, 1)
+    (bore,) = pa.lines[0].faces
+    (side,) = [f for f in pb.lines[0].faces]
+    cache = ProxyCache([pa, pb])
+    assert close_faces(cache[0], cache[1], [(bore.face_id, side.face_id)], 2.0) == {}
+    assert cache.boxes(0)[bore.face_id][0] < cache.boxes(1)[side.face_id][0]  # nested boxes
+    bound = coaxial_bound(cache[0], bore.face_id, cache[1], side.face_id, pa.lines[0].mid,
+                          pa.lines[0].direction)
+    assert bound > 1.0
+
+
+def test_close_faces_returns_exact_distances_within_the_limit_only() -> None:
+    plate, shaft = coaxial_pair(0.5, 0.0)  # the shaft starts 0.5 mm above the bore
+    pa, pb = part(plate, 0), part(shaft, 1)
+    cache = ProxyCache([pa, pb])
+    (bore,) = pa.lines[0].faces
+    pairs = [(bore.face_id, f.face_id) for f in pb.lines[0].faces] + [(bore.face_id, 0)]
+    found = close_faces(cache[0], cache[1], pairs, 0.5)  # at the limit is in
+    assert list(found.values()) == [pytest.approx(0.5, abs=1e-9)]
+    assert close_faces(cache[0], cache[1], pairs, 0.49) == {}
+    assert cache[0] is cache[0]  # built once

@@ -17,7 +17,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.optimize import least_squares
 
-from cadio.records import FloatArray
+from cadio.records import FloatArray, perpendicular_pair
 
 PLANE, CYLINDER, CONE = "plane", "cylinder", "cone"
 # Normals this close to one direction (1 - |cos|) make an axis estimate meaningless.
@@ -137,17 +137,9 @@ def _radial(points: FloatArray, p: FloatArray, d: FloatArray) -> FloatArray:
     return np.asarray(np.linalg.norm(rel - np.outer(rel @ d, d), axis=1), dtype=np.float64)
 
 
-def _basis(d: FloatArray) -> tuple[FloatArray, FloatArray]:
-    """Two unit vectors perpendicular to d and to each other."""
-    helper = np.eye(3)[int(np.argmin(np.abs(d)))]
-    e1 = np.cross(d, helper)
-    e1 /= np.linalg.norm(e1)
-    return e1, np.cross(d, e1)
-
-
 def _axis_from(params: FloatArray, d0: FloatArray, p0: FloatArray) -> tuple[FloatArray, FloatArray]:
     """The axis (d, p) of parameters (tilt 1, tilt 2, shift 1, shift 2, ...) about (d0, p0)."""
-    e1, e2 = _basis(d0)
+    e1, e2 = perpendicular_pair(d0)
     d = d0 + params[0] * e1 + params[1] * e2
     return d / np.linalg.norm(d), p0 + params[2] * e1 + params[3] * e2
 
