@@ -231,6 +231,14 @@ def canonical_direction(direction: Any) -> FloatArray:
     return _canonical(np.asarray(direction, dtype=np.float64))
 
 
+def perpendicular_pair(direction: FloatArray) -> tuple[FloatArray, FloatArray]:
+    """Two unit vectors perpendicular to the unit ``direction`` (3,) and to each other."""
+    helper = np.eye(3)[int(np.argmin(np.abs(direction)))]
+    e1 = np.cross(direction, helper)
+    e1 /= np.linalg.norm(e1)
+    return e1, np.cross(direction, e1)
+
+
 def _move_plane(g: PlaneGroup, pose: FloatArray) -> PlaneGroup:
     rot, t = pose[:3, :3], pose[:3, 3]
     n_raw = rot @ g.normal

@@ -47,13 +47,22 @@ class Tolerances:
     coaxial_mm: float = 0.1
     # Coincident / coplanar faces: offset between the planes.
     coplanar_mm: float = 0.1
-    # Face-level mates: opposite normals within 0.5 degree, contact within 0.1 mm.
+    # Face-level mates: opposite normals (and the semi-angles of two cones of a fit) within 0.5
+    # degree, contact within 0.1 mm.
     mate_angle_deg: float = 0.5
     contact_mm: float = 0.1
-    # Radial clearance of a "fit" (shaft in bore): ISO 273 coarse holes up to M24 are within 2 mm.
-    fit_clearance_mm: float = 2.0
+    # Concentric face mates: coaxial faces of two parts at most this far apart (exact distance):
+    # a gland beside a shaft across fillets, a bolt in an ISO 273 medium hole up to M24 (1 mm).
+    concentric_gap_mm: float = 1.0
+    # A concentric mate is a "fit" when the radii agree within this (the contact tolerance: the
+    # faces are one surface), else a "clearance".
+    fit_radius_mm: float = 0.1
     # Coincident faces overlap by more than this, mm^2: faces sharing only an edge leave slivers.
     min_overlap_mm2: float = 1e-6
+    # Fuzzy value of the Boolean common of two faces laid on one plane, as freeform_fit_mm: a
+    # face's group normal is off its own by rounding (PM4 covers: 1e-7 rad), leaving exactly
+    # touching faces 1e-5 mm apart and sharing nothing without it; 0.1 mm blurs outlines.
+    overlap_fuzzy_mm: float = 1e-3
     # Groups of planar faces by normal direction: directions within this angle are one group.
     group_angle_deg: float = 0.5
     # Voxel grids: the cube's side is the part's largest extent times (1 + margin), so that

@@ -47,6 +47,51 @@ def manifest(shared_step_dir: Path):  # type: ignore[no-untyped-def]
 
 
 @pytest.fixture(scope="session")
+def trimmed_bspline():  # type: ignore[no-untyped-def]
+    """A converter: solid -> a copy whose every surface is a B-spline wrapped in a
+    ``Geom_RectangularTrimmedSurface``, as the KCL pipe stores its bevel cones (OCCT's
+    ``GeomConvert_SurfToAnaSurf`` raises Standard_NullObject on such surfaces)."""
+    from OCP.BRep import BRep_Builder, BRep_Tool
+    from OCP.BRepBuilderAPI import BRepBuilderAPI_NurbsConvert
+    from OCP.Geom import Geom_RectangularTrimmedSurface
+    from OCP.TopAbs import TopAbs_EDGE, TopAbs_REVERSED
+    from OCP.TopExp import TopExp_Explorer
+    from OCP.TopLoc import TopLoc_Location
+    from OCP.TopoDS import TopoDS, TopoDS_Edge, TopoDS_Face, TopoDS_Shape
+
+    from cadio.cad.faces import indexed_faces
+
+    def pcurves(face: TopoDS_Face) -> list[tuple[TopoDS_Edge, tuple]]:
+        """Each edge's curve(s) on the face: two on a seam, in the edge's orientation order."""
+        out = []
+        explorer = TopExp_Explorer(face, TopAbs_EDGE)
+        while explorer.More():
+            edge = TopoDS.Edge_s(explorer.Current())
+            explorer.Next()
+            c1 = BRep_Tool.CurveOnSurface_s(edge, face, 0.0, 0.0)
+            if not BRep_Tool.IsClosed_s(edge, face):
+                out.append((edge, (c1,)))
+                continue
+            c2 = BRep_Tool.CurveOnSurface_s(TopoDS.Edge_s(edge.Reversed()), face, 0.0, 0.0)
+            out.append((edge, (c2, c1) if edge.Orientation() == TopAbs_REVERSED else (c1, c2)))
+        return out
+
+    def convert(shape: TopoDS_Shape) -> TopoDS_Shape:
+        nurbs = BRepBuilderAPI_NurbsConvert(shape, True).Shape()
+        builder = BRep_Builder()
+        for face in indexed_faces(nurbs):
+            loc = TopLoc_Location()
+            surface = BRep_Tool.Surface_s(face, loc)
+            wrapped = Geom_RectangularTrimmedSurface(surface, *surface.Bounds())
+            for edge, curves in pcurves(face):  # pcurves are keyed by surface: move them over
+                builder.UpdateEdge(edge, *curves, wrapped, loc, BRep_Tool.Tolerance_s(edge))
+            builder.UpdateFace(face, wrapped, loc, BRep_Tool.Tolerance_s(face))
+        return nurbs
+
+    return convert
+
+
+@pytest.fixture(scope="session")
 def box_step(tmp_path_factory: pytest.TempPathFactory) -> Path:
     """A small valid STEP part (a 20 x 10 x 5 mm box with a 4 mm hole), made with build123d.
 

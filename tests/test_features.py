@@ -8,12 +8,16 @@ from pathlib import Path
 import build123d as bd
 import numpy as np
 import pytest
+from OCP.BRep import BRep_Tool
 from OCP.BRepAdaptor import BRepAdaptor_Surface
 from OCP.BRepBuilderAPI import BRepBuilderAPI_NurbsConvert, BRepBuilderAPI_Transform
 from OCP.GeomAbs import GeomAbs_BSplineSurface
+from OCP.GeomConvert import GeomConvert_SurfToAnaSurf
 from OCP.gp import gp_Ax1, gp_Dir, gp_Pnt, gp_Trsf, gp_Vec
+from OCP.Standard import Standard_NullObject
 from OCP.TopoDS import TopoDS_Shape
 
+from cadio.cad.faces import CONE, recognise_faces
 from cadio.cad.features import extract_features, indexed_faces
 from cadio.records import Features
 from cadio.tolerances import DEFAULT_TOLERANCES
@@ -111,6 +115,33 @@ def test_freeform_cylinder_and_planes_are_recognised() -> None:
     assert fitted.principal_axis.radii == pytest.approx((4.0,))
 
 
+def without_cone_radii(f: Features) -> Features:
+    """The features with cone radii dropped: a cone's reference radius is taken at wherever its
+    surface happens to be located, so it differs between two exact descriptions of one cone."""
+    axes = tuple(replace(a, radii=()) if a.kind == CONE else a for a in f.axes)
+    principal = None if f.principal_axis is None else axes[f.principal_axis_index()]
+    return replace(f, axes=axes, principal_axis=principal)
+
+
+def test_bspline_surfaces_the_converter_rejects_are_fitted(trimmed_bspline) -> None:
+    """A cylinder with a conical end, every surface stored as the KCL pipe stores its bevels."""
+    shape = (bd.Pos(3, -4, 5) * bd.Rot(30, 40, 0)
+             * (bd.Cylinder(10, 20) + bd.Pos(0, 0, 13) * bd.Cone(10, 6, 6))).wrapped
+    stored = trimmed_bspline(shape)
+    for face in indexed_faces(stored):
+        with pytest.raises(Standard_NullObject):
+            GeomConvert_SurfToAnaSurf(BRep_Tool.Surface_s(face)).ConvertToAnalytical(
+                DEFAULT_TOLERANCES.freeform_fit_mm)
+    exact, fitted = extract_features(shape), extract_features(stored)
+    assert fitted.n_freeform_recognised == fitted.n_faces == 4
+    assert [a.kind for a in fitted.axes] == ["cylinder", "cone"]
+    assert_same_features(without_cone_radii(fitted),
+                         without_cone_radii(replace(exact, n_freeform_recognised=4)), rel=1e-5)
+    moved_shape, pose = moved(stored, 0.9, (0.3, -0.5, 0.8), (120.0, -35.5, 410.0))
+    assert_same_features(without_cone_radii(extract_features(moved_shape)),
+                         without_cone_radii(fitted.transformed(pose)))
+
+
 def test_ties_are_flagged_and_coaxial_faces_grouped() -> None:
     cube = extract_features(bd.Box(10, 10, 10).wrapped)
     assert cube.principal_plane_tie
@@ -173,6 +204,24 @@ def test_cax_if_bspline_cylinders_are_recognised(step_solids) -> None:
         assert axis_check(f, "longest") == (pytest.approx(1.0), pytest.approx(0.0, abs=1e-3))
     for f in nuts:
         assert axis_check(f, "thinnest") == (pytest.approx(1.0), pytest.approx(0.0, abs=1e-3))
+
+
+@pytest.mark.shared
+def test_kcl_pipe_bevel_cones_are_recognised(step_solids) -> None:
+    """The pipe of the KCL flange assembly: four 30 degree B-spline bevel cones on which OCCT's
+    converter raises, between plain cylinders of radii 9.271 to 18.796 on the Z axis."""
+    solids = step_solids("assemblies/kcl_pipe-flange-assembly.step")
+    pipe = next(s for s in solids if extract_features(s).bbox_max[2] > 80)
+    faces = indexed_faces(pipe)
+    found = recognise_faces(faces)
+    assert len(found) == len(faces) == 13
+    cones = [p for p in found if p.kind == CONE]
+    assert len(cones) == 4 and all(p.freeform for p in cones)
+    for p in cones:
+        assert abs(p.direction[2]) == pytest.approx(1.0, abs=1e-12)
+        assert np.linalg.norm(p.point[:2]) <= 1e-9
+    assert sorted(round(p.radius, 3) for p in found if p.kind == "cylinder") == [
+        9.271, 12.446, 12.446, 15.621, 15.621, 18.796, 18.796]
 
 
 @pytest.mark.shared

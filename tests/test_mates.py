@@ -1,25 +1,30 @@
 """Tests of cadio.truth.mates, joints and contact: face mates, joints, pruning, invariance, goldens.
 
-Synthetic assemblies (boxes, a drilled plate, a bolt) pin down each rule with hand-computed
-numbers; the real CAx-IF AS1, KCL pipe flange and KCL ball bearing are checked against
-hand-verified JSON goldens in tests/golden/mates (parts named by instance path, or by index and
-bounding box where the file names every solid NONE).
+Synthetic assemblies (boxes, a drilled plate, a bolt, a cover on a micro-radian housing, a
+gland beside a filleted shoulder, a countersunk screw, a collar on a B-spline bevel) pin down
+each rule with hand-computed numbers; the real CAx-IF AS1, KCL pipe flange and KCL ball bearing
+are checked against hand-verified JSON goldens in tests/golden/mates (parts named by instance
+path, or by index and bounding box where the file names every solid NONE), and the PM4 pump's
+covers and gland against what they were measured to be.
 """
 
 from __future__ import annotations
 
 import json
 import math
+from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
+import build123d as bd
 import numpy as np
 import pandas as pd
 import pytest
 from OCP.Bnd import Bnd_Box
 from OCP.BRepAlgoAPI import BRepAlgoAPI_Cut, BRepAlgoAPI_Fuse
 from OCP.BRepBndLib import BRepBndLib
-from OCP.BRepPrimAPI import BRepPrimAPI_MakeBox, BRepPrimAPI_MakeCylinder
+from OCP.BRepBuilderAPI import BRepBuilderAPI_MakeFace, BRepBuilderAPI_MakePolygon
+from OCP.BRepPrimAPI import BRepPrimAPI_MakeBox, BRepPrimAPI_MakeCylinder, BRepPrimAPI_MakePrism
 from OCP.gp import gp_Ax2, gp_Dir, gp_Pnt, gp_Trsf, gp_Vec
 from OCP.TopAbs import TopAbs_SOLID
 from OCP.TopExp import TopExp_Explorer
@@ -27,6 +32,7 @@ from OCP.TopLoc import TopLoc_Location
 from OCP.TopoDS import TopoDS, TopoDS_Shape
 from scipy.spatial.transform import Rotation
 
+from cadio.cad.faces import indexed_faces, recognise_faces
 from cadio.cad.step import StepSolid
 from cadio.records import SolidInfo
 from cadio.tolerances import DEFAULT_TOLERANCES as TOL
@@ -128,14 +134,120 @@ def test_bolt_is_revolute_by_geometry_and_fastened_by_name() -> None:
     assert "fastener by name" in joint.evidence
 
 
-def test_clearance_fit_is_concentric_without_contact() -> None:
+def test_shaft_in_a_clearance_hole_is_concentric_without_contact() -> None:
+    """1 mm of radial clearance, exactly ``concentric_gap_mm``: a mate (values at a tolerance
+    count as inside), a clearance, and still a shaft in a bore for the joint."""
     parts = assembly(("plate", drilled_plate(5.0)), ("shaft", cylinder(20, 20, -20, 4.0, 50)))
     result = extract_mates(parts)
     mate = rows(result.table, 0, 1, "face", "concentric").iloc[0]
-    assert mate.fit == "fit" and mate.radial_gap_mm == pytest.approx(1.0, abs=1e-9)
+    assert mate.fit == "clearance" and mate.radial_gap_mm == pytest.approx(1.0, abs=1e-9)
     assert result.n_contact_pairs == 0  # 1 mm of clearance all round
     joint = rows(result.table, 0, 1, "joint").iloc[0]
     assert (joint.kinematic, joint.dof) == ("cylindrical", 2)
+    looser = assembly(("plate", drilled_plate(5.0)), ("shaft", cylinder(20, 20, -20, 3.99, 50)))
+    table = extract_mates(looser).table
+    assert rows(table, 0, 1, "face").empty and rows(table, 0, 1, "joint").empty
+
+
+def circle_edges(shape: bd.Shape, radius: float, z: float) -> list[bd.Edge]:
+    return [e for e in shape.edges().filter_by(bd.GeomType.CIRCLE)
+            if abs(e.radius - radius) < 1e-6 and abs(e.center().Z - z) < 1e-6]
+
+
+def gland_beside_shoulder(fillet: float) -> list[StepSolid]:
+    """A shaft (r=10 up to z=30, r=6 above) and a gland (bore r=6.5, outer r=10) slid down to
+    0.4 mm above the shoulder, both r=10 edges at the gap rounded by ``fillet`` mm: their r=10
+    cylinders end 0.4 + 2 * fillet mm apart along the axis."""
+    shaft = bd.Cylinder(10, 30, align=bd.Align.NONE) + bd.Pos(0, 0, 30) * bd.Cylinder(
+        6, 30, align=bd.Align.NONE)
+    gland = bd.Pos(0, 0, 30.4) * (bd.Cylinder(10, 9.6, align=bd.Align.NONE)
+                                  - bd.Cylinder(6.5, 9.6, align=bd.Align.NONE))
+    shaft = bd.fillet(circle_edges(shaft, 10, 30), fillet)
+    gland = bd.fillet(circle_edges(gland, 10, 30.4), fillet)
+    return assembly(("shaft", shaft.solids()[0].wrapped), ("gland", gland.solids()[0].wrapped))
+
+
+def face_kinds(solid: StepSolid) -> dict[int, str]:
+    return {p.face_id: f"{p.kind} r={p.radius:.3f}"
+            for p in recognise_faces(indexed_faces(solid.shape)) if p.kind != "plane"}
+
+
+def concentric_by_faces(solids: list[StepSolid], a: int, b: int) -> dict[tuple[str, str], Any]:
+    """The concentric mates of parts a < b keyed by their faces' kinds and radii."""
+    table = extract_mates(solids).table
+    ka, kb = face_kinds(solids[a]), face_kinds(solids[b])
+    found = rows(table, a, b, "face", "concentric")
+    keyed = {(ka[r.face_a], kb[r.face_b]): r for _, r in found.iterrows()}
+    assert len(keyed) == len(found)  # one row per face pair
+    return keyed
+
+
+def test_gland_beside_a_shaft_across_fillets_is_a_concentric_mate() -> None:
+    """Faces 0.8 mm apart (<= concentric_gap_mm) are a mate, whatever their axial overlap; the
+    gland's bore round the thinner shaft is another, and the only shaft in a bore."""
+    solids = gland_beside_shoulder(0.2)
+    mates = concentric_by_faces(solids, 0, 1)
+    assert set(mates) == {("cylinder r=10.000", "cylinder r=10.000"),
+                          ("cylinder r=6.000", "cylinder r=6.500")}
+    beside = mates[("cylinder r=10.000", "cylinder r=10.000")]
+    assert (beside.fit, beside.radial_gap_mm) == ("fit", pytest.approx(0.0, abs=1e-9))
+    assert "0.8000 mm apart" in beside.evidence and "shaft in a bore" not in beside.evidence
+    bore = mates[("cylinder r=6.000", "cylinder r=6.500")]
+    assert (bore.fit, bore.radial_gap_mm) == ("clearance", pytest.approx(0.5, abs=1e-9))
+    joint = rows(extract_mates(solids).table, 0, 1, "joint").iloc[0]
+    assert (joint.kinematic, joint.evidence.endswith("1 shafts in bores")) == ("cylindrical", True)
+    wider = concentric_by_faces(gland_beside_shoulder(0.5), 0, 1)  # 1.4 mm apart: no mate
+    assert set(wider) == {("cylinder r=6.000", "cylinder r=6.500")}
+
+
+def countersunk_screw() -> list[StepSolid]:
+    plate = (bd.Pos(0, 0, 5) * bd.Box(40, 40, 10) - bd.Pos(0, 0, 5) * bd.Cylinder(3.2, 12)
+             - bd.Pos(0, 0, 9.1) * bd.Cone(3.2, 7.0, 3.8))
+    screw = bd.Pos(0, 0, 1) * bd.Cylinder(3, 12) + bd.Pos(0, 0, 8.5) * bd.Cone(3, 6, 3)
+    return assembly(("plate", plate.solids()[0].wrapped), ("screw", screw.solids()[0].wrapped))
+
+
+@pytest.mark.shared
+def test_pm4_gland_beside_the_impeller_is_concentric(pm4: list[StepSolid]) -> None:
+    """Gland_2 sits 0.43 mm from the impeller's hub: equal r=8.5 bores, and the gland's r=13.5
+    boss beside the hub's cone, across fillets; neither overlaps the other along the axis."""
+    solids = named(pm4, "Gland_2", "Impeller")
+    mates = rows(extract_mates(solids).table, 0, 1, "face", "concentric")
+    got = sorted((m.fit, round(m.radial_gap_mm, 3)) for _, m in mates.iterrows())
+    assert got == [("clearance", 0.519), ("fit", 0.0)]
+    assert all("axial overlap" in e and "shaft in a bore" not in e for e in mates.evidence)
+
+
+def test_countersunk_screw_has_a_cone_fit_and_clearances() -> None:
+    """A 45 degree countersink (r 3.2 at z=7.2 to r 6 at z=10) holding a screw whose head cone
+    matches it, shank r=3 in the r=3.2 hole: cone in cone is a fit, cylinder in cylinder and
+    cylinder against cone are clearances; the seated cone stops the screw along its axis."""
+    solids = countersunk_screw()
+    mates = concentric_by_faces(solids, 0, 1)
+    (seat,) = [m for (a, b), m in mates.items() if a.startswith("cone") and b.startswith("cone")]
+    assert (seat.fit, seat.radial_gap_mm) == ("fit", pytest.approx(0.0, abs=1e-6))
+    shank = mates[("cylinder r=3.200", "cylinder r=3.000")]
+    assert (shank.fit, shank.radial_gap_mm) == ("clearance", pytest.approx(0.2, abs=1e-9))
+    mixed = [m.fit for (a, b), m in mates.items() if a[:4] != b[:4]]
+    assert mixed and set(mixed) == {"clearance"}
+    joint = rows(extract_mates(solids).table, 0, 1, "joint").iloc[0]
+    assert (joint.kinematic, joint.relation) == ("revolute", "fastened")  # "screw" by name
+    assert np.allclose(np.abs(joint.axis), [0, 0, 1]) and np.allclose(joint.origin[:2], 0)
+
+
+def test_collar_seated_on_a_bspline_bevel_cone_is_a_fit(trimmed_bspline) -> None:
+    """The pipe's bevel is stored as the KCL pipe stores its own (OCCT's converter raises on it);
+    a collar's conical bore sits on it."""
+    pipe = bd.Cylinder(10, 20) + bd.Pos(0, 0, 13) * bd.Cone(10, 6, 6)  # bevel z 10..16
+    collar = bd.Pos(0, 0, 14.25) * bd.Cylinder(14, 2.5) - bd.Pos(0, 0, 13) * bd.Cone(10, 6, 6)
+    solids = assembly(("pipe", trimmed_bspline(pipe.solids()[0].wrapped)),
+                      ("collar", collar.solids()[0].wrapped))
+    table = extract_mates(solids).table
+    ((_, seat),) = rows(table, 0, 1, "face", "concentric").iterrows()
+    assert (seat.fit, seat.radial_gap_mm) == ("fit", pytest.approx(0.0, abs=1e-6))
+    assert face_kinds(solids[0])[seat.face_a].startswith("cone")
+    joint = rows(table, 0, 1, "joint").iloc[0]
+    assert (joint.kinematic, joint.dof) == ("revolute", 1)
 
 
 def test_coaxial_but_far_apart_along_the_axis_is_no_mate() -> None:
@@ -149,6 +261,66 @@ def test_touching_along_an_edge_only_is_no_mate() -> None:
     assert result.n_contact_pairs == 1  # the exact distance is 0 ...
     assert rows(result.table, 0, 1, "face", "coincident").empty  # ... but no area in common
     assert rows(result.table, 0, 1, "joint").empty
+
+
+def prism(profile: list[tuple[float, float]], y0: float, width: float) -> TopoDS_Shape:
+    """A prism: the (x, z) polygon ``profile`` at y = y0, extruded ``width`` mm along +Y."""
+    polygon = BRepBuilderAPI_MakePolygon()
+    for x, z in profile:
+        polygon.Add(gp_Pnt(x, y0, z))
+    polygon.Close()
+    face = BRepBuilderAPI_MakeFace(polygon.Wire(), True).Face()
+    return BRepPrimAPI_MakePrism(face, gp_Vec(0, width, 0)).Shape()
+
+
+def seated_cover(gap: float) -> list[StepSolid]:
+    """A housing whose top rises 2e-6 mm per mm over a flat bottom, and a 10 mm cover plate
+    (40 x 30 mm) lying ``gap`` mm above that top, parallel to it. The housing's top and bottom
+    form one plane group whose normal lies between theirs, a micro-radian off the top's own."""
+    def top(x: float) -> float:
+        return 10.0 + 2e-6 * x
+
+    housing = prism([(0, 0), (100, 0), (100, top(100)), (0, top(0))], 0.0, 50.0)
+    cover = prism([(x, top(x) + gap + dz) for x, dz in ((30, 0), (70, 0), (70, 10), (30, 10))],
+                  10.0, 30.0)
+    return assembly(("housing", housing), ("cover", cover))
+
+
+@pytest.mark.parametrize(("gap", "mated"), [(0.0, True), (0.05, True), (0.2, False)])
+def test_cover_seated_on_its_housing_is_coincident_up_to_the_contact_tolerance(
+        gap: float, mated: bool) -> None:
+    result = extract_mates(seated_cover(gap))
+    mates = rows(result.table, 0, 1, "face", "coincident")
+    joints = rows(result.table, 0, 1, "joint")
+    assert len(mates) == int(mated) and len(joints) == int(mated)
+    assert result.n_contact_pairs == int(mated)
+    if mated:
+        assert mates.overlap_area_mm2.iloc[0] == pytest.approx(40 * 30, rel=1e-6)
+        assert mates.distance_mm.iloc[0] == pytest.approx(gap, abs=1e-6)
+        assert joints.kinematic.iloc[0] == "planar"
+
+
+@pytest.fixture(scope="module")
+def pm4(shared_step_dir: Path) -> list[StepSolid]:
+    from cadio.cad.step import read_step
+
+    return read_step(shared_step_dir / "assemblies" / "occt_pm4_rotor-pump-assembly.stp")
+
+
+def named(solids: list[StepSolid], *names: str) -> list[StepSolid]:
+    """The solids of these names, in file order, renumbered 0, 1, ..."""
+    found = [s for s in solids if s.info.name in names]
+    assert sorted(s.info.name for s in found) == sorted(names)
+    return [StepSolid(replace(s.info, index=k), s.shape) for k, s in enumerate(found)]
+
+
+@pytest.mark.shared
+def test_pm4_covers_are_coincident(pm4: list[StepSolid]) -> None:
+    """The PM4 pump's two covers meet on two faces whose planes differ by 1e-7 rad."""
+    mates = rows(extract_mates(named(pm4, "Cover_Up", "Cover_Bottom")).table, 0, 1, "face",
+                 "coincident")
+    assert sorted(mates.overlap_area_mm2) == [pytest.approx(333.979, abs=1e-3),
+                                              pytest.approx(3399.162, abs=1e-3)]
 
 
 def test_block_in_a_guide_slides_and_in_a_corner_is_fastened() -> None:
@@ -288,6 +460,18 @@ def test_moving_the_whole_assembly_changes_nothing() -> None:
     assert_invariant(before.table, after.table, rot, shift)
 
 
+@pytest.mark.parametrize("build", [lambda: gland_beside_shoulder(0.2), countersunk_screw,
+                                   lambda: seated_cover(0.0)])
+def test_concentric_and_seated_mates_do_not_move_with_the_assembly(build: Any) -> None:
+    solids = build()
+    rot = Rotation.from_euler("xyz", [-23, 48, 131], degrees=True).as_matrix()
+    shift = np.array([-500.0, 42.0, 3000.0])
+    before, after = extract_mates(solids), extract_mates(_moved(solids, rot, shift))
+    assert after.n_contact_pairs == before.n_contact_pairs
+    assert len(before.level("face")) > 0
+    assert_invariant(before.table, after.table, rot, shift)
+
+
 def test_turning_about_z_with_the_view_axis_changes_nothing_at_all() -> None:
     solids = bolted()
     rot = Rotation.from_euler("z", 71, degrees=True).as_matrix()
@@ -367,6 +551,8 @@ def check_golden(golden: dict[str, Any], solids: list[StepSolid], table: pd.Data
         assert (row.kinematic, row.relation) == (e["kinematic"], e["suggested"]), e
         if "axis" in e:
             assert abs(float(np.dot(row.axis, e["axis"]))) == pytest.approx(1.0, abs=1e-6), e
+    for e in golden.get("part", []):
+        assert e["relation"] in set(_pair(table, ids, e, "part").relation), e
     for e in golden["absent"]:
         assert _pair(table, ids, e, "face").empty, e
     for e in golden["absent_joints"]:

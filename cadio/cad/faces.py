@@ -5,7 +5,9 @@ primitive faces. Analytic faces are taken as stored; freeform faces (B-spline, B
 revolution or extrusion, offset and trimmed surfaces) are converted with OpenCascade's
 ``GeomConvert_SurfToAnaSurf`` (and ``GeomLib_IsPlanarSurface``) when they fit a primitive within
 ``Tolerances.freeform_fit_mm``: real files store many planes and cylinders as B-splines (the
-CAx-IF AS1 assembly stores every cylinder so), and missing them would silently drop mates.
+CAx-IF AS1 assembly stores every cylinder so), and missing them would silently drop mates. Where
+the converter raises (some B-spline cones and cylinders), the face is sampled and fitted by least
+squares (``cadio.cad.surface_fit``) within the same tolerance.
 
 Face ids are 0-based positions in ``TopExp.MapShapes_s(shape, TopAbs_FACE, ...)`` order, stable
 for a given shape and unchanged by a rigid motion (see ``indexed_faces``).
@@ -27,13 +29,14 @@ from OCP.Geom import Geom_ConicalSurface, Geom_CylindricalSurface, Geom_Plane, G
 from OCP.GeomAbs import GeomAbs_Cone, GeomAbs_Cylinder, GeomAbs_Plane, GeomAbs_Sphere, GeomAbs_Torus
 from OCP.GeomConvert import GeomConvert_SurfToAnaSurf
 from OCP.GeomLib import GeomLib_IsPlanarSurface
-from OCP.gp import gp_Ax1, gp_Pnt, gp_Vec
+from OCP.gp import gp_Ax1, gp_Ax3, gp_Cone, gp_Cylinder, gp_Dir, gp_Pln, gp_Pnt, gp_Vec
 from OCP.GProp import GProp_GProps
 from OCP.TopAbs import TopAbs_FACE
 from OCP.TopExp import TopExp
 from OCP.TopoDS import TopoDS, TopoDS_Face, TopoDS_Shape
 from OCP.TopTools import TopTools_IndexedMapOfShape
 
+from cadio.cad.surface_fit import fit_primitive
 from cadio.cad.tessellate import MASS_PROPS_REL_EPS
 from cadio.errors import GeometryError
 from cadio.records import FloatArray
@@ -42,6 +45,9 @@ from cadio.tolerances import DEFAULT_TOLERANCES, Tolerances
 PLANE, CYLINDER, CONE = "plane", "cylinder", "cone"
 # Parameter bounds beyond this are OCCT's "infinite" (2e100): such surfaces are fitted per face.
 _FINITE = 1e99
+# Where the converter raises, the face is fitted on a grid of _FIT_GRID x _FIT_GRID parameter values
+# (45 degree steps round a whole cone); samples with |du x dv| < _SINGULAR (poles) are skipped.
+_FIT_GRID, _SINGULAR = 9, 1e-9
 
 
 @dataclass(frozen=True)
@@ -137,9 +143,14 @@ def _recognise(face: TopoDS_Face, fit_mm: float) -> tuple[str, Any, bool] | None
 def _fit_freeform(face: TopoDS_Face, fit_mm: float) -> tuple[str, Any, bool] | None:
     """Convert a freeform face's surface to a plane, cylinder or cone within ``fit_mm``."""
     surface = BRep_Tool.Surface_s(face)  # a located copy: already in the shape's coordinates
-    analytic = _convert(surface, _face_domain(face, surface), fit_mm)
-    if analytic is None and max(map(abs, surface.Bounds())) < _FINITE:
-        analytic = _convert(surface, None, fit_mm)  # the whole surface fitting, the face fits
+    try:
+        analytic = _convert(surface, _face_domain(face, surface), fit_mm)
+        if analytic is None and max(map(abs, surface.Bounds())) < _FINITE:
+            analytic = _convert(surface, None, fit_mm)  # the whole surface fitting, the face fits
+    except Exception:  # OCP's Standard_* exceptions share no Python base class but Exception
+        # The converter raises on some B-spline cones and cylinders (Standard_NullObject; the
+        # KCL pipe's bevelled ends) and on degenerate patches (a sphere's poles): fit samples.
+        return _fit_sampled(face, surface, fit_mm)
     if analytic is not None:
         if isinstance(analytic, Geom_Plane):
             return PLANE, analytic.Pln(), True
@@ -152,6 +163,36 @@ def _fit_freeform(face: TopoDS_Face, fit_mm: float) -> tuple[str, Any, bool] | N
     if planar.IsPlanar():
         return PLANE, planar.Plan(), True
     return None
+
+
+def _fit_sampled(face: TopoDS_Face, surface: Geom_Surface, fit_mm: float
+                 ) -> tuple[str, Any, bool] | None:
+    """A plane, cylinder or cone fitted by least squares to the face sampled on a UV grid.
+
+    Every grid point of the face's parameter box must lie within ``fit_mm``, as the converter
+    requires of its own samples; points where the surface is singular (a pole) are skipped.
+    """
+    umin, umax, vmin, vmax = _face_domain(face, surface)
+    points, normals = [], []
+    for u in np.linspace(umin, umax, _FIT_GRID):
+        for v in np.linspace(vmin, vmax, _FIT_GRID):
+            p, du, dv = gp_Pnt(), gp_Vec(), gp_Vec()
+            surface.D1(float(u), float(v), p, du, dv)
+            n = du.Crossed(dv)
+            if n.Magnitude() > _SINGULAR:
+                points.append(_xyz(p))
+                normals.append(_xyz(n) / n.Magnitude())
+    if len(points) < _FIT_GRID:
+        return None
+    fitted = fit_primitive(np.array(points), np.array(normals), fit_mm)
+    if fitted is None:
+        return None
+    frame = gp_Ax3(gp_Pnt(*fitted.point), gp_Dir(*fitted.direction))
+    if fitted.kind == PLANE:
+        return PLANE, gp_Pln(frame), True
+    if fitted.kind == CYLINDER:
+        return CYLINDER, gp_Cylinder(frame, fitted.radius), True
+    return CONE, gp_Cone(frame, fitted.semi_angle, fitted.radius), True
 
 
 def _face_domain(face: TopoDS_Face, surface: Geom_Surface) -> tuple[float, float, float, float]:
@@ -172,17 +213,16 @@ def _face_domain(face: TopoDS_Face, surface: Geom_Surface) -> tuple[float, float
 def _convert(
     surface: Geom_Surface, domain: tuple[float, float, float, float] | None, fit_mm: float
 ) -> Geom_Surface | None:
-    """An analytic surface within ``fit_mm`` of ``surface`` (over ``domain``), or None."""
+    """An analytic surface within ``fit_mm`` of ``surface`` (over ``domain``), or None.
+
+    Raises:
+        Exception: OCCT's own (``Standard_NullObject``...) where the converter fails.
+    """
     converter = GeomConvert_SurfToAnaSurf(surface)
-    try:
-        if domain is None:
-            analytic = converter.ConvertToAnalytical(fit_mm)
-        else:
-            analytic = converter.ConvertToAnalytical(fit_mm, *domain)
-    except Exception:  # OCP's Standard_* exceptions share no Python base class but Exception
-        # The converter fails on some degenerate patches (a sphere's poles, a zero-length
-        # direction); such a face is simply not a plane, cylinder or cone.
-        return None
+    if domain is None:
+        analytic = converter.ConvertToAnalytical(fit_mm)
+    else:
+        analytic = converter.ConvertToAnalytical(fit_mm, *domain)
     if analytic is None or converter.Gap() > fit_mm:
         return None
     return analytic

@@ -13,14 +13,20 @@ rules pairs out first: a coarse mesh of a copy of each part (chordal deflection
 distance, less the sampling and mesh slack, is a lower bound on the true distance. Face pairs it
 cannot rule out are measured exactly, the likeliest first, stopping at the first hit; the answer
 is the exact test's, so it does not change when the assembly moves.
+
+Concentric face mates need the exact distance of coaxial faces up to a millimetre
+(``close_faces``); ``coaxial_bound`` rules most pairs out first, tighter there than the samples:
+the faces' stations along the shared axis and distances from it, bounded from the same mesh
+with its slack (a shaft nested in a ring, whose boxes overlap, is ruled out by its radii).
+``ProxyCache`` builds each part's mesh once, on first use, for both.
 """
 
 from __future__ import annotations
 
 import logging
 import math
-from collections.abc import Collection, Mapping, Sequence
-from dataclasses import dataclass
+from collections.abc import Collection, Sequence
+from dataclasses import dataclass, field
 
 import numpy as np
 from OCP.Bnd import Bnd_Box
@@ -40,13 +46,14 @@ from OCP.TopAbs import TopAbs_EDGE, TopAbs_IN, TopAbs_VERTEX
 from OCP.TopExp import TopExp_Explorer
 from OCP.TopLoc import TopLoc_Location
 from OCP.TopoDS import TopoDS, TopoDS_Face, TopoDS_Shape
+from OCP.TopTools import TopTools_ListOfShape
 from scipy.spatial import cKDTree
 
 from cadio.cad.faces import CONE, indexed_faces
 from cadio.cad.features import extract_features
 from cadio.cad.step import StepSolid
-from cadio.records import AxisGroup, Features, FloatArray
-from cadio.tolerances import Tolerances
+from cadio.records import AxisGroup, Features, FloatArray, perpendicular_pair
+from cadio.tolerances import DEFAULT_TOLERANCES, Tolerances
 
 log = logging.getLogger(__name__)
 
@@ -65,13 +72,39 @@ SLACK = 1e-9  # values computed exactly at a tolerance stay inside despite round
 
 @dataclass(frozen=True)
 class AxisFace:
-    """A cylindrical or conical face: radius mm (cone: mean over its boundary), convex (a shaft
-    or boss, not a hole), ends (2, 3) mm: its axis points at the lowest and highest axial end."""
+    """A cylindrical or conical face on an axis line.
+
+    kind: "cylinder" or "cone". convex: a shaft or boss, not a hole. ends (2, 3) mm: its axis
+    points at the lowest and highest axial end; radii (2,) mm: its radius there (equal for a
+    cylinder; a cone's from a line fitted to its exact boundary points).
+    """
 
     face_id: int
-    radius: float
+    kind: str
     convex: bool
     ends: FloatArray
+    radii: FloatArray
+
+    @property
+    def radius(self) -> float:
+        """Mean radius, mm."""
+        return float(self.radii.mean())
+
+    def radius_at(self, point: FloatArray) -> float:
+        """Radius at the axial station of ``point`` (near the axis), mm: linear in the station,
+        so a cone's beyond its ends too."""
+        span = self.ends[1] - self.ends[0]
+        length2 = float(span @ span)
+        if length2 == 0.0:
+            return self.radius
+        s = float((point - self.ends[0]) @ span) / length2
+        return float(self.radii[0] + s * (self.radii[1] - self.radii[0]))
+
+    def semi_angle_deg(self, direction: FloatArray) -> float:
+        """Signed semi-angle, degrees: positive when the radius grows along ``direction``."""
+        run = float((self.ends[1] - self.ends[0]) @ direction)
+        rise = float(self.radii[1] - self.radii[0])
+        return 0.0 if run == 0.0 else math.degrees(math.atan(rise / run))
 
 
 @dataclass(frozen=True)
@@ -144,14 +177,16 @@ def _boundary(face: TopoDS_Face) -> FloatArray:
 
 def _axis_face(face_id: int, face: TopoDS_Face, kind: str, radius: float, d: FloatArray,
                point: FloatArray) -> AxisFace:
-    """One face on the axis line (d unit, point): its axial ends, radius and convexity."""
+    """One face on the axis line (d unit, point): its axial ends, radii there and convexity."""
     pts = _boundary(face)
     rel = pts - point
     t = rel @ d
-    if kind == CONE and len(pts):  # the cone's reference radius may be anywhere on its axis
-        radius = float(np.linalg.norm(rel - np.outer(t, d), axis=1).mean())
-    ends = point + np.outer([t.min(), t.max()] if len(t) else [0.0, 0.0], d)
-    return AxisFace(face_id, float(radius), _is_convex(face, point, d), ends)
+    span = np.array([t.min(), t.max()] if len(t) else [0.0, 0.0])
+    radii = np.full(2, float(radius))
+    if kind == CONE and len(pts) and np.ptp(t) > 0.0:  # the reference radius may be anywhere
+        rho = np.linalg.norm(rel - np.outer(t, d), axis=1)
+        radii = np.polyval(np.polyfit(t, rho, 1), span)
+    return AxisFace(face_id, kind, _is_convex(face, point, d), point + np.outer(span, d), radii)
 
 
 def _is_convex(face: TopoDS_Face, point: FloatArray, d: FloatArray) -> bool:
@@ -228,23 +263,12 @@ def box_pairs(parts: Sequence[PartGeometry], margin: float) -> list[tuple[int, i
 
 
 def contact_pairs(parts: Sequence[PartGeometry], boxed: Sequence[tuple[int, int]],
-                  mated: Collection[tuple[int, int]],
-                  hints: Mapping[tuple[int, int], Sequence[tuple[int, int]]],
-                  tol: float) -> list[tuple[int, int]]:
-    """Pairs of ``boxed`` within ``tol`` mm (exact): those in ``mated`` (coincident mates), else
-    the face-id pairs in ``hints`` (close concentric fits) measured first, else ``in_contact``."""
-    proxies: dict[int, ContactProxy] = {}
-
-    def touching(i: int, j: int) -> bool:
-        if (i, j) in mated or faces_within(parts[i].faces, parts[j].faces,
-                                           hints.get((i, j), []), tol):
-            return True
-        for k in (i, j):
-            if k not in proxies:
-                proxies[k] = contact_proxy(parts[k].shape, parts[k].plane_ids)
-        return in_contact(proxies[i], proxies[j], tol)
-
-    return [(i, j) for i, j in boxed if touching(i, j)]
+                  known: Collection[tuple[int, int]], tol: float,
+                  proxies: ProxyCache | None = None) -> list[tuple[int, int]]:
+    """Pairs of ``boxed`` within ``tol`` mm (exact): those in ``known`` (found so already: a
+    coincident mate, concentric faces measured within ``tol``), else by ``in_contact``."""
+    cache = ProxyCache(parts) if proxies is None else proxies
+    return [(i, j) for i, j in boxed if (i, j) in known or in_contact(cache[i], cache[j], tol)]
 
 
 @dataclass(frozen=True)
@@ -252,44 +276,108 @@ class ContactProxy:
     """What the contact test needs of one solid (assembly frame, mm).
 
     faces: in ``indexed_faces`` order; boxes: (k, 6) their axis-aligned boxes (lo, hi);
-    cheap: (k,) bool, faces whose exact distances are quick (planes); samples: per face, points
-    (n, 3) on a coarse mesh of it (None when the mesher skipped the face); slack: mm, the most
-    a point of the part's surface can be away from its nearest sample.
+    cheap: (k,) bool, faces whose exact distances are quick (planes); triangles: per face, the
+    corners (m, 3, 3) of a coarse mesh of it (None where the mesher skipped the face), cut for
+    ``samples`` into triangles no longer than spacing (mm); mesh_slack: mm, the most a point of
+    the part's surface can be away from its mesh; slack: mm, the most it can be away from its
+    nearest sample.
     """
 
     shape: TopoDS_Shape
     faces: list[TopoDS_Face]
     boxes: FloatArray
     cheap: np.ndarray
-    samples: list[FloatArray | None]
+    triangles: list[FloatArray | None]
+    spacing: float
+    mesh_slack: float
     slack: float
+    _samples: dict[int, FloatArray | None] = field(default_factory=dict, repr=False)
+
+    def samples(self, face_id: int) -> FloatArray | None:
+        """Points (n, 3) on the face's mesh, every point of the face within ``slack`` of one
+        (cut on first use: most faces are never asked for)."""
+        if face_id not in self._samples:
+            tri = self.triangles[face_id]
+            self._samples[face_id] = None if tri is None else _bisect(tri, self.spacing).mean(
+                axis=1)
+        return self._samples[face_id]
+
+    def revolution_box(self, face_id: int, point: FloatArray, direction: FloatArray
+                       ) -> FloatArray | None:
+        """(t_lo, t_hi, rho_lo, rho_hi) mm: bounds on the face's stations along the line
+        (point, unit direction) and on its distances from it, or None without a mesh.
+
+        Stations are linear, so a triangle's lie between its corners'; distances are convex, so
+        a triangle's largest is at a corner and its smallest is that of its shadow on the plane
+        across the line; each bound then widens by ``mesh_slack``.
+        """
+        tri = self.triangles[face_id]
+        if tri is None:
+            return None
+        rel = tri - point
+        t = rel @ direction
+        across = rel - t[..., None] * direction
+        e1, e2 = perpendicular_pair(direction)
+        shadow = np.stack([across @ e1, across @ e2], axis=-1)  # (m, 3, 2)
+        rho = np.linalg.norm(across, axis=2)
+        near = float(_origin_to_triangles(shadow).min())
+        return np.array([t.min() - self.mesh_slack, t.max() + self.mesh_slack,
+                         max(0.0, near - self.mesh_slack), rho.max() + self.mesh_slack])
 
 
-def contact_proxy(shape: TopoDS_Shape, cheap_ids: Sequence[int] = ()) -> ContactProxy:
-    """Face boxes and mesh samples of a solid; the solid itself is not modified (a copy is meshed).
+class ProxyCache:
+    """Contact proxies of an assembly's parts, each built on first use (the mesh is the cost),
+    and their face boxes, which need no mesh."""
 
-    Args:
-        shape: a solid in the assembly frame, mm.
-        cheap_ids: ids of faces whose exact distances are quick to compute (planar faces).
-    """
-    faces = indexed_faces(shape)
+    def __init__(self, parts: Sequence[PartGeometry]) -> None:
+        self._parts = parts
+        self._proxies: dict[int, ContactProxy] = {}
+        self._boxes: dict[int, FloatArray] = {}
+
+    def __getitem__(self, k: int) -> ContactProxy:
+        if k not in self._proxies:
+            part = self._parts[k]
+            self._proxies[k] = contact_proxy(part.shape, part.plane_ids, self.boxes(k))
+        return self._proxies[k]
+
+    def boxes(self, k: int) -> FloatArray:
+        """(faces, 6) the boxes (lo, hi) of part k's faces, mm."""
+        if k not in self._boxes:
+            self._boxes[k] = face_boxes(self._parts[k].faces)
+        return self._boxes[k]
+
+
+def face_boxes(faces: Sequence[TopoDS_Face]) -> FloatArray:
+    """(k, 6) axis-aligned boxes (lo, hi) of the faces, mm, enlarged by their tolerances."""
     boxes = np.empty((len(faces), 6))
     for k, face in enumerate(faces):
         box = Bnd_Box()
         BRepBndLib.Add_s(face, box, False)
         boxes[k] = box.Get()
+    return boxes
+
+
+def contact_proxy(shape: TopoDS_Shape, cheap_ids: Sequence[int] = (),
+                  boxes: FloatArray | None = None) -> ContactProxy:
+    """Face boxes and mesh samples of a solid; the solid itself is not modified (a copy is meshed).
+
+    Args:
+        shape: a solid in the assembly frame, mm.
+        cheap_ids: ids of faces whose exact distances are quick to compute (planar faces).
+        boxes: its face boxes (``face_boxes``) where already known.
+    """
+    faces = indexed_faces(shape)
+    boxes = face_boxes(faces) if boxes is None else boxes
     size = float(np.linalg.norm(boxes[:, 3:].max(axis=0) - boxes[:, :3].min(axis=0)))
     deflection = max(MESH_DEFLECTION_MM, size / MESH_RELATIVE)
     spacing = max(SAMPLE_SPACING_MM, size / SAMPLE_RELATIVE)
     copy = BRepBuilderAPI_Copy(shape, False, False).Shape()
     BRepMesh_IncrementalMesh(copy, deflection, False, 0.5, False)
-    samples: list[FloatArray | None] = []
-    for face in indexed_faces(copy):
-        corners = _triangles(face)
-        samples.append(None if corners is None else _bisect(corners, spacing).mean(axis=1))
+    triangles = [_triangles(face) for face in indexed_faces(copy)]
     cheap = np.isin(np.arange(len(faces)), list(cheap_ids))
-    slack = 2.0 * spacing / 3.0 + MESH_SAFETY * deflection
-    return ContactProxy(shape, faces, boxes, cheap, samples, slack)
+    mesh_slack = MESH_SAFETY * deflection
+    return ContactProxy(shape, faces, boxes, cheap, triangles, spacing, mesh_slack,
+                        2.0 * spacing / 3.0 + mesh_slack)
 
 
 def in_contact(a: ContactProxy, b: ContactProxy, tol_mm: float) -> bool:
@@ -300,36 +388,102 @@ def in_contact(a: ContactProxy, b: ContactProxy, tol_mm: float) -> bool:
     first, then by the bound), stopping at the first hit. Solids whose boundaries stay apart
     touch only when one holds the other.
     """
-    gap = np.maximum(b.boxes[None, :, :3] - a.boxes[:, None, 3:],
-                     a.boxes[:, None, :3] - b.boxes[None, :, 3:])
-    box_dist = np.linalg.norm(np.clip(gap, 0.0, None), axis=2)
+    box_dist = box_distances(a.boxes[:, None, :], b.boxes[None, :, :])
     bound: dict[tuple[int, int], float] = {}
     trees: dict[int, cKDTree] = {}
-    slack = a.slack + b.slack
     for i, j in zip(*np.nonzero(box_dist <= tol_mm), strict=True):
-        sa, sb = a.samples[i], b.samples[j]
-        if sa is None or sb is None:
-            bound[(int(i), int(j))] = 0.0
-            continue
-        if j not in trees:
-            trees[j] = cKDTree(sb)
-        tree = trees[j]
-        nearest, _ = tree.query(sa, k=1, distance_upper_bound=tol_mm + slack)
-        if np.isfinite(nearest).any():
-            bound[(int(i), int(j))] = float(nearest.min()) - slack
+        lower = _sample_bound(a, int(i), b, int(j), tol_mm, trees)
+        if lower <= tol_mm:
+            bound[(int(i), int(j))] = lower
     ranked = sorted(bound, key=lambda ij: (not (a.cheap[ij[0]] and b.cheap[ij[1]]), bound[ij]))
     return (faces_within(a.faces, b.faces, ranked, tol_mm)
             or _holds(a.shape, b.shape) or _holds(b.shape, a.shape))
 
 
+def close_faces(a: ContactProxy, b: ContactProxy, pairs: Sequence[tuple[int, int]],
+                limit_mm: float) -> dict[tuple[int, int], float]:
+    """Exact distances (mm) of those listed face pairs (ids in a, ids in b) within ``limit_mm``.
+
+    Pairs whose boxes are farther apart are not measured; the others are, exactly (BRepExtrema),
+    so the caller rules out what it can first (``coaxial_bound``: mesh samples, tried here too,
+    cost more than they save once it has).
+    """
+    found = {}
+    for i, j in pairs:
+        if box_distances(a.boxes[i], b.boxes[j]) > limit_mm:
+            continue
+        dist = _exact_distance(a.faces[i], b.faces[j])
+        if dist <= limit_mm * (1.0 + SLACK):
+            found[(i, j)] = dist
+    return found
+
+
+def coaxial_bound(a: ContactProxy, face_a: int, b: ContactProxy, face_b: int,
+                  point: FloatArray, direction: FloatArray) -> float:
+    """A lower bound (mm) on the distance between two faces, from their ``revolution_box``es
+    about one line: for points x, y at stations t and distances rho from any line,
+    |x - y|^2 >= (t_x - t_y)^2 + (rho_x - rho_y)^2."""
+    ra = a.revolution_box(face_a, point, direction)
+    rb = b.revolution_box(face_b, point, direction)
+    if ra is None or rb is None:
+        return 0.0
+    along = max(0.0, ra[0] - rb[1], rb[0] - ra[1])
+    across = max(0.0, ra[2] - rb[3], rb[2] - ra[3])
+    return math.hypot(along, across)
+
+
 def faces_within(faces_a: Sequence[TopoDS_Face], faces_b: Sequence[TopoDS_Face],
                  pairs: Sequence[tuple[int, int]], tol_mm: float) -> bool:
     """True when some listed face pair (ids) is within ``tol_mm`` (exact, in list order)."""
-    for i, j in pairs:
-        dist = BRepExtrema_DistShapeShape(faces_a[i], faces_b[j])
-        if dist.IsDone() and dist.Value() <= tol_mm * (1.0 + 1e-9):
-            return True
-    return False
+    return any(_exact_distance(faces_a[i], faces_b[j]) <= tol_mm * (1.0 + SLACK)
+               for i, j in pairs)
+
+
+def _exact_distance(fa: TopoDS_Shape, fb: TopoDS_Shape) -> float:
+    """BRepExtrema's distance between two shapes, mm (infinite when it fails)."""
+    dist = BRepExtrema_DistShapeShape(fa, fb)
+    return float(dist.Value()) if dist.IsDone() else math.inf
+
+
+def box_distances(lo_hi_a: FloatArray, lo_hi_b: FloatArray) -> FloatArray:
+    """Distances between boxes (..., 6) (lo, hi), broadcast, mm."""
+    gap = np.maximum(lo_hi_b[..., :3] - lo_hi_a[..., 3:], lo_hi_a[..., :3] - lo_hi_b[..., 3:])
+    return np.asarray(np.linalg.norm(np.clip(gap, 0.0, None), axis=-1), dtype=np.float64)
+
+
+def _sample_bound(a: ContactProxy, i: int, b: ContactProxy, j: int, limit_mm: float,
+                  trees: dict[int, cKDTree]) -> float:
+    """Lower bound (mm) on the distance of face i of a and face j of b from their samples: the
+    nearest pair less both slacks; 0 without samples, infinite when none is within reach."""
+    sa, sb = a.samples(i), b.samples(j)
+    if sa is None or sb is None:
+        return 0.0
+    if j not in trees:
+        trees[j] = cKDTree(sb)
+    slack = a.slack + b.slack
+    nearest, _ = trees[j].query(sa, k=1, distance_upper_bound=limit_mm + slack)
+    return float(nearest.min()) - slack if np.isfinite(nearest).any() else math.inf
+
+
+def _origin_to_triangles(tri: FloatArray) -> FloatArray:
+    """(m,) distances from the origin to the 2D triangles (m, 3, 2), degenerate ones too."""
+    a, b, c = tri[:, 0], tri[:, 1], tri[:, 2]
+
+    def side(p: FloatArray, q: FloatArray) -> FloatArray:  # origin left of p -> q: positive
+        return np.asarray(p[:, 0] * q[:, 1] - p[:, 1] * q[:, 0], dtype=np.float64)
+
+    s = np.stack([side(a, b), side(b, c), side(c, a)])
+    inside = np.all(s >= 0.0, axis=0) | np.all(s <= 0.0, axis=0)
+    edges = np.min([_origin_to_segments(p, q) for p, q in ((a, b), (b, c), (c, a))], axis=0)
+    return np.where(inside, 0.0, edges)
+
+
+def _origin_to_segments(p: FloatArray, q: FloatArray) -> FloatArray:
+    """(m,) distances from the origin to the segments p -> q, each (m, 2)."""
+    d = q - p
+    length2 = np.einsum("ij,ij->i", d, d)
+    t = np.clip(-np.einsum("ij,ij->i", p, d) / np.where(length2 > 0.0, length2, 1.0), 0.0, 1.0)
+    return np.asarray(np.linalg.norm(p + t[:, None] * d, axis=1), dtype=np.float64)
 
 
 def _triangles(face: TopoDS_Face) -> FloatArray | None:
@@ -373,11 +527,15 @@ def _holds(outer: TopoDS_Shape, inner: TopoDS_Shape) -> bool:
 
 
 def face_overlap(fa: TopoDS_Face, fb: TopoDS_Face, na: FloatArray, ca: FloatArray,
-                 nb: FloatArray, cb: FloatArray) -> tuple[float, FloatArray]:
+                 nb: FloatArray, cb: FloatArray,
+                 fuzzy_mm: float = DEFAULT_TOLERANCES.overlap_fuzzy_mm) -> tuple[float, FloatArray]:
     """(area mm^2, centroid (3,) mm) of the overlap of two nearly coplanar, opposed faces.
 
     Face b is turned about its centroid until its normal is exactly -na and shifted onto a's
-    plane (a motion of at most ``mate_angle_deg`` and ``contact_mm``), then intersected with a.
+    plane (a motion of at most ``mate_angle_deg`` and ``contact_mm``), then intersected with a
+    by a Boolean common whose fuzzy value ``fuzzy_mm`` (``Tolerances.overlap_fuzzy_mm``) makes
+    the two one plane: ``na`` is a's plane group normal, off a's own by rounding, and over a
+    large face that alone leaves an exact Boolean with nothing in common.
     """
     axis = np.cross(nb, -na)
     sin = float(np.linalg.norm(axis))
@@ -388,7 +546,7 @@ def face_overlap(fa: TopoDS_Face, fb: TopoDS_Face, na: FloatArray, ca: FloatArra
     shift = gp_Trsf()
     shift.SetTranslation(gp_Vec(*(-float(np.dot(cb - ca, na)) * na)))
     moved = fb.Moved(TopLoc_Location(shift.Multiplied(turn)))
-    common = BRepAlgoAPI_Common(fa, moved)
+    common = _fuzzy_common(fa, moved, fuzzy_mm)
     if not common.IsDone():
         log.warning("Boolean common of two planar faces failed: no overlap assumed")
         return 0.0, ca
@@ -396,3 +554,21 @@ def face_overlap(fa: TopoDS_Face, fb: TopoDS_Face, na: FloatArray, ca: FloatArra
     BRepGProp.SurfaceProperties_s(common.Shape(), props)
     c = props.CentreOfMass()
     return float(props.Mass()), np.array([c.X(), c.Y(), c.Z()])
+
+
+def _fuzzy_common(a: TopoDS_Shape, b: TopoDS_Shape, fuzzy_mm: float) -> BRepAlgoAPI_Common:
+    """The Boolean common of a and b, sub-shapes within ``fuzzy_mm`` taken as coincident.
+
+    Non-destructive: by default a Boolean may raise the tolerances of its arguments' edges and
+    vertices in place, which would change the parts for every later distance and Boolean.
+    """
+    arguments, tools = TopTools_ListOfShape(), TopTools_ListOfShape()
+    arguments.Append(a)
+    tools.Append(b)
+    common = BRepAlgoAPI_Common()
+    common.SetArguments(arguments)
+    common.SetTools(tools)
+    common.SetFuzzyValue(fuzzy_mm)
+    common.SetNonDestructive(True)
+    common.Build()
+    return common

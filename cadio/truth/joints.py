@@ -8,10 +8,19 @@ twists that keep it satisfied:
 
 - coincident planes, outward normal n, contact point p: w parallel to n (no tilting) and no
   velocity of p along n (no lift-off): 3 linear equations;
-- a fit, a shaft in a bore (concentric faces, one convex inside one concave, radial clearance at
-  most ``Tolerances.fit_clearance_mm``) on the axis line (d, p): w parallel to d and the
-  velocity of p parallel to d: 4 equations. Two coaxial holes ("aligned") or a shaft far inside a
-  bore ("nested") constrain nothing and are not used.
+- a shaft in a bore on the axis line (d, p): w parallel to d and the velocity of p parallel to
+  d: 4 equations. A concentric face mate (coaxial faces within
+  ``Tolerances.concentric_gap_mm``, "fit" or "clearance") is a shaft in a bore when one face is
+  convex and the other concave, both cylinders or both cones of one semi-angle, the shaft's
+  radius at most the bore's (``fit_radius_mm`` of interference allowed), engaged along the axis
+  by more than ``contact_mm``. So a bolt in an ISO 273 fine or medium clearance hole (radial
+  clearance up to 1 mm to M24) keeps its axis; in a coarse hole its faces are no mate and only
+  its head's contact holds it. Two coaxial holes, two shafts, a gland beside a shaft across
+  fillets (faces apart along the axis), a shaft against a chamfer (cylinder and cone) constrain
+  nothing;
+- a cone seated in a cone (a "fit": one semi-angle, radii within ``fit_radius_mm``) also stops
+  motion along the axis, read both ways as a planar contact is: one more equation, so a
+  countersunk screw in its seat turns like a bolt under its head.
 
 The allowed twists are the null space of the stacked equations (SVD). Its dimension is the number
 of degrees of freedom and its shape names the joint:
@@ -47,7 +56,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from cadio.records import FloatArray, canonical_direction
+from cadio.records import FloatArray, canonical_direction, perpendicular_pair
 from cadio.tolerances import DEFAULT_TOLERANCES, Tolerances
 
 PLANE, AXIS = "plane", "axis"
@@ -70,7 +79,8 @@ FASTENER_NAME = re.compile(r"bolt|screw|nut|washer|rivet|stud", re.IGNORECASE)
 class Constraint:
     """One face mate as a kinematic constraint, in the assembly frame.
 
-    kind: "plane" (coincident planar contact) or "axis" (shaft fitted in a bore).
+    kind: "plane" (a planar contact, or the axial stop of a seated cone) or "axis" (a shaft in
+    a bore).
     direction: (3,) unit: the plane's normal or the axis direction (sign irrelevant).
     point: (3,) mm: a point of the contact (plane) or of the axis line.
     """
@@ -112,7 +122,7 @@ def derive_joint(
     """The joint allowed by a pair's face mates.
 
     Args:
-        constraints: the pair's coincident contacts and fits, assembly frame, mm.
+        constraints: the pair's planar contacts and shafts in bores, assembly frame, mm.
         names: the two parts' names, for the fastener rule of the suggestion.
         tol: ``parallel_deg`` sets the rank threshold (see module docstring).
 
@@ -159,7 +169,7 @@ def _rows(c: Constraint, centre: FloatArray, scale: float) -> FloatArray:
     """Equations on the twist x = (w * scale, v at ``centre``), each row a unit-scale (6,)."""
     d = np.asarray(c.direction, dtype=np.float64)
     d = d / np.linalg.norm(d)
-    t1, t2 = _perpendicular_pair(d)
+    t1, t2 = perpendicular_pair(d)
     r = (np.asarray(c.point, dtype=np.float64) - centre) / scale
     zero = np.zeros(3)
     tilt = [np.r_[t1, zero], np.r_[t2, zero]]  # w has no component across d
@@ -169,13 +179,6 @@ def _rows(c: Constraint, centre: FloatArray, scale: float) -> FloatArray:
     if c.kind == AXIS:
         return np.array([*tilt, np.r_[np.cross(r, t1), t1], np.r_[np.cross(r, t2), t2]])
     raise ValueError(f"unknown constraint kind {c.kind!r}")
-
-
-def _perpendicular_pair(d: FloatArray) -> tuple[FloatArray, FloatArray]:
-    helper = np.eye(3)[int(np.argmin(np.abs(d)))]
-    t1 = np.cross(d, helper)
-    t1 /= np.linalg.norm(t1)
-    return t1, np.cross(d, t1)
 
 
 def _name_motion(

@@ -4,33 +4,38 @@ For every pair of parts (solids already in the assembly frame, mm), one table wi
 MATE, RELATION OR JOINT (``COLUMNS``, schema in ``write_mates``), for index_a < index_b, read
 "a <relation> b":
 
-- level "face": ``concentric`` between coaxial cylindrical/conical faces (axes within
-  ``coaxial_deg``, lines within ``coaxial_mm``, overlapping along the axis or abutting within
-  ``contact_mm``, any radii; ``fit`` says "fit" for a shaft in a bore with at most
-  ``fit_clearance_mm`` of radial clearance, "nested" for a larger gap, "aligned" for two holes or
-  two shafts), and ``coincident`` between planar faces with opposite outward normals (within
-  ``mate_angle_deg``), planes within ``contact_mm`` and an overlap of more than
-  ``min_overlap_mm2`` (a Boolean common of the two faces laid on one plane: touching along an edge
-  is no mate). Pairs in contact also get ``parallel``/``perpendicular`` rows for their largest
-  principal faces.
-- level "part": the ten relations of ``cadio.truth.relations.relate`` (view axis +Y for CAD).
+- level "face": ``concentric``, one row per pair of coaxial cylindrical/conical faces (axes
+  within ``coaxial_deg``, lines within ``coaxial_mm``) whose faces lie within
+  ``concentric_gap_mm`` of each other (exact face-to-face distance): ``fit`` says "fit" when the
+  radii agree within ``fit_radius_mm`` (cones: semi-angles within ``mate_angle_deg`` and radii
+  within ``fit_radius_mm`` at a common axial station) and "clearance" otherwise (a gland beside a
+  shaft across fillets, a bolt in a clearance hole; a cylinder against a cone). ``coincident``
+  between planar faces with opposite outward normals (within ``mate_angle_deg``), planes within
+  ``contact_mm`` and an overlap of more than ``min_overlap_mm2`` (a Boolean common of the two
+  faces laid on one plane, with the fuzzy value ``overlap_fuzzy_mm`` so that exactly touching
+  faces do not come out with nothing in common; touching along an edge is no mate). Pairs in
+  contact also get ``parallel``/``perpendicular`` rows for their largest principal faces.
+- level "part": the ten relations of ``cadio.truth.relations.relate`` (view axis +Y for CAD);
+  the part-level ``concentric`` needs no contact (principal axes coaxial).
 - level "joint": the joint a CAD user would set, derived from the pair's coincident contacts and
-  fits (``cadio.truth.joints``): ``relation`` is the suggested joint, ``kinematic`` the pure
-  degree-of-freedom one, with Onshape / FreeCAD / Fusion 360 names.
+  shafts in bores (``cadio.truth.joints``): ``relation`` is the suggested joint, ``kinematic``
+  the pure degree-of-freedom one, with Onshape / FreeCAD / Fusion 360 names.
 
 Pruning (``cadio.truth.contact``) cannot change under a rigid motion of the whole assembly.
 Coincident mates need contact: boxes enlarged by twice ``contact_mm`` skip only pairs that
 cannot touch, and the mate test itself is exact; pairs "in contact" are within ``contact_mm``
-(exact B-rep distance). Concentric mates do not need contact (a bolt in a clearance hole, the
-two rings of a ball bearing): they are found by matching the axis lines of all parts, a test on
-lines that is invariant by construction.
+(exact B-rep distance). Concentric candidates come from matching the axis lines of all parts (a
+test on lines, invariant by construction); each coaxial face pair is then ruled out where a
+lower bound on its distance exceeds ``concentric_gap_mm`` (face boxes, then the faces' extents
+along and around the axis from a coarse mesh with its slack: both hold in any frame) and
+measured exactly (BRepExtrema) otherwise.
 """
 
 from __future__ import annotations
 
 import math
 import time
-from collections.abc import Mapping, Sequence
+from collections.abc import Iterator, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -38,6 +43,7 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
+from cadio.cad.faces import CYLINDER
 from cadio.cad.step import StepSolid, read_step
 from cadio.records import DIRECTIONAL, Features, Relation
 from cadio.tolerances import DEFAULT_TOLERANCES, Tolerances
@@ -46,7 +52,11 @@ from cadio.truth.contact import (
     AxisFace,
     AxisLine,
     PartGeometry,
+    ProxyCache,
+    box_distances,
     box_pairs,
+    close_faces,
+    coaxial_bound,
     contact_pairs,
     describe_part,
     face_overlap,
@@ -64,7 +74,17 @@ COLUMNS = (
 )
 LEVELS = ("face", "part", "joint")
 Row = dict[str, Any]  # one table row, keys ``COLUMNS``
-FIT, NESTED, ALIGNED = "fit", "nested", "aligned"
+FIT, CLEARANCE = "fit", "clearance"
+
+
+@dataclass(frozen=True)
+class _FaceMate:
+    """A face-level mate: its row, the kinematic constraints it sets (a planar contact, a shaft
+    in a bore, a seated cone), and whether its faces are known to be within ``contact_mm``."""
+
+    row: Row
+    constraints: tuple[Constraint, ...]
+    touching: bool
 
 
 @dataclass(frozen=True)
@@ -102,8 +122,8 @@ def extract_mates(
 
     Args:
         solids: the assembly's solids, in the assembly frame (mm), as ``read_step`` returns them.
-        tol: the tolerances (mate angle, contact, coaxial, parallel, freeform fit, fit
-            clearance, smallest overlap area).
+        tol: the tolerances (mate angle, contact, coaxial, concentric gap, fit radius,
+            parallel, freeform fit, smallest overlap area and its fuzzy value).
         view_axis: (3,) the observer's forward direction for left/right/front/behind (+Y for CAD).
         assembly: the assembly name written in every row.
         part_ids: solid index -> part id (default: the index as text).
@@ -120,11 +140,14 @@ def extract_mates(
              for k, s in enumerate(solids)]
     clock.lap("features")
     boxed = box_pairs(parts, 2.0 * tol.contact_mm)
+    proxies = ProxyCache(parts)
     clock.lap("prune")
-    rows = _concentric_rows(parts, tol)
-    rows += [r for i, j in boxed for r in _coincident_rows(parts[i], parts[j], tol)]
+    mates = _concentric_mates(parts, proxies, tol)
+    mates += [m for i, j in boxed for m in _coincident_mates(parts[i], parts[j], tol)]
+    rows = [m.row for m in mates]
     clock.lap("face_mates")
-    contact = contact_pairs(parts, boxed, *_contact_hints(rows, tol.contact_mm), tol.contact_mm)
+    touching = {(m.row["index_a"], m.row["index_b"]) for m in mates if m.touching}
+    contact = contact_pairs(parts, boxed, touching, tol.contact_mm, proxies)
     clock.lap("prune")
     relations = {(i, j): relate(parts[i].features, parts[j].features, view_axis, tol)
                  for i in range(len(parts)) for j in range(i + 1, len(parts))}
@@ -132,7 +155,7 @@ def extract_mates(
     rows += [r for i, j in contact
              for r in _principal_face_rows(parts[i], parts[j], relations[(i, j)])]
     clock.lap("relations")
-    rows += _joint_rows(parts, rows, tol)
+    rows += _joint_rows(parts, mates, tol)
     clock.lap("joints")
     table = _table(rows, assembly)
     table.attrs = {"tolerances": tol.as_dict(), "view_axis": [float(v) for v in view_axis]}
@@ -166,10 +189,12 @@ def write_mates(path: Path | str, table: pd.DataFrame) -> None:
     Schema: assembly, part_a, part_b (ids), index_a < index_b (solid indices), name_*, path_*
     (instance paths), level ("face", "part", "joint"), relation (concentric, coincident,
     parallel, perpendicular, left ... behind; for joints the suggested joint), face_a, face_b
-    (face ids, -1 when none), axis, origin (3 floats, assembly frame, or None), distance_mm,
-    angle_deg, overlap_area_mm2, radial_gap_mm (NaN when not applicable), fit ("fit", "nested",
-    "aligned" for concentric), kinematic, dof (-1 when none), onshape, freecad, fusion360 (joint
-    names), evidence (text). ``table.attrs`` (tolerances, view axis) go in the metadata.
+    (face ids, -1 when none), axis, origin (3 floats, assembly frame, or None), distance_mm
+    (coincident: plane offset; concentric: distance between the axis lines), angle_deg,
+    overlap_area_mm2, radial_gap_mm (concentric: difference of the radii at the common axial
+    station; NaN when not applicable), fit ("fit" or "clearance" for concentric), kinematic,
+    dof (-1 when none), onshape, freecad, fusion360 (joint names), evidence (text).
+    ``table.attrs`` (tolerances, view axis) go in the metadata.
     """
     with atomic_path(Path(path)) as tmp:
         table.to_parquet(tmp, index=False)
@@ -180,104 +205,141 @@ def read_mates(path: Path | str) -> pd.DataFrame:
     return pd.read_parquet(Path(path))
 
 
-def _contact_hints(rows: list[Row], tol: float) -> tuple[
-        set[tuple[int, int]], dict[tuple[int, int], list[tuple[int, int]]]]:
-    """The face mates as hints for ``contact_pairs``: pairs with a coincident mate (in contact),
-    and per pair the face ids of concentric fits with a radial gap within ``tol`` mm."""
-    mated = {(r["index_a"], r["index_b"]) for r in rows if r["relation"] == "coincident"}
-    hints: dict[tuple[int, int], list[tuple[int, int]]] = {}
-    for r in rows:
-        if r["relation"] == "concentric" and r["radial_gap_mm"] <= tol:
-            hints.setdefault((r["index_a"], r["index_b"]), []).append((r["face_a"], r["face_b"]))
-    return mated, hints
-
-
 # ---------------------------------------------------------------- concentric
 
 
-def _concentric_rows(parts: list[PartGeometry], tol: Tolerances) -> list[Row]:
-    """One row per pair of coaxial axis lines of two parts that overlap along the axis."""
+@dataclass(frozen=True)
+class _Coaxial:
+    """Two coaxial faces of parts a < b on their axis lines; the lines' angle (deg) and gap (mm)."""
+
+    a: PartGeometry
+    line_a: AxisLine
+    face_a: AxisFace
+    b: PartGeometry
+    line_b: AxisLine
+    face_b: AxisFace
+    angle_deg: float
+    gap_mm: float
+
+
+def _concentric_mates(parts: list[PartGeometry], proxies: ProxyCache,
+                      tol: Tolerances) -> list[_FaceMate]:
+    """One mate per pair of coaxial faces of two parts within ``concentric_gap_mm`` (exact)."""
+    by_pair: dict[tuple[int, int], list[_Coaxial]] = {}
+    for c in _coaxial_faces(parts, tol):
+        by_pair.setdefault((c.a.index, c.b.index), []).append(c)
+    mates = []
+    for (i, j), found in sorted(by_pair.items()):
+        near = [c for c in found if _may_be_near(c, proxies, tol.concentric_gap_mm)]
+        if not near:
+            continue
+        ids = [(c.face_a.face_id, c.face_b.face_id) for c in near]
+        dist = close_faces(proxies[i], proxies[j], ids, tol.concentric_gap_mm)
+        mates += [_concentric_mate(c, dist[key], tol)
+                  for c, key in zip(near, ids, strict=True) if key in dist]
+    return mates
+
+
+def _coaxial_faces(parts: list[PartGeometry], tol: Tolerances) -> Iterator[_Coaxial]:
+    """Every pair of faces on coaxial axis lines of two parts (lines within ``coaxial_deg`` and
+    ``coaxial_mm``), part a before part b."""
     owner = [(p.index, k) for p in parts for k in range(len(p.lines))]
     if len(owner) < 2:
-        return []
+        return
     lines = [parts[i].lines[k] for i, k in owner]
     d = np.array([ln.direction for ln in lines])
     mid = np.array([ln.mid for ln in lines])
-    ends = np.array([ln.ends for ln in lines])  # (n, 2, 3)
     part_of = np.array([i for i, _ in owner])
-    rows = []
-    for a in range(len(lines) - 1):
-        b = np.arange(a + 1, len(lines))
-        cross = np.linalg.norm(np.cross(d[a], d[b]), axis=1)
-        angle = np.degrees(np.arctan2(cross, np.abs(d[b] @ d[a])))
-        rel = mid[b] - mid[a]
-        gap_b = np.linalg.norm(rel - np.outer(rel @ d[a], d[a]), axis=1)
-        gap_a = np.linalg.norm(rel - (np.einsum("ij,ij->i", rel, d[b]))[:, None] * d[b], axis=1)
-        ta, tb = ends[a] @ d[a], ends[b] @ d[a]  # (2,), (m, 2)
-        overlap = np.minimum(ta.max(), tb.max(axis=1)) - np.maximum(ta.min(), tb.min(axis=1))
-        keep = ((part_of[b] != part_of[a]) & (angle <= tol.coaxial_deg + SLACK)
-                & (np.maximum(gap_a, gap_b) <= tol.coaxial_mm + SLACK)
-                & (overlap >= -tol.contact_mm - SLACK))
+    for m in range(len(lines) - 1):
+        n = np.arange(m + 1, len(lines))
+        cross = np.linalg.norm(np.cross(d[m], d[n]), axis=1)
+        angle = np.degrees(np.arctan2(cross, np.abs(d[n] @ d[m])))
+        rel = mid[n] - mid[m]
+        gap_n = np.linalg.norm(rel - np.outer(rel @ d[m], d[m]), axis=1)
+        gap_m = np.linalg.norm(rel - (np.einsum("ij,ij->i", rel, d[n]))[:, None] * d[n], axis=1)
+        gap = np.maximum(gap_m, gap_n)
+        keep = ((part_of[n] != part_of[m]) & (angle <= tol.coaxial_deg + SLACK)
+                & (gap <= tol.coaxial_mm + SLACK))
         for k in np.nonzero(keep)[0]:
-            pa, pb = parts[part_of[a]], parts[part_of[b[k]]]
-            row = _concentric_row(pa, lines[a], pb, lines[b[k]], float(angle[k]),
-                                  float(max(gap_a[k], gap_b[k])), tol)
-            if row is not None:
-                rows.append(row)
-    return rows
+            (pa, la), (pb, lb) = sorted([(parts[part_of[m]], lines[m]),
+                                         (parts[part_of[n[k]]], lines[n[k]])],
+                                        key=lambda pl: pl[0].index)
+            for fa in la.faces:
+                for fb in lb.faces:
+                    yield _Coaxial(pa, la, fa, pb, lb, fb, float(angle[k]), float(gap[k]))
 
 
-def _concentric_row(pa: PartGeometry, la: AxisLine, pb: PartGeometry, lb: AxisLine,
-                    angle: float, gap: float, tol: Tolerances) -> Row | None:
-    """The mate of two coaxial lines, with the face pair that engages best as evidence."""
-    if pa.index > pb.index:
-        pa, la, pb, lb = pb, lb, pa, la
-    found = []
-    for fa in la.faces:
-        for fb in lb.faces:
-            ta, tb = fa.ends @ la.direction, fb.ends @ la.direction
-            lo, hi = max(ta.min(), tb.min()), min(ta.max(), tb.max())
-            if hi - lo >= -tol.contact_mm - SLACK:
-                fit, radial = _fit(fa, fb, hi - lo, tol)
-                found.append(((FIT, NESTED, ALIGNED).index(fit), hi - lo, radial, fa, fb, fit,
-                              0.5 * (lo + hi)))
-    if not found:
-        return None
-    # best fit class, then longest overlap, then smallest gap; near-ties (1e-6 mm, rounding
-    # under a rigid motion) go to the smallest face ids
-    found = [f for f in found if f[0] == min(g[0] for g in found)]
-    found = [f for f in found if f[1] >= max(g[1] for g in found) - 1e-6]
-    found = [f for f in found if f[2] <= min(g[2] for g in found) + 1e-6]
-    _, overlap, radial, fa, fb, fit, t_mid = min(found, key=lambda f: (f[3].face_id, f[4].face_id))
-    origin = la.mid + (t_mid - float(np.dot(la.mid, la.direction))) * la.direction
-    evidence = (f"{fit}: face {fa.face_id} ({_kind(fa)} r={fa.radius:.3f}) and face "
-                f"{fb.face_id} ({_kind(fb)} r={fb.radius:.3f}) overlap {overlap:.3f} mm along "
-                f"the axis; coaxial faces a {[f.face_id for f in la.faces]}, "
-                f"b {[f.face_id for f in lb.faces]}")
-    return _row(pa, pb, "face", Relation.CONCENTRIC.value, face_a=fa.face_id, face_b=fb.face_id,
-                axis=la.direction, origin=origin, distance_mm=gap, angle_deg=angle,
-                radial_gap_mm=radial, fit=fit, evidence=evidence)
+def _may_be_near(c: _Coaxial, proxies: ProxyCache, limit_mm: float) -> bool:
+    """False when lower bounds put the two faces more than ``limit_mm`` apart: their boxes
+    (no mesh needed), then their extents along and around a's axis (a coarse mesh)."""
+    i, j = c.a.index, c.b.index
+    if box_distances(proxies.boxes(i)[c.face_a.face_id],
+                     proxies.boxes(j)[c.face_b.face_id]) > limit_mm:
+        return False
+    bound = coaxial_bound(proxies[i], c.face_a.face_id, proxies[j], c.face_b.face_id,
+                          c.line_a.mid, c.line_a.direction)
+    return bound <= limit_mm
+
+
+def _concentric_mate(c: _Coaxial, distance: float, tol: Tolerances) -> _FaceMate:
+    """The mate of two coaxial faces ``distance`` mm apart, read at their common axial station
+    (the middle of their overlap along a's axis, or of the gap between their nearest ends)."""
+    d = c.line_a.direction
+    ta, tb = c.face_a.ends @ d, c.face_b.ends @ d
+    lo, hi = max(ta.min(), tb.min()), min(ta.max(), tb.max())
+    station = c.line_a.mid + (0.5 * (lo + hi) - float(c.line_a.mid @ d)) * d
+    ra, rb = c.face_a.radius_at(station), c.face_b.radius_at(station)
+    parallel = _parallel_surfaces(c.face_a, c.face_b, d, tol)
+    kind = FIT if parallel and abs(ra - rb) <= tol.fit_radius_mm + SLACK else CLEARANCE
+    in_bore = parallel and _shaft_in_bore(c.face_a, ra, c.face_b, rb, hi - lo, tol)
+    constraints = _bore_constraints(c.face_a.kind, kind, d, station) if in_bore else ()
+    evidence = (f"{kind}: face {c.face_a.face_id} ({_kind(c.face_a)} r={ra:.3f}) and face "
+                f"{c.face_b.face_id} ({_kind(c.face_b)} r={rb:.3f}) at their common station, "
+                f"{distance:.4f} mm apart, {hi - lo:.3f} mm of axial overlap (< 0: apart)"
+                f"{'; a shaft in a bore' if in_bore else ''}")
+    row = _row(c.a, c.b, "face", Relation.CONCENTRIC.value, face_a=c.face_a.face_id,
+               face_b=c.face_b.face_id, axis=d, origin=station, distance_mm=c.gap_mm,
+               angle_deg=c.angle_deg, radial_gap_mm=abs(ra - rb), fit=kind, evidence=evidence)
+    return _FaceMate(row, constraints, distance <= tol.contact_mm * (1.0 + SLACK))
+
+
+def _bore_constraints(surface: str, kind: str, d: np.ndarray, station: np.ndarray
+                      ) -> tuple[Constraint, ...]:
+    """A shaft in a bore keeps the axis; a cone seated in a cone (a fit) also stops axial
+    motion, read both ways as a planar contact is (see ``cadio.truth.joints``)."""
+    axis = Constraint(AXIS, d, station)
+    if surface == CYLINDER or kind != FIT:
+        return (axis,)
+    return axis, Constraint(PLANE_CONTACT, d, station)
+
+
+def _parallel_surfaces(fa: AxisFace, fb: AxisFace, d: np.ndarray, tol: Tolerances) -> bool:
+    """Two cylinders, or two cones opening the same way with semi-angles within
+    ``mate_angle_deg``: surfaces that stay the same distance apart along the axis."""
+    if fa.kind != fb.kind:
+        return False
+    gap = abs(fa.semi_angle_deg(d) - fb.semi_angle_deg(d))
+    return fa.kind == CYLINDER or gap <= tol.mate_angle_deg + SLACK
+
+
+def _shaft_in_bore(fa: AxisFace, ra: float, fb: AxisFace, rb: float, overlap: float,
+                   tol: Tolerances) -> bool:
+    """A convex face inside a concave one (radii ra, rb at the common station, within
+    ``fit_radius_mm`` of interference), engaged along the axis by more than ``contact_mm``."""
+    if fa.convex == fb.convex or overlap <= tol.contact_mm:
+        return False
+    shaft, bore = (ra, rb) if fa.convex else (rb, ra)
+    return bore - shaft >= -tol.fit_radius_mm - SLACK
 
 
 def _kind(f: AxisFace) -> str:
-    return "shaft" if f.convex else "hole"
-
-
-def _fit(fa: AxisFace, fb: AxisFace, overlap: float, tol: Tolerances) -> tuple[str, float]:
-    """("fit" | "nested" | "aligned", radial gap mm) of two coaxial faces."""
-    if fa.convex == fb.convex:
-        return ALIGNED, abs(fa.radius - fb.radius)
-    shaft, bore = (fa, fb) if fa.convex else (fb, fa)
-    radial = bore.radius - shaft.radius
-    if overlap <= tol.contact_mm or radial < -tol.coaxial_mm:
-        return ALIGNED, abs(radial)  # abutting, or a boss beside a smaller hole
-    return (FIT if radial <= tol.fit_clearance_mm + SLACK else NESTED), max(radial, 0.0)
+    return f"{'shaft' if f.convex else 'hole'} {f.kind}"
 
 
 # ---------------------------------------------------------------- coincident
 
 
-def _coincident_rows(a: PartGeometry, b: PartGeometry, tol: Tolerances) -> list[Row]:
+def _coincident_mates(a: PartGeometry, b: PartGeometry, tol: Tolerances) -> list[_FaceMate]:
     """Planar faces of two parts in contact: opposite normals, planes close, positive overlap."""
     if not len(a.plane_ids) or not len(b.plane_ids):
         return []
@@ -288,21 +350,23 @@ def _coincident_rows(a: PartGeometry, b: PartGeometry, tol: Tolerances) -> list[
     offset = np.maximum(np.abs(along), np.abs(np.einsum("ijk,jk->ij", rel, b.normals)))
     inplane = np.linalg.norm(rel - along[..., None] * a.normals[:, None, :], axis=2)
     near = inplane <= a.reach[:, None] + b.reach[None, :] + tol.contact_mm
-    rows = []
+    mates = []
     for k, m in zip(*np.nonzero(opposed & (offset <= tol.contact_mm + SLACK) & near),
                     strict=True):
         area, centre = face_overlap(a.faces[a.plane_ids[k]], b.faces[b.plane_ids[m]],
-                                a.normals[k], a.centres[k], b.normals[m], b.centres[m])
+                                    a.normals[k], a.centres[k], b.normals[m], b.centres[m],
+                                    tol.overlap_fuzzy_mm)
         if area <= tol.min_overlap_mm2:
             continue
         angle = math.degrees(math.acos(min(1.0, -float(cos[k, m]))))
-        rows.append(_row(
+        row = _row(
             a, b, "face", Relation.COINCIDENT.value, face_a=a.plane_ids[k],
             face_b=b.plane_ids[m], axis=a.normals[k], origin=centre,
             distance_mm=float(offset[k, m]), angle_deg=angle, overlap_area_mm2=area,
             evidence=f"planar faces {a.plane_ids[k]} / {b.plane_ids[m]} face to face, "
-                     f"{offset[k, m]:.4f} mm apart, overlap {area:.3f} mm^2"))
-    return rows
+                     f"{offset[k, m]:.4f} mm apart, overlap {area:.3f} mm^2")
+        mates.append(_FaceMate(row, (Constraint(PLANE_CONTACT, a.normals[k], centre),), True))
+    return mates
 
 
 # ---------------------------------------------------------------- part level
@@ -358,31 +422,23 @@ def _largest_principal_face(f: Features) -> int:
 # ---------------------------------------------------------------- joints and the table
 
 
-def _joint_rows(parts: list[PartGeometry], rows: list[Row], tol: Tolerances) -> list[Row]:
-    """One joint row per pair with at least one coincident contact or concentric fit."""
+def _joint_rows(parts: list[PartGeometry], mates: list[_FaceMate], tol: Tolerances) -> list[Row]:
+    """One joint row per pair with at least one coincident contact or shaft in a bore."""
     by_pair: dict[tuple[int, int], list[Constraint]] = {}
-    for r in rows:
-        if r["level"] != "face":
-            continue
-        if r["relation"] == Relation.COINCIDENT.value:
-            kind = PLANE_CONTACT
-        elif r["relation"] == Relation.CONCENTRIC.value and r["fit"] == FIT:
-            kind = AXIS
-        else:
-            continue
-        c = Constraint(kind, np.array(r["axis"]), np.array(r["origin"]))
-        by_pair.setdefault((r["index_a"], r["index_b"]), []).append(c)
+    for m in mates:
+        if m.constraints:
+            by_pair.setdefault((m.row["index_a"], m.row["index_b"]), []).extend(m.constraints)
     out = []
     for (i, j), constraints in sorted(by_pair.items()):
         a, b = parts[i], parts[j]
         joint = derive_joint(constraints, (a.name, b.name), tol)
         assert joint is not None
-        n_fit = sum(c.kind == AXIS for c in constraints)
+        n_axis = sum(c.kind == AXIS for c in constraints)
         out.append(_row(
             a, b, "joint", joint.suggested, axis=joint.axis, origin=joint.origin,
             kinematic=joint.kinematic, dof=joint.dof, **joint.cad_names(),
-            evidence=f"{joint.reason}; from {len(constraints) - n_fit} coincident contacts "
-                     f"and {n_fit} fits"))
+            evidence=f"{joint.reason}; from {len(constraints) - n_axis} planar contacts "
+                     f"and {n_axis} shafts in bores"))
     return out
 
 
