@@ -208,7 +208,7 @@ def stage_scene(parts: list[PlacedPart], cfg: CaptureConfig) -> StagedScene:
 
 
 @dataclass(frozen=True)
-class _Pixels:
+class PixelGrid:
     """Per-pixel camera-frame ray directions (x/z, y/z, z = 1), flattened row-major, and the
     inverse length of each, precomputed once per camera (a matmul over (n, 3) is slow in numpy,
     column arithmetic is ~10x faster)."""
@@ -225,13 +225,14 @@ def pixel_directions(k: CameraIntrinsics) -> npt.NDArray[np.float64]:
     return d.reshape(-1, 3)
 
 
-def _pixels(k: CameraIntrinsics) -> _Pixels:
+def pixel_grid(k: CameraIntrinsics) -> PixelGrid:
+    """The camera's per-pixel directions, as ``camera_rays`` takes them."""
     d = pixel_directions(k)
-    return _Pixels(d[:, 0].astype(np.float32), d[:, 1].astype(np.float32),
-                   (1.0 / np.linalg.norm(d, axis=1)).astype(np.float32))
+    return PixelGrid(d[:, 0].astype(np.float32), d[:, 1].astype(np.float32),
+                     (1.0 / np.linalg.norm(d, axis=1)).astype(np.float32))
 
 
-def camera_rays(w2c: FloatArray, px: _Pixels) -> npt.NDArray[np.float32]:
+def camera_rays(w2c: FloatArray, px: PixelGrid) -> npt.NDArray[np.float32]:
     """(n, 6) float32 rays: camera centre and world directions whose camera z is 1, so a
     ray's hit distance is the pixel's z-depth in metres."""
     rot_cw = w2c[:3, :3].T.astype(np.float32)
@@ -259,7 +260,7 @@ def _shade(staged: StagedScene, cfg: CaptureConfig, gid: Any, ndotv: Any, ndotke
     return rgb
 
 
-def _cast(staged: StagedScene, rays: npt.NDArray[np.float32], px: _Pixels) -> dict[str, Any]:
+def _cast(staged: StagedScene, rays: npt.NDArray[np.float32], px: PixelGrid) -> dict[str, Any]:
     """Cast rays; t (z-depth), geometry ids, and cosines of the surface normal with the unit
     view direction and with the key light."""
     ans = staged.scene.cast_rays(o3d.core.Tensor.from_numpy(rays))
@@ -271,7 +272,7 @@ def _cast(staged: StagedScene, rays: npt.NDArray[np.float32], px: _Pixels) -> di
             "ndotkey": ndotkey}
 
 
-def _render(staged: StagedScene, cfg: CaptureConfig, px: _Pixels, view: int) -> RgbdFrame:
+def _render(staged: StagedScene, cfg: CaptureConfig, px: PixelGrid, view: int) -> RgbdFrame:
     k = camera_intrinsics(cfg)
     w2c = camera_pose(cfg, view, staged.centre_m)
     c = _cast(staged, camera_rays(w2c, px), px)
@@ -308,7 +309,7 @@ def render_views(parts: list[PlacedPart], cfg: CaptureConfig | None = None,
     """
     cfg = cfg or CaptureConfig()
     staged = stage_scene(parts, cfg)
-    px = _pixels(camera_intrinsics(cfg))
+    px = pixel_grid(camera_intrinsics(cfg))
     for view in range(cfg.n_views) if views is None else views:
         yield _render(staged, cfg, px, view)
 
