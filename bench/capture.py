@@ -5,8 +5,8 @@ Renders a pair scene (a box and a finely tessellated cylinder, the paper's 640x4
 open3d ``cast_rays`` of the very rays the renderer casts (built with its ``camera_rays`` before
 each call's clock starts) on the same freshly staged ``RaycastingScene``, nothing else. The three
 run interleaved in one process and the best of the repeats counts, so the ratios hold on a
-shared machine. Then writes the views as MCAP (16UC1 depth, zstd) and reports bytes per view.
-Runs in about a minute.
+shared machine; wall time and process CPU time (all threads) per frame are both reported. Then
+writes the views as MCAP (16UC1 depth, zstd) and reports bytes per view. Runs in about a minute.
 
 Usage: ``.venv/bin/python bench/capture.py [--views 60] [--repeats 5]``
 """
@@ -54,26 +54,43 @@ def pair_scene() -> list[PlacedPart]:
     ]
 
 
-def time_render(parts: list[PlacedPart], cfg: CaptureConfig) -> float:
-    """Seconds to render every view of ``cfg`` (staging included)."""
-    start = time.perf_counter()
-    for _ in render_views(parts, cfg):
-        pass
-    return time.perf_counter() - start
+class Clock:
+    """Wall and process CPU seconds (all threads: open3d's, the renderer's worker) of a run.
+
+    CPU time per frame is the cost that holds when the cores are busy with other work, where
+    wall-time ratios say more about the scheduler than about the code."""
+
+    def __init__(self) -> None:
+        self.wall = self.cpu = 0.0
+
+    def __enter__(self) -> Clock:
+        self._start = (time.perf_counter(), time.process_time())
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.wall += time.perf_counter() - self._start[0]
+        self.cpu += time.process_time() - self._start[1]
 
 
-def time_bare_open3d(parts: list[PlacedPart], cfg: CaptureConfig) -> float:
-    """Seconds open3d's ``cast_rays`` takes on each view's rays, on a freshly staged scene (so
-    the BVH build on the first cast counts, as it does for ``render_views``)."""
+def time_render(parts: list[PlacedPart], cfg: CaptureConfig) -> Clock:
+    """Every view of ``cfg`` (staging included)."""
+    with Clock() as clock:
+        for _ in render_views(parts, cfg):
+            pass
+    return clock
+
+
+def time_bare_open3d(parts: list[PlacedPart], cfg: CaptureConfig) -> Clock:
+    """open3d's ``cast_rays`` alone on each view's rays, on a freshly staged scene (so the BVH
+    build on the first cast counts, as it does for ``render_views``)."""
     staged = stage_scene(parts, cfg)
     grid = pixel_grid(camera_intrinsics(cfg))
-    seconds = 0.0
+    clock = Clock()
     for view in range(cfg.n_views):
         rays = camera_rays(camera_pose(cfg, view, staged.centre_m), grid)
-        start = time.perf_counter()
-        staged.scene.cast_rays(o3d.core.Tensor.from_numpy(rays))
-        seconds += time.perf_counter() - start
-    return seconds
+        with clock:
+            staged.scene.cast_rays(o3d.core.Tensor.from_numpy(rays))
+    return clock
 
 
 def check_same_rays(parts: list[PlacedPart], cfg: CaptureConfig, view: int) -> None:
@@ -94,17 +111,33 @@ def mcap_bytes_per_view(parts: list[PlacedPart], cfg: CaptureConfig, folder: Pat
     return path.stat().st_size / n
 
 
-def best_seconds(parts: list[PlacedPart], cfgs: dict[str, CaptureConfig],
-                 repeats: int) -> dict[str, float]:
-    """Best of ``repeats`` interleaved runs of the floor and of ``render_views`` per config: the
-    machine is shared, so the minimum is the honest figure, and interleaving exposes all three
-    to the same load."""
-    best = {"floor": np.inf, **{name: np.inf for name in cfgs}}
+def best_of(parts: list[PlacedPart], cfgs: dict[str, CaptureConfig],
+            repeats: int) -> dict[str, tuple[float, float]]:
+    """Least wall and least CPU seconds of ``repeats`` interleaved runs of the floor and of
+    ``render_views`` per config: the machine is shared, so the minimum is the honest figure, and
+    interleaving exposes all three to the same load."""
+    best = {name: (np.inf, np.inf) for name in ("floor", *cfgs)}
     for _ in range(repeats):
-        best["floor"] = min(best["floor"], time_bare_open3d(parts, cfgs["noise off"]))
-        for name, cfg in cfgs.items():
-            best[name] = min(best[name], time_render(parts, cfg))
+        runs = {"floor": time_bare_open3d(parts, cfgs["noise off"])}
+        runs |= {name: time_render(parts, cfg) for name, cfg in cfgs.items()}
+        for name, run in runs.items():
+            best[name] = (min(best[name][0], run.wall), min(best[name][1], run.cpu))
     return best
+
+
+def print_table(best: dict[str, tuple[float, float]], views: int, rays: int) -> None:
+    labels = {"floor": "bare cast_rays (floor)", "noise off": "render_views, noise off",
+              "noise on": "render_views, noise on"}
+    floor_wall, floor_cpu = best["floor"]
+    print(f"{'':26s}{'fps':>8s}{'Mrays/s':>10s}{'of floor':>10s}{'cpu ms/frame':>14s}"
+          f"{'of floor':>10s}")
+    for name, (wall, cpu) in best.items():
+        print(f"{labels[name]:26s}{views / wall:8.1f}{rays / wall / 1e6:10.2f}"
+              f"{floor_wall / wall:10.0%}{cpu / views * 1e3:14.2f}{floor_cpu / cpu:10.0%}")
+    on, off = best["noise on"], best["noise off"]
+    print(f"render_views with noise on = {floor_wall / on[0]:.0%} of bare cast_rays (noise off: "
+          f"{floor_wall / off[0]:.0%}); in CPU time {floor_cpu / on[1]:.0%} (noise off: "
+          f"{floor_cpu / off[1]:.0%})")
 
 
 def main() -> None:
@@ -117,19 +150,11 @@ def main() -> None:
             "noise on": CaptureConfig(n_views=args.views, noise=NoiseConfig())}
     off = cfgs["noise off"]
     check_same_rays(parts, off, view=args.views // 3)
-    rays = off.width * off.height * args.views
     triangles = sum(len(p.mesh.triangles) for p in parts)
     print(f"pair scene: {triangles} triangles + support plane, {off.width}x{off.height}, "
           f"{args.views} views, best of {args.repeats}, open3d {o3d.__version__}")
-    best = best_seconds(parts, cfgs, args.repeats)
-    labels = {"floor": "bare cast_rays (floor)", "noise off": "render_views, noise off",
-              "noise on": "render_views, noise on"}
-    print(f"{'':26s}{'fps':>8s}{'Mrays/s':>10s}{'of floor':>10s}")
-    for name, seconds in best.items():
-        print(f"{labels[name]:26s}{args.views / seconds:8.1f}{rays / seconds / 1e6:10.2f}"
-              f"{best['floor'] / seconds:10.0%}")
-    print(f"render_views with noise on = {best['floor'] / best['noise on']:.0%} of bare cast_rays "
-          f"(noise off: {best['floor'] / best['noise off']:.0%})")
+    print_table(best_of(parts, cfgs, args.repeats), args.views,
+                off.width * off.height * args.views)
     with tempfile.TemporaryDirectory() as tmp:
         for name, cfg in cfgs.items():
             size = mcap_bytes_per_view(parts, cfg, Path(tmp))
