@@ -9,6 +9,7 @@ import numpy as np
 import open3d as o3d
 import pytest
 from scipy import stats
+from scipy.ndimage import binary_dilation
 
 from cadio.capture.noise import NoiseConfig, apply_noise
 from cadio.capture.render import (
@@ -265,3 +266,26 @@ def test_random_dropout_and_wider_edges_drop_their_share() -> None:
     wide = apply_noise(depth, np.ones_like(depth), NoiseConfig(edge_width_px=3), view=0)
     assert np.flatnonzero(np.all(wide == 0, axis=0)).tolist() == list(range(297, 303))
     assert np.all(wide[:, :297] > 0) and np.all(wide[:, 303:] > 0)
+
+
+def reference_edges(depth: np.ndarray, jump_m: float, width_px: int) -> np.ndarray:
+    """Depth edges in plain numpy: pixels beside a jump over ``jump_m`` (a miss is far away),
+    dilated by the 4-neighbour cross ``width_px - 1`` times."""
+    z = np.where(depth > 0, depth, np.float32(1e6))
+    edge = np.zeros(depth.shape, dtype=bool)
+    rows, cols = np.abs(np.diff(z, axis=0)) > jump_m, np.abs(np.diff(z, axis=1)) > jump_m
+    edge[1:] |= rows
+    edge[:-1] |= rows
+    edge[:, 1:] |= cols
+    edge[:, :-1] |= cols
+    return binary_dilation(edge, iterations=width_px - 1) if width_px > 1 else edge
+
+
+@pytest.mark.parametrize("width_px", [1, 2, 4])
+def test_depth_edges_match_a_numpy_reference(width_px: int) -> None:
+    rng = np.random.default_rng(width_px)
+    blocks = rng.choice([0.0, 0.9, 0.91, 1.5], size=(12, 16)).astype(np.float32)
+    depth = np.kron(blocks, np.ones((7, 9), dtype=np.float32))  # 84 x 144, steps and holes
+    noisy = apply_noise(depth, np.ones_like(depth), NoiseConfig(edge_width_px=width_px), view=0)
+    expected_missing = reference_edges(depth, 0.02, width_px) | (depth == 0)
+    assert np.array_equal(noisy == 0, expected_missing)

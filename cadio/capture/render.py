@@ -34,7 +34,7 @@ import numpy as np
 import numpy.typing as npt
 import open3d as o3d
 
-from cadio.capture.noise import NoiseConfig, apply_noise
+from cadio.capture.noise import NoiseConfig, measure_depth, sensor_model, sensor_rng
 from cadio.records import CameraIntrinsics, FloatArray, Mesh, RgbdFrame, apply_pose
 
 Colour = str | tuple[float, float, float]
@@ -260,7 +260,7 @@ _jit = numba.njit(nogil=True, cache=True)
 @_jit
 def _fill_rays(x: Any, y: Any, rot_cw: Any, eye: Any, rays: Any) -> None:
     """rays[p] = eye, ``_direction(p)``; rays (n, 6) C-contiguous, written through a flat view
-    (which the compiler vectorises, 5x faster than 2-d indexing)."""
+    with the row offset in a variable (5x faster than 2-d indexing or an inline offset)."""
     flat = rays.reshape(-1)
     for p in range(len(x)):
         row = 6 * p
@@ -285,12 +285,13 @@ def _shade_pixels(hit: Any, px: Any, rot_cw: Any, tables: Any, light: Any, out: 
     hit: open3d's (t_hit, geometry ids as int32, primitive normals); px: the grid's (x, y,
     inv_norm); tables: (instance_of, shade_table, background); light: float32 (key x, y, z,
     headlight weight, key weight, offset), weights and offset in light levels; out: (depth,
-    cos, instance, colour).
+    cos, instance, colour), (h, w) images.
     """
     t, gid, normal = hit
     x, y, inv_norm = px
     instance_of, shade_table, background = tables
-    depth, cos, instance, colour = out
+    depth, cos, instance = out[0].reshape(-1), out[1].reshape(-1), out[2].reshape(-1)
+    colour = out[3].reshape((len(t), 3))
     top = np.float32(_LEVELS - 0.5)
     for p in range(len(t)):
         g = gid[p]
@@ -339,26 +340,34 @@ def _cast(staged: StagedScene, cfg: CaptureConfig, px: PixelGrid, view: int,
                              ans["primitive_normals"].numpy()))
 
 
+@_jit
+def _shade_and_measure(hit: Any, px: Any, rot_cw: Any, tables: Any, light: Any, out: Any,
+                       model: Any, rng: Any, measured: Any) -> None:
+    """``_shade_pixels``, then the sensor model on its depth into ``measured`` (h, w): one call
+    without the GIL, so all of a frame's pixel work overlaps the next view's ray cast."""
+    _shade_pixels(hit, px, rot_cw, tables, light, out)
+    measure_depth(out[0], out[1], model, rng, measured)
+
+
 def _frame(staged: StagedScene, cfg: CaptureConfig, px: PixelGrid, c: _Cast) -> RgbdFrame:
-    """The frame of a cast view: shading, then the sensor model (runs on the worker thread)."""
+    """The frame of a cast view (runs on the worker thread)."""
     k = camera_intrinsics(cfg)
-    n = k.width * k.height
-    out = (np.empty(n, np.float32), np.empty(n, np.float32), np.empty(n, np.int32),
-           np.empty((n, 3), np.uint8))
-    tables = (staged.instance_of, staged.shade_table, np.asarray(cfg.background, np.uint8))
-    _shade_pixels(c.hit, (px.x, px.y, px.inv_norm), _camera_axes(c.w2c)[0], tables,
-                  _light(cfg.ambient), out)
     shape = (k.height, k.width)
-    depth, cos = out[0].reshape(shape), out[1].reshape(shape)
-    if cfg.noise is not None:
-        depth = apply_noise(depth, cos, cfg.noise, c.view)
+    out = (np.empty(shape, np.float32), np.empty(shape, np.float32), np.empty(shape, np.int32),
+           np.empty((*shape, 3), np.uint8))
+    tables = (staged.instance_of, staged.shade_table, np.asarray(cfg.background, np.uint8))
+    pixels = (c.hit, (px.x, px.y, px.inv_norm), _camera_axes(c.w2c)[0], tables,
+              _light(cfg.ambient), out)
+    depth = out[0]
+    if cfg.noise is None:
+        _shade_pixels(*pixels)
+    else:
+        depth = np.empty(shape, np.float32)
+        _shade_and_measure(*pixels, sensor_model(cfg.noise), sensor_rng(cfg.noise, c.view), depth)
     meta = {**staged.meta, "view_index": c.view, "azimuth_deg": view_azimuth_deg(cfg, c.view),
             "elevation_deg": cfg.elevation_deg, "noise": cfg.noise is not None}
-    return RgbdFrame(
-        timestamp_ns=c.view * cfg.frame_period_ns, intrinsics=k,
-        colour=out[3].reshape(*shape, 3), depth=depth, world_to_camera=c.w2c,
-        instance=out[2].reshape(shape), meta=meta,
-    )
+    return RgbdFrame(timestamp_ns=c.view * cfg.frame_period_ns, intrinsics=k, colour=out[3],
+                     depth=depth, world_to_camera=c.w2c, instance=out[2], meta=meta)
 
 
 _In = TypeVar("_In")
