@@ -8,13 +8,17 @@ import math
 import numpy as np
 import open3d as o3d
 import pytest
+from scipy import stats
+from scipy.ndimage import binary_dilation
 
-from cadio.capture.noise import NoiseConfig
+from cadio.capture.noise import NoiseConfig, apply_noise
 from cadio.capture.render import (
     CaptureConfig,
     PlacedPart,
     camera_intrinsics,
     camera_pose,
+    camera_rays,
+    pixel_grid,
     render_view,
     render_views,
     scene_bounds_mm,
@@ -106,6 +110,19 @@ def test_cube_projects_where_expected_with_z_depth() -> None:
     assert np.all(frame.depth[~face] == 0) and np.all(frame.instance[~face] == 0)
 
 
+def test_rays_are_the_float32_pinhole_directions() -> None:
+    # Depth is t_hit of these very rays: their bits are part of the output.
+    cfg = CaptureConfig(width=64, height=48)
+    px = pixel_grid(camera_intrinsics(cfg))
+    w2c = camera_pose(cfg, 7, np.array([0.1, -0.2, 0.05]))
+    rot = w2c[:3, :3].T.astype(np.float32)
+    eye = (-w2c[:3, :3].T @ w2c[:3, 3]).astype(np.float32)
+    rays = camera_rays(w2c, px)
+    for i in range(3):
+        assert np.all(rays[:, i] == eye[i])
+        assert np.array_equal(rays[:, 3 + i], px.x * rot[i, 0] + px.y * rot[i, 1] + rot[i, 2])
+
+
 def test_views_render_lazily_and_stamp_their_meta() -> None:
     cfg = CaptureConfig(n_views=4, start_deg=10.0, step_deg=90.0, width=64, height=48)
     gen = render_views(cube_scene(), cfg)
@@ -116,6 +133,17 @@ def test_views_render_lazily_and_stamp_their_meta() -> None:
     assert [f.timestamp_ns for f in frames] == [0, 10**8, 2 * 10**8, 3 * 10**8]
     (only,) = render_views(cube_scene(), cfg, views=[2])
     assert np.array_equal(only.depth, frames[2].depth)
+
+
+def test_views_cast_ahead_are_the_views_rendered_alone() -> None:
+    cfg = CaptureConfig(n_views=3, width=64, height=48, noise=NoiseConfig())
+    for frame in render_views(pair_scene(), cfg):
+        alone = render_view(pair_scene(), cfg, frame.meta["view_index"])
+        for name in ("depth", "colour", "instance", "world_to_camera"):
+            assert np.array_equal(getattr(frame, name), getattr(alone, name))
+    gen = render_views(pair_scene(), cfg)
+    next(gen)
+    gen.close()  # with the next view in flight: waits for it, raises nothing
 
 
 def test_scene_is_scaled_to_the_target_size() -> None:
@@ -196,3 +224,68 @@ def test_noise_drops_grazing_angles_and_depth_edges() -> None:
     jump = np.zeros(clean.depth.shape, dtype=bool)
     jump[:, 1:] |= np.abs(np.diff(clean.depth, axis=1)) > 0.05
     assert jump.sum() > 50 and np.all(noisy.depth[jump] == 0)
+
+
+def two_walls(near_m: float = 0.8, far_m: float = 2.5) -> np.ndarray:
+    """(400, 600) depth: a wall at ``near_m`` on the left half and one at ``far_m`` on the right,
+    both seen head-on (cos incidence 1); one depth discontinuity, between columns 299 and 300."""
+    depth = np.full((400, 600), near_m, dtype=np.float32)
+    depth[:, 300:] = far_m
+    return depth
+
+
+def test_noise_is_unbiased_and_normal_with_sigma_growing_as_depth_squared() -> None:
+    noise = NoiseConfig(sigma_base_m=0.0005, sigma_quadratic_per_m=0.0012, quantisation_m=0.0)
+    depth = two_walls()
+    noisy = apply_noise(depth, np.ones_like(depth), noise, view=4)
+    for z, side in ((0.8, np.s_[:, :299]), (2.5, np.s_[:, 301:])):
+        residual = noisy[side].astype(np.float64) - z
+        sigma = noise.sigma_base_m + noise.sigma_quadratic_per_m * z**2
+        assert residual.size > 100_000
+        assert np.std(residual) == pytest.approx(sigma, rel=0.02)
+        assert abs(np.mean(residual)) < 4 * sigma / math.sqrt(residual.size)
+        assert stats.kstest(residual.ravel() / sigma, "norm").pvalue > 1e-3
+
+
+def test_noise_draws_are_independent_per_pixel_and_per_view() -> None:
+    noise = NoiseConfig(quantisation_m=0.0)
+    depth = np.full((300, 400), 1.6, dtype=np.float32)
+    cos = np.ones_like(depth)
+    first, second = (apply_noise(depth, cos, noise, view) for view in (0, 1))
+    assert np.array_equal(apply_noise(depth, cos, noise, 0), first)
+    a, b = (noisy.astype(np.float64) - 1.6 for noisy in (first, second))
+    bound = 5 / math.sqrt(depth.size)  # |correlation| of independent draws: ~1 / sqrt(n)
+    for x, y in ((a, b), (a[:, 1:], a[:, :-1]), (a[1:], a[:-1])):
+        assert abs(np.corrcoef(x.ravel(), y.ravel())[0, 1]) < bound
+
+
+def test_random_dropout_and_wider_edges_drop_their_share() -> None:
+    depth = two_walls()
+    noisy = apply_noise(depth, np.ones_like(depth), NoiseConfig(dropout=0.1), view=0)
+    assert np.mean(noisy[:, :299] == 0) == pytest.approx(0.1, abs=0.005)
+    wide = apply_noise(depth, np.ones_like(depth), NoiseConfig(edge_width_px=3), view=0)
+    assert np.flatnonzero(np.all(wide == 0, axis=0)).tolist() == list(range(297, 303))
+    assert np.all(wide[:, :297] > 0) and np.all(wide[:, 303:] > 0)
+
+
+def reference_edges(depth: np.ndarray, jump_m: float, width_px: int) -> np.ndarray:
+    """Depth edges in plain numpy: pixels beside a jump over ``jump_m`` (a miss is far away),
+    dilated by the 4-neighbour cross ``width_px - 1`` times."""
+    z = np.where(depth > 0, depth, np.float32(1e6))
+    edge = np.zeros(depth.shape, dtype=bool)
+    rows, cols = np.abs(np.diff(z, axis=0)) > jump_m, np.abs(np.diff(z, axis=1)) > jump_m
+    edge[1:] |= rows
+    edge[:-1] |= rows
+    edge[:, 1:] |= cols
+    edge[:, :-1] |= cols
+    return binary_dilation(edge, iterations=width_px - 1) if width_px > 1 else edge
+
+
+@pytest.mark.parametrize("width_px", [1, 2, 4])
+def test_depth_edges_match_a_numpy_reference(width_px: int) -> None:
+    rng = np.random.default_rng(width_px)
+    blocks = rng.choice([0.0, 0.9, 0.91, 1.5], size=(12, 16)).astype(np.float32)
+    depth = np.kron(blocks, np.ones((7, 9), dtype=np.float32))  # 84 x 144, steps and holes
+    noisy = apply_noise(depth, np.ones_like(depth), NoiseConfig(edge_width_px=width_px), view=0)
+    expected_missing = reference_edges(depth, 0.02, width_px) | (depth == 0)
+    assert np.array_equal(noisy == 0, expected_missing)
