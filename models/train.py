@@ -35,12 +35,13 @@ from models.checkpoint import (
     state_copy,
 )
 from models.completion import CompletionConfig, Critic, Generator, gradient_penalty, voxel_loss
-from models.data import Batch, CompletionDataset, eval_batches, training_batch
+from models.data import Batch, CompletionDataset, Example, eval_batches, training_batch
 
 logger = logging.getLogger(__name__)
 
 METHODS = ("gan_lstm", "ae", "r2n2")
 Model = Generator | R2N2
+Data = CompletionDataset | Sequence[Example]
 
 
 def config_for(method: str, **overrides: Any) -> Config:
@@ -225,8 +226,7 @@ class _Run:
                  val: CompletionDataset | None, info: dict[str, Any]) -> None:
         self.learner, self.cfg, self.info = learner, learner.cfg, info
         self.train, self.counts = train, train.view_counts()
-        self.val = val if val else None
-        self.val_counts = val.view_counts() if val else []
+        self.val, self.val_counts = val, val.view_counts() if val else []
         self.start, self.clock = 0, time.perf_counter()
         self.losses: list[dict[str, float]] = []
         self.history: list[dict[str, float]] = []
@@ -285,15 +285,19 @@ def _resume_state(resume: Mapping[str, Any] | Path | str, cfg: Config) -> Checkp
     return ckpt
 
 
-def _check_data(cfg: Config, *datasets: CompletionDataset | None) -> None:
-    for data in datasets:
-        if data is not None and len(data) and (data.n_in, data.n_out) != (cfg.n_in, cfg.n_out):
-            raise ValueError(f"data grids {data.n_in} -> {data.n_out} differ from the config's "
-                             f"{cfg.n_in} -> {cfg.n_out}")
+def _dataset(data: Data | None, cfg: Config) -> CompletionDataset | None:
+    """``data`` as a dataset on the config's grids (None or empty: None)."""
+    if data is None or not len(data):
+        return None
+    data = data if isinstance(data, CompletionDataset) else CompletionDataset(data)
+    if (data.n_in, data.n_out) != (cfg.n_in, cfg.n_out):
+        raise ValueError(f"data grids {data.n_in} -> {data.n_out} differ from the config's "
+                         f"{cfg.n_in} -> {cfg.n_out}")
+    return data
 
 
-def train_completion(cfg: Config, train_data: CompletionDataset,
-                     val_data: CompletionDataset | None, device: torch.device | str = "cpu",
+def train_completion(cfg: Config, train_data: Data, val_data: Data | None,
+                     device: torch.device | str = "cpu",
                      steps: int = 1000, progress: Callable[[TrainEvent], None] | None = None,
                      resume: Mapping[str, Any] | Path | str | None = None,
                      data_info: Mapping[str, Any] | None = None) -> TrainResult:
@@ -301,8 +305,9 @@ def train_completion(cfg: Config, train_data: CompletionDataset,
 
     Args:
         cfg: ``config_for(method)``, possibly with overrides: the method follows from it.
-        train_data, val_data: examples on the cfg's grids; no validation when None or empty
-            (the best checkpoint is then the last epoch's).
+        train_data, val_data: a ``CompletionDataset`` or a list of ``Example`` on the cfg's
+            grids; no validation when val_data is None or empty (the best checkpoint is then
+            the last epoch's).
         device: where to train ("cpu", "cuda").
         steps: total generator steps; a resumed run continues from its snapshot's step.
         progress: called after every step with a ``TrainEvent``.
@@ -314,13 +319,15 @@ def train_completion(cfg: Config, train_data: CompletionDataset,
         A ``TrainResult``: best model and checkpoint, resumable last checkpoint, history.
 
     Raises:
-        ValueError: grids differ from cfg, examples lack the views the model reads, a resume
-            snapshot of another config or without training state.
+        ValueError: no training examples, grids differ from cfg, examples lack the views the
+            model reads, a resume snapshot of another config or without training state.
     """
-    _check_data(cfg, train_data, val_data)
-    info = {"train": len(train_data), "val": len(val_data or ()), **(data_info or {})}
+    train, val = _dataset(train_data, cfg), _dataset(val_data, cfg)
+    if train is None:
+        raise ValueError("no training examples")
+    info = {"train": len(train), "val": len(val or ()), **(data_info or {})}
     with seeded(cfg.seed):
-        run = _Run(Learner(cfg, torch.device(device)), train_data, val_data, info)
+        run = _Run(Learner(cfg, torch.device(device)), train, val, info)
         if resume is not None:
             run.restore(_resume_state(resume, cfg))
         for step in range(run.start, steps):

@@ -14,6 +14,7 @@ from models.checkpoint import (
     FORMAT,
     build_model,
     load_checkpoint,
+    model_card,
     model_from_checkpoint,
     save_checkpoint,
 )
@@ -106,6 +107,7 @@ def test_checkpoint_round_trip_reproduces_predictions(method: str, parts: Comple
     assert raw["data"] == {"train": 6, "val": 6, "source": "synthetic"}
     assert raw["step"] == 2 and "val_iou" in raw["metrics"] and "+" in raw["code_version"]
     assert "train_state" not in raw  # the shipped checkpoint holds no optimiser
+    assert f"# {method} completion model" in model_card(raw, "make train")
     loaded = model_from_checkpoint(load_checkpoint(path))
     same = predict(loaded, parts, n_views=2) == predict(result.model, parts, n_views=2)
     assert same.all()
@@ -128,11 +130,12 @@ def test_resume_repeats_the_uninterrupted_losses(method: str, parts: CompletionD
 
 
 def test_resume_refuses_another_config_or_a_shipped_checkpoint(parts: CompletionDataset) -> None:
-    result = train_completion(small("ae"), parts, None, steps=1)
+    examples = [parts.example(i) for i in range(3)]  # a plain list of examples works too
+    result = train_completion(small("ae"), examples, None, steps=1)
     with pytest.raises(ValueError, match="another config"):
-        train_completion(small("ae", lr=1e-3), parts, None, steps=2, resume=result.last)
+        train_completion(small("ae", lr=1e-3), examples, None, steps=2, resume=result.last)
     with pytest.raises(ValueError, match="train_state"):
-        train_completion(small("ae"), parts, None, steps=2, resume=result.checkpoint)
+        train_completion(small("ae"), examples, None, steps=2, resume=result.checkpoint)
 
 
 def test_wrong_shapes_raise_value_errors_naming_the_shape(parts: CompletionDataset) -> None:
