@@ -133,8 +133,10 @@ class Learner:
         self.model.train()
         x = batch.model_input(self.model.input_key)
         observed = batch.inputs.amax(1, keepdim=True)  # (B, 1, n_in^3) the critic's condition
-        losses = self._critic_steps(x, observed, batch.target, step) if self.critic else {}
         logits = self.model(x)  # (B, 1, n_out^3)
+        # The critic learns on this very forward pass, detached, then judges it once updated.
+        fake = torch.sigmoid(logits).detach()
+        losses = self._critic_steps(observed, batch.target, fake, step) if self.critic else {}
         ce = voxel_loss(logits, batch.target, self.cfg.w_occupied, self.cfg.w_empty)
         total = ce
         if self.critic is not None:
@@ -149,13 +151,11 @@ class Learner:
         self.opt_g.step()
         return {"loss": total.item(), "ce": ce.item(), **losses}
 
-    def _critic_steps(self, x: Tensor, observed: Tensor, real: Tensor,
+    def _critic_steps(self, observed: Tensor, real: Tensor, fake: Tensor,
                       step: int) -> dict[str, float]:
         """WGAN-GP critic updates on this batch: mean D(fake) - D(real) + lambda GP."""
         cfg, critic = self.cfg, self.critic
         assert critic is not None and isinstance(cfg, CompletionConfig)
-        with torch.no_grad():
-            fake = torch.sigmoid(self.model(x))  # (B, 1, n_out^3)
         gen = _step_generator(cfg.seed, step)
         out: dict[str, float] = {}
         for k in range(cfg.critic_steps):
