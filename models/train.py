@@ -361,7 +361,11 @@ def predict(model: Model, data: CompletionDataset | Sequence[np.ndarray] | np.nd
     model.eval()
     device = next(model.parameters()).device
     if isinstance(data, CompletionDataset):
-        items = [getattr(data.example(i), model.input_key)[:n_views] for i in range(len(data))]
+        fields = [getattr(data.example(i), model.input_key) for i in range(len(data))]
+        if any(f is None for f in fields):
+            raise ValueError(f"the examples carry no {model.input_key!r} views, which "
+                             f"{type(model).__name__} reads")
+        items = [f[:n_views] for f in fields]
     else:
         items = [np.asarray(x)[:n_views] for x in data]
     m = model.cfg.n_out
