@@ -163,3 +163,23 @@ def load_checkpoint(path: Path | str) -> Checkpoint:
     if missing:
         raise CheckpointError(path, f"missing keys {missing}")
     return ckpt
+
+
+def model_card(ckpt: Mapping[str, Any], command: str = "") -> str:
+    """A short Markdown model card: method, config, size, metrics, data, code version, command."""
+    n = sum(v.numel() for v in ckpt["state_dict"].values())
+    lines = [f"# {ckpt['method']} completion model", "",
+             f"- step {ckpt['step']}, {n:,} weights ({ckpt['precision']} on disk), "
+             f"code {ckpt['code_version']}, created {ckpt['created']}",
+             f"- metrics: {_pairs(ckpt['metrics'])}",
+             f"- data: {_pairs(ckpt['data'])}",
+             f"- config: {_pairs(ckpt['config'])}"]
+    if command:
+        lines += ["", "Trained with:", "", f"    {command}"]
+    return "\n".join(lines) + "\n"
+
+
+def _pairs(values: Mapping[str, Any]) -> str:
+    return ", ".join(f"{k} {v:.4g}" if isinstance(v, float) else f"{k} {v}"
+                     for k, v in values.items())
+

@@ -184,8 +184,18 @@ class CompletionDataset(Dataset[dict[str, Tensor]]):
         return Batch(torch.from_numpy(inputs).float(), depth, torch.from_numpy(target).float())
 
     def view_counts(self) -> list[int]:
-        """V of every example (reads every shard once when lazy)."""
-        return [self.example(i).n_views for i in range(len(self))]
+        """V of every example (from each shard's ``inputs`` alone when lazy)."""
+        if self._examples:
+            return [ex.n_views for ex in self._examples]
+        return [_shard_views(p) for p in self._paths]
+
+
+def _shard_views(path: Path) -> int:
+    try:
+        with np.load(path, allow_pickle=False) as z:
+            return int(z["inputs"].shape[0])
+    except (OSError, ValueError, KeyError) as exc:
+        raise ShardError(path, str(exc)) from exc
 
 
 def sample_views(n_views: int, k: int, rng: np.random.Generator) -> list[int]:

@@ -35,12 +35,13 @@ from models.checkpoint import (
     state_copy,
 )
 from models.completion import CompletionConfig, Critic, Generator, gradient_penalty, voxel_loss
-from models.data import Batch, CompletionDataset, eval_batches, training_batch
+from models.data import Batch, CompletionDataset, Example, eval_batches, training_batch
 
 logger = logging.getLogger(__name__)
 
 METHODS = ("gan_lstm", "ae", "r2n2")
 Model = Generator | R2N2
+Data = CompletionDataset | Sequence[Example]
 
 
 def config_for(method: str, **overrides: Any) -> Config:
@@ -132,8 +133,10 @@ class Learner:
         self.model.train()
         x = batch.model_input(self.model.input_key)
         observed = batch.inputs.amax(1, keepdim=True)  # (B, 1, n_in^3) the critic's condition
-        losses = self._critic_steps(x, observed, batch.target, step) if self.critic else {}
         logits = self.model(x)  # (B, 1, n_out^3)
+        # The critic learns on this very forward pass, detached, then judges it once updated.
+        fake = torch.sigmoid(logits).detach()
+        losses = self._critic_steps(observed, batch.target, fake, step) if self.critic else {}
         ce = voxel_loss(logits, batch.target, self.cfg.w_occupied, self.cfg.w_empty)
         total = ce
         if self.critic is not None:
@@ -148,13 +151,11 @@ class Learner:
         self.opt_g.step()
         return {"loss": total.item(), "ce": ce.item(), **losses}
 
-    def _critic_steps(self, x: Tensor, observed: Tensor, real: Tensor,
+    def _critic_steps(self, observed: Tensor, real: Tensor, fake: Tensor,
                       step: int) -> dict[str, float]:
         """WGAN-GP critic updates on this batch: mean D(fake) - D(real) + lambda GP."""
         cfg, critic = self.cfg, self.critic
         assert critic is not None and isinstance(cfg, CompletionConfig)
-        with torch.no_grad():
-            fake = torch.sigmoid(self.model(x))  # (B, 1, n_out^3)
         gen = _step_generator(cfg.seed, step)
         out: dict[str, float] = {}
         for k in range(cfg.critic_steps):
@@ -225,8 +226,7 @@ class _Run:
                  val: CompletionDataset | None, info: dict[str, Any]) -> None:
         self.learner, self.cfg, self.info = learner, learner.cfg, info
         self.train, self.counts = train, train.view_counts()
-        self.val = val if val else None
-        self.val_counts = val.view_counts() if val else []
+        self.val, self.val_counts = val, val.view_counts() if val else []
         self.start, self.clock = 0, time.perf_counter()
         self.losses: list[dict[str, float]] = []
         self.history: list[dict[str, float]] = []
@@ -285,15 +285,19 @@ def _resume_state(resume: Mapping[str, Any] | Path | str, cfg: Config) -> Checkp
     return ckpt
 
 
-def _check_data(cfg: Config, *datasets: CompletionDataset | None) -> None:
-    for data in datasets:
-        if data is not None and len(data) and (data.n_in, data.n_out) != (cfg.n_in, cfg.n_out):
-            raise ValueError(f"data grids {data.n_in} -> {data.n_out} differ from the config's "
-                             f"{cfg.n_in} -> {cfg.n_out}")
+def _dataset(data: Data | None, cfg: Config) -> CompletionDataset | None:
+    """``data`` as a dataset on the config's grids (None or empty: None)."""
+    if data is None or not len(data):
+        return None
+    data = data if isinstance(data, CompletionDataset) else CompletionDataset(data)
+    if (data.n_in, data.n_out) != (cfg.n_in, cfg.n_out):
+        raise ValueError(f"data grids {data.n_in} -> {data.n_out} differ from the config's "
+                         f"{cfg.n_in} -> {cfg.n_out}")
+    return data
 
 
-def train_completion(cfg: Config, train_data: CompletionDataset,
-                     val_data: CompletionDataset | None, device: torch.device | str = "cpu",
+def train_completion(cfg: Config, train_data: Data, val_data: Data | None,
+                     device: torch.device | str = "cpu",
                      steps: int = 1000, progress: Callable[[TrainEvent], None] | None = None,
                      resume: Mapping[str, Any] | Path | str | None = None,
                      data_info: Mapping[str, Any] | None = None) -> TrainResult:
@@ -301,8 +305,9 @@ def train_completion(cfg: Config, train_data: CompletionDataset,
 
     Args:
         cfg: ``config_for(method)``, possibly with overrides: the method follows from it.
-        train_data, val_data: examples on the cfg's grids; no validation when None or empty
-            (the best checkpoint is then the last epoch's).
+        train_data, val_data: a ``CompletionDataset`` or a list of ``Example`` on the cfg's
+            grids; no validation when val_data is None or empty (the best checkpoint is then
+            the last epoch's).
         device: where to train ("cpu", "cuda").
         steps: total generator steps; a resumed run continues from its snapshot's step.
         progress: called after every step with a ``TrainEvent``.
@@ -314,13 +319,15 @@ def train_completion(cfg: Config, train_data: CompletionDataset,
         A ``TrainResult``: best model and checkpoint, resumable last checkpoint, history.
 
     Raises:
-        ValueError: grids differ from cfg, examples lack the views the model reads, a resume
-            snapshot of another config or without training state.
+        ValueError: no training examples, grids differ from cfg, examples lack the views the
+            model reads, a resume snapshot of another config or without training state.
     """
-    _check_data(cfg, train_data, val_data)
-    info = {"train": len(train_data), "val": len(val_data or ()), **(data_info or {})}
+    train, val = _dataset(train_data, cfg), _dataset(val_data, cfg)
+    if train is None:
+        raise ValueError("no training examples")
+    info = {"train": len(train), "val": len(val or ()), **(data_info or {})}
     with seeded(cfg.seed):
-        run = _Run(Learner(cfg, torch.device(device)), train_data, val_data, info)
+        run = _Run(Learner(cfg, torch.device(device)), train, val, info)
         if resume is not None:
             run.restore(_resume_state(resume, cfg))
         for step in range(run.start, steps):
@@ -354,7 +361,11 @@ def predict(model: Model, data: CompletionDataset | Sequence[np.ndarray] | np.nd
     model.eval()
     device = next(model.parameters()).device
     if isinstance(data, CompletionDataset):
-        items = [getattr(data.example(i), model.input_key)[:n_views] for i in range(len(data))]
+        fields = [getattr(data.example(i), model.input_key) for i in range(len(data))]
+        if any(f is None for f in fields):
+            raise ValueError(f"the examples carry no {model.input_key!r} views, which "
+                             f"{type(model).__name__} reads")
+        items = [f[:n_views] for f in fields]
     else:
         items = [np.asarray(x)[:n_views] for x in data]
     m = model.cfg.n_out

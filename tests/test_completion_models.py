@@ -154,6 +154,11 @@ def test_wrong_shapes_raise_value_errors_naming_the_shape(parts: CompletionDatas
         Example(ex.inputs, ex.target, np.zeros((3, 2, 16, 16), np.float32))
     with pytest.raises(ValueError, match=r"\(9, 16, 16, 16\)"):
         Example(np.zeros((9, 16, 16, 16), bool), ex.target)
+    no_depth = CompletionDataset([Example(ex.inputs, ex.target)])
+    with pytest.raises(ValueError, match="no 'depth' views"):
+        predict(r2n2, no_depth)
+    with pytest.raises(ValueError, match="no 'depth' views"):
+        train_completion(small("r2n2"), no_depth, None, steps=1)
     with pytest.raises(ValueError, match="differ from the config"):
         train_completion(config_for("ae"), parts, None, steps=1)
 
