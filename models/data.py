@@ -76,13 +76,16 @@ class Example:
 def read_shard(path: Path | str) -> Example:
     """One example from an ``.npz`` shard written by the data pipeline.
 
+    Other keys (the pipeline's baselines and observed points) are not read.
+
     Raises:
-        ShardError: unreadable, keys other than ``SHARD_KEYS``, bad meta JSON or bad shapes.
+        ShardError: unreadable, lacking one of ``SHARD_KEYS``, bad meta JSON or bad shapes.
     """
     try:
         with np.load(path, allow_pickle=False) as z:
-            if sorted(z.files) != sorted(SHARD_KEYS):
-                raise ShardError(path, f"keys {sorted(z.files)}, expected {list(SHARD_KEYS)}")
+            missing = sorted(set(SHARD_KEYS) - set(z.files))
+            if missing:
+                raise ShardError(path, f"keys {sorted(z.files)} lack {missing}")
             arrays = {k: z[k] for k in SHARD_KEYS}
         meta = json.loads(arrays.pop("meta").item())
         return Example(arrays["inputs"], arrays["target"], arrays["depth"], meta)
@@ -208,23 +211,23 @@ def training_batch(data: CompletionDataset, counts: Sequence[int], step: int, ba
                    max_views: int, seed: int) -> Batch:
     """The batch of training step ``step``: a pure function of (seed, step).
 
-    Examples are taken in a fresh permutation per pass over the data; the batch shares one
-    view count drawn from 1..min(max_views, fewest views in the batch), and each example keeps
-    its first view and a random ordered subset of the others.
+    The batch shares one view count k: 1 with probability one half (the single scan is the
+    headline setting), else uniform in 2..max_views. Examples recorded with exactly k views are
+    taken whole where the data has them, since their grid was placed from exactly those views;
+    otherwise examples with more views keep their first view and a random ordered subset of
+    k - 1 others. Examples are drawn with replacement.
 
     Args:
         counts: the view count of every example (``data.view_counts()``, computed once).
     """
-    n = len(data)
-    positions = range(step * batch_size, (step + 1) * batch_size)
-    perms: dict[int, np.ndarray] = {}
-    indices = []
-    for p in positions:
-        if p // n not in perms:
-            perms[p // n] = np.random.default_rng([seed, p // n]).permutation(n)
-        indices.append(int(perms[p // n][p % n]))
     rng = np.random.default_rng([seed, step, 1])
-    k = int(rng.integers(1, min(max_views, *(counts[i] for i in indices)) + 1))
+    top = min(max_views, max(counts))
+    k = 1 if top == 1 or rng.random() < 0.5 else int(rng.integers(2, top + 1))
+    exact = [i for i, c in enumerate(counts) if c == k]
+    pool = exact or [i for i, c in enumerate(counts) if c > k]
+    indices = [int(i) for i in rng.choice(pool, size=batch_size)]
+    if exact:
+        return data.batch(indices, [list(range(k))] * batch_size)
     return data.batch(indices, [sample_views(counts[i], k, rng) for i in indices])
 
 

@@ -179,7 +179,7 @@ def test_union_of_views_makes_ae_blind_to_repeats(parts: CompletionDataset) -> N
     assert torch.equal(ae(once.inputs), ae(twice.inputs))
 
 
-def test_shards_round_trip_and_refuse_foreign_keys(parts: CompletionDataset,
+def test_shards_round_trip_and_refuse_missing_keys(parts: CompletionDataset,
                                                     tmp_path: Path) -> None:
     paths = []
     for i in range(3):
@@ -205,3 +205,20 @@ def test_training_batches_are_a_function_of_seed_and_step(parts: CompletionDatas
     assert seen == {1, 2, 3}
     views = parts.batch([0], [[0]]).inputs
     assert torch.equal(training_batch(parts, counts, 0, 1, 1, seed=0).inputs.amax(), views.amax())
+
+
+def test_batches_take_recorded_sequences_whole() -> None:
+    """An example recorded with k views had its grid placed from those k views: a batch of k
+    views takes such examples whole rather than cutting longer ones down."""
+    singles = synthetic_examples(4, n_in=16, n_out=32, n_views=1, seed=1)
+    pairs = synthetic_examples(4, n_in=16, n_out=32, n_views=2, seed=2)
+    data = CompletionDataset(singles + pairs)
+    counts = data.view_counts()
+    ks = [training_batch(data, counts, s, 3, 2, seed=0).inputs.shape[1] for s in range(40)]
+    assert set(ks) == {1, 2} and 10 <= ks.count(1) <= 30  # one view half of the time
+    pair_inputs = {tuple(np.flatnonzero(ex.inputs[1])[:20]) for ex in pairs}
+    for s in range(40):
+        batch = training_batch(data, counts, s, 3, 2, seed=0)
+        if batch.inputs.shape[1] == 2:
+            for second in batch.inputs[:, 1].numpy().astype(bool):
+                assert tuple(np.flatnonzero(second)[:20]) in pair_inputs

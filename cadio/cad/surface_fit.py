@@ -149,7 +149,8 @@ def _cylinder_residuals(points: FloatArray, d0: FloatArray, p0: FloatArray
     """Signed distances from the cylinder of parameters (tilts, shifts, radius)."""
     def residuals(params: FloatArray) -> FloatArray:
         d, p = _axis_from(params, d0, p0)
-        return _radial(points, p, d) - params[4]
+        out: FloatArray = _radial(points, p, d) - params[4]
+        return out
 
     return residuals
 
