@@ -36,6 +36,7 @@ def main(argv: list[str] | None = None) -> int:
     """Entry point of the ``mateqa`` command."""
     parser = _parser()
     args = parser.parse_args(argv)
+    args.argv = list(sys.argv[1:] if argv is None else argv)
     logging.basicConfig(level=logging.INFO, format="%(levelname)s %(name)s: %(message)s")
     for name in _CHATTY:
         logging.getLogger(name).setLevel(logging.WARNING)
@@ -96,6 +97,32 @@ def _parser() -> argparse.ArgumentParser:
     p.add_argument("--noise", action="store_true", help="switch the depth noise model on")
     p.set_defaults(func=_cmd_capture)
 
+    p = sub.add_parser("train", help="train the learned stages (completion)",
+                       description="Train the completion checkpoints on a corpus of generated "
+                       "and real parts, score them on held-out parts beside the baselines, and "
+                       "write them with their model card (no Prefect; the train flow runs the "
+                       "same steps).")
+    p.add_argument("stage", choices=["completion"], help="what to train")
+    p.add_argument("--workspace", type=Path, default=Path("train-workspace"),
+                   help="training workspace: corpus, dataset, snapshots, reports")
+    p.add_argument("--shared", type=Path, default=None,
+                   help="folder of real STEP parts to add to the corpus (split by part)")
+    p.add_argument("--variants", type=int, default=100,
+                   help="parametric variants per category of the sample library")
+    p.add_argument("--seed", type=int, default=0, help="seed of variants and splits")
+    p.add_argument("--steps", type=int, default=2000, help="training steps per model")
+    p.add_argument("--methods", nargs="+", default=["gan_lstm", "ae", "r2n2"],
+                   help="learned methods to train")
+    p.add_argument("--protocols", nargs="+", default=["observed", "oracle-box"],
+                   help="input protocols to train for")
+    p.add_argument("--out", type=Path, default=None,
+                   help="checkpoint folder (default: the shipped models/checkpoints/completion)")
+    p.add_argument("--workers", type=int, default=os.cpu_count() or 1,
+                   help="worker processes for CAD work and rendering")
+    p.add_argument("--threads", type=int, default=1,
+                   help="torch threads (one is fastest on a busy 2-core machine)")
+    p.set_defaults(func=_cmd_train, tol=[], tolerances_file=None)
+
     p = sub.add_parser("samples", help="generate the built-in sample library",
                        description="Write the built-in sample STEP library into OUT.")
     p.add_argument("out", type=Path, metavar="OUT", help="output folder")
@@ -141,8 +168,9 @@ def _tolerances(args: argparse.Namespace) -> Tolerances:
 
 
 @contextmanager
-def _progress(description: str, total: int) -> Iterator[Callable[[str], None]]:
-    """A progress bar on stderr; yields the function that advances it by one item."""
+def _progress(description: str, total: int | None) -> Iterator[Callable[[str], None]]:
+    """A progress bar on stderr (a counter when ``total`` is None); yields the function that
+    advances it by one item."""
     from rich.progress import BarColumn, MofNCompleteColumn, Progress, TimeElapsedColumn
 
     columns = (*Progress.get_default_columns()[:1], BarColumn(), MofNCompleteColumn(),
@@ -170,6 +198,50 @@ def _cmd_ingest(args: argparse.Namespace) -> int:
         return 2
     print(build_ingest_report(catalog).markdown())
     print(f"catalog: {Path(args.workspace) / 'catalog.parquet'}")
+    return 0
+
+
+def _cmd_train(args: argparse.Namespace) -> int:
+    import shlex
+    import time
+
+    import torch
+
+    from cadio.cad.ingest import IngestConfig
+    from cadio.capture.dataset import DatasetConfig
+    from cadio.sandbox import Limits
+    from cadio.workspace import Workspace
+    from flows.train import evaluate_models, prepare_corpus, train_model, write_model_card
+    from models.evaluate import SHIPPED
+
+    torch.set_num_threads(args.threads)
+    ws = Workspace(args.workspace.resolve())
+    out = (args.out or SHIPPED).resolve()
+    ingest_cfg = IngestConfig(limits=Limits(workers=args.workers, seconds=600),
+                              tolerances=args.tolerances)
+    try:
+        with _progress("corpus parts", None) as advance:
+            corpus = prepare_corpus(ws, args.shared, args.variants, args.seed, ingest_cfg,
+                                    DatasetConfig(), advance)
+    except InputFileError as exc:
+        print(f"mateqa train: {exc}", file=sys.stderr)
+        return 2
+    print(f"corpus: {corpus.parts} parts {corpus.splits}, {corpus.failed} failed")
+    for protocol in args.protocols:
+        for method in args.methods:
+            with _progress(f"{method}/{protocol}", args.steps) as advance:
+                trained = train_model(ws, method, protocol, args.steps, out,
+                                      on_step=lambda *a: advance(""))
+            print(f"{method}/{protocol}: best val IoU {trained.val_iou:.3f} at step "
+                  f"{trained.step} ({trained.seconds:.0f} s) -> {trained.path}")
+    run_dir = ws.run_dir(time.strftime("%Y%m%dT%H%M%SZ", time.gmtime()))
+    evaluate_models(ws, out, run_dir)
+    command = "mateqa " + shlex.join(args.argv)
+    card = write_model_card(ws, out, run_dir, command,
+                            {"steps": args.steps, "variants": args.variants, "seed": args.seed,
+                             "threads": args.threads})
+    print(Path(run_dir / "completion.md").read_text())
+    print(f"model card: {card}")
     return 0
 
 

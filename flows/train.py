@@ -18,11 +18,13 @@ from __future__ import annotations
 import logging
 import time
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import asdict, dataclass
+from datetime import UTC, datetime
 from pathlib import Path
 from typing import Any
 
 import pandas as pd
+from prefect import flow, get_run_logger, task
 
 from cadio.cad.ingest import IngestConfig, discover, ingest_files, mark_duplicates
 from cadio.capture.dataset import (
@@ -33,9 +35,12 @@ from cadio.capture.dataset import (
     unique_parts,
     write_index,
 )
+from cadio.capture.examples import PROTOCOLS
 from cadio.catalog import read_catalog, to_frame, write_catalog
 from cadio.samples.library import SampleConfig, generate_library
+from cadio.sandbox import Limits
 from cadio.workspace import Workspace
+from models.evaluate import LEARNED, SHIPPED
 
 log = logging.getLogger(__name__)
 
@@ -182,3 +187,84 @@ def evaluate_models(ws: Workspace, models_dir: Path, run_dir: Path,
     pd.DataFrame(scores.registration).to_csv(run_dir / "completion_registration.csv",
                                              index=False)
     return parts
+
+
+def dataset_table(ws: Workspace) -> pd.DataFrame:
+    """Parts and examples per split and category of the training dataset."""
+    index = read_index(dataset_dir(ws) / "index.parquet")
+    ok = index[index["status"] == "ok"]
+    table = ok.groupby(["split", "category"]).agg(parts=("part_id", "nunique"),
+                                                  examples=("file", "count")).reset_index()
+    return table.sort_values(["split", "category"]).reset_index(drop=True)
+
+
+def write_model_card(ws: Workspace, out_dir: Path, run_dir: Path, command: str,
+                     config: dict[str, Any]) -> Path:
+    """``MODEL_CARD.md`` beside the checkpoints, from the held-out evaluation of ``run_dir``."""
+    from models.card import model_card
+    from reports.completion import read_completion_categories
+
+    text = model_card(out_dir, dataset_table(ws), read_completion_categories(run_dir), command,
+                      config=config)
+    path = out_dir / "MODEL_CARD.md"
+    path.write_text(text)
+    return path
+
+
+# ---------------------------------------------------------------- the train flow
+
+
+@task(name="prepare-corpus")
+def corpus_task(workspace: str, shared: str | None, variants: int, seed: int,
+                workers: int) -> Corpus:
+    """The training corpus: library with variants, shared parts, ingest, dataset."""
+    ingest_cfg = IngestConfig(limits=Limits(workers=workers, seconds=600))
+    return prepare_corpus(Workspace(Path(workspace)), Path(shared) if shared else None,
+                          variants, seed, ingest_cfg, DatasetConfig())
+
+
+@task(name="train-model")
+def train_task(workspace: str, method: str, protocol: str, steps: int, out: str) -> Trained:
+    """One method on one protocol; the best checkpoint into ``out``."""
+    return train_model(Workspace(Path(workspace)), method, protocol, steps, Path(out))
+
+
+@task(name="evaluate-models")
+def evaluate_task(workspace: str, out: str, run_dir: str) -> str:
+    """Held-out scores of every method into the run's completion report."""
+    evaluate_models(Workspace(Path(workspace)), Path(out), Path(run_dir))
+    return run_dir
+
+
+@flow(name="train")
+def train(workspace: str = "train-workspace", shared: str | None = None, variants: int = 100,
+          seed: int = 0, steps: int = 2000, methods: list[str] | None = None,
+          protocols: list[str] | None = None, out: str = str(SHIPPED),
+          workers: int = 2) -> dict[str, Any]:
+    """Train the completion checkpoints and write their held-out report and model card.
+
+    Args:
+        workspace: the training workspace (corpus, dataset, resumable snapshots, runs).
+        shared: a folder of real STEP parts added to the corpus (split by part).
+        variants: parametric variants per category of the sample library.
+        steps: training steps per model (a rerun resumes unfinished ones).
+        methods, protocols: which checkpoints (default: all three, both protocols).
+        out: where the checkpoints and MODEL_CARD.md go (default: the shipped folder).
+        workers: worker processes for the CAD and rendering work.
+    """
+    log = get_run_logger()
+    ws = Workspace(Path(workspace).resolve())
+    corpus = corpus_task(str(ws.root), shared, variants, seed, workers)
+    log.info("corpus: %d parts %s, %d failed", corpus.parts, corpus.splits, corpus.failed)
+    trained = [train_task(str(ws.root), m, p, steps, out)
+               for p in protocols or list(PROTOCOLS) for m in methods or list(LEARNED)]
+    for t in trained:
+        log.info("%s/%s: best val IoU %.3f at step %d (%.0f s)", t.method, t.protocol,
+                 t.val_iou, t.step, t.seconds)
+    run_dir = ws.run_dir(datetime.now(UTC).strftime("%Y%m%dT%H%M%SZ"))
+    evaluate_task(str(ws.root), out, str(run_dir))
+    card = write_model_card(ws, Path(out), run_dir, f"prefect flow train(workspace={workspace!r}"
+                            f", shared={shared!r}, variants={variants}, steps={steps})",
+                            {"steps": steps, "variants": variants, "seed": seed})
+    return {"corpus": asdict(corpus), "trained": [asdict(t) for t in trained],
+            "report": str(run_dir), "card": str(card)}

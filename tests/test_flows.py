@@ -13,6 +13,7 @@ from prefect.testing.utilities import prefect_test_harness
 
 from cadio.catalog import read_catalog
 from cadio.tolerances import DEFAULT_TOLERANCES, read_tolerances
+from reports.completion import read_completion_parts
 
 
 @pytest.fixture(scope="module")
@@ -46,6 +47,14 @@ def test_nightly_ingests_reports_and_caches(harness: object, tmp_path: Path,
     assert stages.scenes > 0 and stages.captures == stages.scenes
     assert stages.frames == 2 * stages.captures
     assert len(list((ws / "captures").glob("*.mcap"))) == stages.captures
+
+    # every captured part completed by each method in both protocols, scored on its own
+    parts = read_completion_parts(Path(first.run_dir))
+    assert {"visible", "carve"} <= set(parts["method"])
+    assert set(parts["protocol"]) == {"observed", "oracle-box"}
+    assert parts["iou"].between(0, 1).all() and set(parts["n_views"]) >= {1, 2}
+    assert "protocol: observed" in Path(first.completion_report).read_text()
+    assert (ws / "runs" / "latest").resolve() == Path(first.run_dir)
 
     meshes = sorted((ws / "meshes").glob("*.ply"))
     stamps = [m.stat().st_mtime_ns for m in meshes]
