@@ -119,6 +119,10 @@ def _parser() -> argparse.ArgumentParser:
                    help="checkpoint folder (default: the shipped models/checkpoints/completion)")
     p.add_argument("--workers", type=int, default=os.cpu_count() or 1,
                    help="worker processes for CAD work and rendering")
+    p.add_argument("--lr", type=float, default=1e-3,
+                   help="Adam learning rate of the networks (the paper's 1e-4 suits long GPU runs)")
+    p.add_argument("--lr-critic", type=float, default=1e-4,
+                   help="Adam learning rate of gan_lstm's critic")
     p.add_argument("--threads", type=int, default=1,
                    help="torch threads (one is fastest on a busy 2-core machine)")
     p.set_defaults(func=_cmd_train, tol=[], tolerances_file=None)
@@ -231,7 +235,8 @@ def _cmd_train(args: argparse.Namespace) -> int:
         for method in args.methods:
             with _progress(f"{method}/{protocol}", args.steps) as advance:
                 trained = train_model(ws, method, protocol, args.steps, out,
-                                      on_step=lambda *a: advance(""))
+                                      on_step=lambda *a: advance(""),
+                                      rates={"lr": args.lr, "lr_d": args.lr_critic})
             print(f"{method}/{protocol}: best val IoU {trained.val_iou:.3f} at step "
                   f"{trained.step} ({trained.seconds:.0f} s) -> {trained.path}")
     run_dir = ws.run_dir(time.strftime("%Y%m%dT%H%M%SZ", time.gmtime()))
