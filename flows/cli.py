@@ -119,6 +119,9 @@ def _parser() -> argparse.ArgumentParser:
                    help="checkpoint folder (default: the shipped models/checkpoints/completion)")
     p.add_argument("--workers", type=int, default=os.cpu_count() or 1,
                    help="worker processes for CAD work and rendering")
+    p.add_argument("--grids", type=int, nargs=2, default=[32, 64], metavar=("N_IN", "N_OUT"),
+                   help="input and output grid sides (default 32 64; the paper's 64 256 is for "
+                   "a GPU, in its own workspace)")
     p.add_argument("--lr", type=float, default=1e-3,
                    help="Adam learning rate of the networks (the paper's 1e-4 suits long GPU runs)")
     p.add_argument("--lr-critic", type=float, default=1e-4,
@@ -213,6 +216,7 @@ def _cmd_train(args: argparse.Namespace) -> int:
 
     from cadio.cad.ingest import IngestConfig
     from cadio.capture.dataset import DatasetConfig
+    from cadio.capture.examples import ExampleConfig
     from cadio.sandbox import Limits
     from cadio.workspace import Workspace
     from flows.train import evaluate_models, prepare_corpus, train_model, write_model_card
@@ -226,8 +230,9 @@ def _cmd_train(args: argparse.Namespace) -> int:
     try:
         with _progress("corpus parts", None) as advance:
             corpus = prepare_corpus(ws, args.shared, args.variants, args.seed, ingest_cfg,
-                                    DatasetConfig(), advance)
-    except InputFileError as exc:
+                                    DatasetConfig(example=ExampleConfig(
+                *args.grids, grid_margin=args.tolerances.grid_margin)), advance)
+    except (InputFileError, ValueError) as exc:
         print(f"mateqa train: {exc}", file=sys.stderr)
         return 2
     print(f"corpus: {corpus.parts} parts {corpus.splits}, {corpus.failed} failed")
@@ -236,7 +241,8 @@ def _cmd_train(args: argparse.Namespace) -> int:
             with _progress(f"{method}/{protocol}", args.steps) as advance:
                 trained = train_model(ws, method, protocol, args.steps, out,
                                       on_step=lambda *a: advance(""),
-                                      rates={"lr": args.lr, "lr_d": args.lr_critic})
+                                      rates={"lr": args.lr, "lr_d": args.lr_critic},
+                                      n_in=args.grids[0], n_out=args.grids[1])
             print(f"{method}/{protocol}: best val IoU {trained.val_iou:.3f} at step "
                   f"{trained.step} ({trained.seconds:.0f} s) -> {trained.path}")
     run_dir = ws.run_dir(time.strftime("%Y%m%dT%H%M%SZ", time.gmtime()))

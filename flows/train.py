@@ -15,6 +15,7 @@
 
 from __future__ import annotations
 
+import json
 import logging
 import time
 from collections.abc import Callable
@@ -95,7 +96,18 @@ def dataset_dir(ws: Workspace) -> Path:
 def _reuse_or_build(parts: pd.DataFrame, ws: Workspace, out: Path, splits: dict[str, str],
                     ingest_cfg: IngestConfig, cfg: DatasetConfig,
                     progress: Progress | None) -> pd.DataFrame:
-    """The dataset's index, building the parts it does not hold yet."""
+    """The dataset's index, building the parts it does not hold yet.
+
+    Raises:
+        ValueError: the folder holds a dataset of other grid sizes.
+    """
+    grids = {"n_in": cfg.example.n_in, "n_out": cfg.example.n_out}
+    stamp = out / "grids.json"
+    if stamp.exists() and json.loads(stamp.read_text()) != grids:
+        raise ValueError(f"{out} holds a {json.loads(stamp.read_text())} dataset, not {grids}: "
+                         "train other grid sizes in another workspace")
+    out.mkdir(parents=True, exist_ok=True)
+    stamp.write_text(json.dumps(grids))
     index_path = out / "index.parquet"
     old = read_index(index_path) if index_path.exists() else None
     done = set() if old is None else set(old.loc[old["status"] == "ok", "part_id"])
@@ -209,14 +221,49 @@ def dataset_table(ws: Workspace) -> pd.DataFrame:
     return table.sort_values(["split", "category"]).reset_index(drop=True)
 
 
+def origin_of(ws: Workspace) -> dict[str, str]:
+    """Part id -> where the part comes from: a generated variant, the sample library (which
+    the nightly runs on, never trained on) or a real STEP file of the shared folder."""
+    catalog = read_catalog(ws.catalog)
+    library = str(corpus_library(ws))
+
+    def origin(source: str) -> str:
+        if not source.startswith(library):
+            return "real STEP parts"
+        return "generated variants" if "/variants/" in source else "sample library"
+
+    return {str(p): origin(str(s)) for p, s in zip(catalog["part_id"], catalog["source"],
+                                                   strict=True)}
+
+
+def origin_table(ws: Workspace, run_dir: Path) -> pd.DataFrame:
+    """Held-out single-view IoU by origin of the parts, method and protocol: whether the
+    checkpoints generalise to real parts they never saw."""
+    from reports.completion import read_completion_parts
+
+    parts = read_completion_parts(run_dir)
+    single = parts[(parts["split"] == "test") & (parts["n_views"] == 1)].copy()
+    single["origin"] = single["part_id"].map(origin_of(ws)).fillna("unknown")
+    per_part = single.groupby(["origin", "protocol", "method", "part_id"])["iou"].mean()
+    table = per_part.groupby(["origin", "protocol", "method"]).agg(["count", "mean"])
+    table = table.rename(columns={"count": "n_parts", "mean": "iou"}).reset_index()
+    table["iou"] = (100 * table["iou"]).round(2)
+    return table.pivot(index=["origin", "protocol"], columns="method",
+                       values="iou").reset_index()
+
+
 def write_model_card(ws: Workspace, out_dir: Path, run_dir: Path, command: str,
                      config: dict[str, Any]) -> Path:
     """``MODEL_CARD.md`` beside the checkpoints, from the held-out evaluation of ``run_dir``."""
     from models.card import model_card
     from reports.completion import read_completion_categories
+    from reports.tables import markdown_table
 
+    notes = ["## Held-out IoU (%) by origin of the parts, one view", "",
+             markdown_table(origin_table(ws, run_dir)), "",
+             f"Held-out report of this training: `{run_dir.name}` of the training workspace."]
     text = model_card(out_dir, dataset_table(ws), read_completion_categories(run_dir), command,
-                      config=config)
+                      notes=notes, config=config)
     path = out_dir / "MODEL_CARD.md"
     path.write_text(text)
     return path
