@@ -231,7 +231,8 @@ def _cmd_train(args: argparse.Namespace) -> int:
         with _progress("corpus parts", None) as advance:
             corpus = prepare_corpus(ws, args.shared, args.variants, args.seed, ingest_cfg,
                                     DatasetConfig(example=ExampleConfig(
-                *args.grids, grid_margin=args.tolerances.grid_margin)), advance)
+                n_in=args.grids[0], n_out=args.grids[1],
+                grid_margin=args.tolerances.grid_margin)), advance)
     except (InputFileError, ValueError) as exc:
         print(f"mateqa train: {exc}", file=sys.stderr)
         return 2
