@@ -34,7 +34,12 @@ from cadio.catalog import CatalogRow, read_catalog, to_frame, write_catalog
 from cadio.contracts import CaptureSummary, MatesSummary, ScenesSummary
 from cadio.sandbox import Limits
 from cadio.tolerances import DEFAULT_TOLERANCES, Tolerances, write_tolerances
-from cadio.truth.assemblies import AssemblyJob, assembly_jobs, extract_assembly_mates
+from cadio.truth.assemblies import (
+    MATES_VERSION,
+    AssemblyJob,
+    assembly_jobs,
+    extract_assembly_mates,
+)
 from cadio.truth.scenes import SceneConfig, build_scenes, read_scenes
 from cadio.workspace import Workspace, write_json
 from flows.settings import Settings, ingest_config
@@ -133,8 +138,9 @@ def generate_library_task(workspace: str) -> str:
 
 @task(name="ingest-batch", cache_key_fn=_content_key, persist_result=True)
 def ingest_batch_task(files: list[str], categories: list[str], workspace: str, epoch: str,
-                      cfg: IngestConfig) -> list[CatalogRow]:
-    """Catalog rows of a batch of files, each read in an isolated worker."""
+                      cfg: IngestConfig, config_key: str) -> list[CatalogRow]:
+    """Catalog rows of a batch of files, each read in an isolated worker (``config_key``, the
+    ingest version and configuration, keys the cache)."""
     found = [Found(Path(p), c) for p, c in zip(files, categories, strict=True)]
     ws = Workspace(Path(workspace))
     return ingest_files(found, ws.root, cfg, read_catalog(ws.catalog))
@@ -150,9 +156,10 @@ def write_catalog_task(batches: list[list[CatalogRow]], workspace: str) -> str:
 
 
 @task(name="mates", cache_key_fn=_content_key, persist_result=True)
-def mates_task(files: list[str], jobs: list[AssemblyJob], epoch: str,
-               limits: Limits) -> list[MatesSummary]:
-    """Mates of a batch of assemblies, each in an isolated worker; one summary each."""
+def mates_task(files: list[str], jobs: list[AssemblyJob], epoch: str, limits: Limits,
+               version: str = MATES_VERSION) -> list[MatesSummary]:
+    """Mates of a batch of assemblies, each in an isolated worker; one summary each
+    (``version``, the mates code's, keys the cache)."""
     return list(extract_assembly_mates(jobs, limits))
 
 
@@ -214,7 +221,7 @@ def ingest_stage(library: str, run: Run, cfg: IngestConfig, batch_size: int) -> 
     """Every STEP file of the library in batches of ``batch_size``; the catalog's path."""
     found = discover(Path(library))
     futures = [ingest_batch_task.submit([str(f.path) for f in b], [f.category for f in b],
-                                        run.workspace, run.epoch, cfg)
+                                        run.workspace, run.epoch, cfg, cfg.key())
                for b in _batches(found, batch_size)]
     return write_catalog_task([f.result() for f in futures], run.workspace)
 

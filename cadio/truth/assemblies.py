@@ -21,6 +21,11 @@ from cadio.tolerances import DEFAULT_TOLERANCES, Tolerances
 from cadio.truth.mates import read_assembly_mates, write_mates
 from cadio.workspace import Workspace
 
+# Bump when the mates change meaning (definitions, tolerances' use), so cached results of
+# earlier runs are recomputed. 2: concentric face mates within 1 mm, fit/clearance, fuzzy
+# coincident overlaps, sampled fits of freeform faces.
+MATES_VERSION = "2"
+
 
 @dataclass(frozen=True)
 class AssemblyJob:
