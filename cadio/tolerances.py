@@ -66,8 +66,8 @@ class Tolerances:
     # Groups of planar faces by normal direction: directions within this angle are one group.
     group_angle_deg: float = 0.5
     # Voxel grids: the cube's side is the part's largest extent times (1 + margin), so that
-    # surface voxels are not cut by the grid's border. Truth grids and the partial grids of
-    # the captures must share it to align voxel for voxel.
+    # surface voxels are not cut by the grid's border. The completion's oracle-box grids must
+    # share it to be the ingest's truth grids voxel for voxel.
     grid_margin: float = 0.05
 
     def as_dict(self) -> dict[str, float]:

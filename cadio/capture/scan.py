@@ -4,10 +4,12 @@
 table), renders its views and writes one MCAP per scene with the ground-truth labels on
 ``/scene``; ``capture_batch`` does that for a batch of scene ids and derives their learning
 inputs, and ``read_captures`` derives them from recordings made elsewhere. ``scan_inputs`` reads
-any capture (ours, or a real recording without instance ids, which is then segmented by
-support-plane removal and clustering) and turns one view into what the learned stages eat: each
-part's partial occupancy grid, aligned voxel for voxel with the part's truth grid, and 600
-points in the part's own frame.
+any capture back and turns every part it shows into what the learned stages eat: the part's
+completion examples in both protocols (``cadio.capture.examples``; the observed protocol's
+inputs come from the observed points and the cameras alone) with the truth in the same grid for
+the score, and 600 observed points in world metres. Parts are told apart by the instance ids; a
+real recording without them is segmented by support-plane removal and clustering, scored against
+the ids where both exist.
 """
 
 from __future__ import annotations
