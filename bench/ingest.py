@@ -16,7 +16,8 @@ Printed, all from the same run so that the shared machine's load falls on both s
 4. per stage, in this process: what each step of a worker's job costs per part.
 
 Timings on a shared 2-core machine are noisy: ``--repeat`` runs floor and product alternately
-and prints every pair and the median ratio.
+and prints every pair and the median ratio. The CPU seconds of each side's processes (user +
+system) are printed too: other people's load stretches wall time far more than CPU time.
 """
 
 from __future__ import annotations
@@ -24,6 +25,7 @@ from __future__ import annotations
 import argparse
 import multiprocessing as mp
 import os
+import resource
 import statistics
 import subprocess
 import sys
@@ -78,28 +80,36 @@ def floor_file(path: str) -> int:
     return solids
 
 
-def floor(files: list[Path], workers: int) -> tuple[float, int]:
-    """(seconds, solids) of the floor over ``workers`` spawned processes, largest file first."""
+def _children_cpu() -> float:
+    """CPU seconds of all finished (waited-for) descendants of this process."""
+    usage = resource.getrusage(resource.RUSAGE_CHILDREN)
+    return usage.ru_utime + usage.ru_stime
+
+
+def floor(files: list[Path], workers: int) -> tuple[float, float, int]:
+    """(seconds, CPU seconds, solids) of the floor over ``workers`` processes, largest first."""
     order = sorted(files, key=lambda p: p.stat().st_size, reverse=True)
-    start = time.perf_counter()
-    with mp.get_context("spawn").Pool(workers, initializer=_silence_stdout) as pool:
-        solids = sum(pool.imap_unordered(floor_file, [str(p) for p in order], chunksize=1))
-    return time.perf_counter() - start, solids
+    cpu, start = _children_cpu(), time.perf_counter()
+    pool = mp.get_context("spawn").Pool(workers, initializer=_silence_stdout)
+    solids = sum(pool.imap_unordered(floor_file, [str(p) for p in order], chunksize=1))
+    pool.close()
+    pool.join()  # reaps the workers, so that their CPU time is counted
+    return time.perf_counter() - start, _children_cpu() - cpu, solids
 
 
-def product(root: Path, workers: int) -> tuple[float, int, int]:
-    """(seconds, catalog rows, ok rows) of ``mateqa ingest`` into a fresh workspace."""
+def product(root: Path, workers: int) -> tuple[float, float, int, int]:
+    """(seconds, CPU seconds, rows, ok rows) of ``mateqa ingest`` into a fresh workspace."""
     import pandas as pd
 
     with tempfile.TemporaryDirectory() as ws:
         cmd = [sys.executable, "-m", "flows.cli", "ingest", str(root), "--workspace", ws,
                "--workers", str(workers)]
         env = {**os.environ, "PYTHONPATH": str(REPO)}
-        start = time.perf_counter()
+        cpu, start = _children_cpu(), time.perf_counter()
         subprocess.run(cmd, cwd=REPO, env=env, check=True, capture_output=True)
-        seconds = time.perf_counter() - start
+        seconds, cpu = time.perf_counter() - start, _children_cpu() - cpu
         catalog = pd.read_parquet(Path(ws) / "catalog.parquet")
-    return seconds, len(catalog), int((catalog["status"] == "ok").sum())
+    return seconds, cpu, len(catalog), int((catalog["status"] == "ok").sum())
 
 
 def compare(root: Path, workers: int, repeat: int) -> None:
@@ -108,16 +118,18 @@ def compare(root: Path, workers: int, repeat: int) -> None:
 
     files = [f.path for f in discover(root) if f.path.is_file()]
     print(f"\nFloor vs product: {len(files)} files, {workers} worker processes")
-    print(f"{'run':>3} {'floor s':>8} {'solids':>6} {'ingest s':>9} {'rows':>5} {'ok':>4} "
-          f"{'ratio':>6}")
-    ratios = []
+    print(f"{'run':>3} {'floor s':>8} {'cpu s':>6} {'solids':>6} {'ingest s':>9} {'cpu s':>6} "
+          f"{'rows':>5} {'ok':>4} {'ratio':>6} {'cpu ratio':>9}")
+    ratios, cpu_ratios = [], []
     for run in range(1, repeat + 1):
-        floor_s, solids = floor(files, workers)
-        ingest_s, rows, ok = product(root, workers)
+        floor_s, floor_cpu, solids = floor(files, workers)
+        ingest_s, ingest_cpu, rows, ok = product(root, workers)
         ratios.append(ingest_s / floor_s)
-        print(f"{run:>3} {floor_s:>8.2f} {solids:>6} {ingest_s:>9.2f} {rows:>5} {ok:>4} "
-              f"{ratios[-1]:>6.2f}")
-    print(f"median ratio ingest / floor: {statistics.median(ratios):.2f} (goal: at most 2)")
+        cpu_ratios.append(ingest_cpu / floor_cpu)
+        print(f"{run:>3} {floor_s:>8.2f} {floor_cpu:>6.1f} {solids:>6} {ingest_s:>9.2f} "
+              f"{ingest_cpu:>6.1f} {rows:>5} {ok:>4} {ratios[-1]:>6.2f} {cpu_ratios[-1]:>9.2f}")
+    print(f"median ratio ingest / floor: {statistics.median(ratios):.2f} wall, "
+          f"{statistics.median(cpu_ratios):.2f} CPU (goal: at most 2)")
 
 
 def stages(root: Path) -> None:
