@@ -19,6 +19,7 @@ from OCP.TopoDS import TopoDS_Shape
 
 from cadio.cad.faces import CONE, recognise_faces
 from cadio.cad.features import extract_features, indexed_faces
+from cadio.cad.tessellate import brep_mass
 from cadio.records import Features
 from cadio.tolerances import DEFAULT_TOLERANCES
 from cadio.workspace import read_features, write_features
@@ -150,6 +151,14 @@ def test_ties_are_flagged_and_coaxial_faces_grouped() -> None:
     cylinders = [a for a in f.axes if a.kind == "cylinder"]
     assert len(cylinders) == 1 and sorted(cylinders[0].radii) == pytest.approx([3, 5])
     assert not f.principal_axis_tie
+
+
+def test_given_mass_properties_change_nothing() -> None:
+    shape = bd.fillet(bd.Box(12, 8, 6).edges(), 1).wrapped
+    mass = brep_mass(shape)
+    given, computed = extract_features(shape, mass=mass), extract_features(shape)
+    assert given.to_dict() == computed.to_dict()
+    assert (given.volume, *given.centroid) == (mass[0], *mass[1])
 
 
 def test_features_round_trip_through_workspace(tmp_path: Path) -> None:

@@ -18,8 +18,6 @@ from collections.abc import Callable, Sequence
 import numpy as np
 from OCP.Bnd import Bnd_Box
 from OCP.BRepBndLib import BRepBndLib
-from OCP.BRepGProp import BRepGProp
-from OCP.GProp import GProp_GProps
 from OCP.TopoDS import TopoDS_Shape
 
 from cadio.cad.faces import (
@@ -32,7 +30,7 @@ from cadio.cad.faces import (
     recognise_faces,
     surface_props,
 )
-from cadio.cad.tessellate import MASS_PROPS_REL_EPS
+from cadio.cad.tessellate import brep_mass
 from cadio.errors import GeometryError
 from cadio.records import AxisGroup, Features, FloatArray, PlaneGroup, canonical_direction
 from cadio.tolerances import DEFAULT_TOLERANCES, Tolerances
@@ -53,13 +51,18 @@ TIE_FRACTION = 0.99
 _ANGLE_SLACK = 1e-9
 
 
-def extract_features(shape: TopoDS_Shape, tol: Tolerances = DEFAULT_TOLERANCES) -> Features:
+def extract_features(
+    shape: TopoDS_Shape,
+    tol: Tolerances = DEFAULT_TOLERANCES,
+    mass: tuple[float, FloatArray] | None = None,
+) -> Features:
     """Compute the geometric features of one part from its exact B-rep.
 
     Args:
         shape: a solid (or compound of solids), mm.
         tol: ``group_angle_deg`` groups planes, ``coaxial_deg``/``coaxial_mm`` group axes and
             ``freeform_fit_mm`` bounds the fit of freeform faces.
+        mass: ``brep_mass(shape)`` when the caller has it already (it is the costliest part).
 
     Returns:
         Features: volume centroid and volume, total area, tight axis-aligned box, plane groups
@@ -73,7 +76,9 @@ def extract_features(shape: TopoDS_Shape, tol: Tolerances = DEFAULT_TOLERANCES) 
     faces = indexed_faces(shape)
     if not faces:
         raise GeometryError("features", "shape has no faces")
-    centroid, volume = _volume_properties(shape)
+    volume, centroid = mass if mass is not None else brep_mass(shape)
+    if volume == 0.0:
+        raise GeometryError("features", "shape encloses no volume")
     props = [surface_props(f) for f in faces]
     prims = recognise_faces(faces, tol, props)
     planes = group_planes([p for p in prims if p.kind == PLANE], tol.group_angle_deg)
@@ -114,17 +119,6 @@ def tight_bbox(shape: TopoDS_Shape) -> tuple[FloatArray, FloatArray]:
         raise GeometryError("features", "shape has an empty bounding box")
     x0, y0, z0, x1, y1, z1 = box.Get()
     return np.array([x0, y0, z0]), np.array([x1, y1, z1])
-
-
-def _volume_properties(shape: TopoDS_Shape) -> tuple[FloatArray, float]:
-    """(volume centroid (3,) mm, volume mm^3) of a shape."""
-    props = GProp_GProps()
-    BRepGProp.VolumeProperties_s(shape, props, MASS_PROPS_REL_EPS)
-    volume = float(props.Mass())
-    if abs(volume) <= 0.0:
-        raise GeometryError("features", "shape encloses no volume")
-    c = props.CentreOfMass()
-    return np.array([c.X(), c.Y(), c.Z()]), volume
 
 
 def _parallel(a: FloatArray, b: FloatArray, angle_deg: float) -> bool:

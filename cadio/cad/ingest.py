@@ -300,16 +300,17 @@ def _process_solid(solid: StepSolid, base: CatalogRow, job: IngestJob) -> Catalo
 def _geometry(solid: StepSolid, row: CatalogRow, job: IngestJob) -> CatalogRow:
     """Mesh, features and voxels of one solid written to the workspace; the row, ok."""
     from cadio.cad.features import extract_features
-    from cadio.cad.tessellate import brep_volume, mesh_volume, tessellate
+    from cadio.cad.tessellate import brep_mass, mesh_volume, tessellate
     from cadio.cad.voxels import voxelize
 
     tol, ws, pid = job.tolerances, Workspace(Path(job.workspace)), row.part_id
-    volume = brep_volume(solid.shape)
+    mass = brep_mass(solid.shape)
+    volume = mass[0]
     if volume <= 0:
         reason = f"non-positive B-rep volume {volume:.3g} mm^3 (open or inverted shell)"
         raise GeometryError("solid", reason)
     mesh = tessellate(solid.shape, tol)
-    features = extract_features(solid.shape, tol)
+    features = extract_features(solid.shape, tol, mass)
     write_mesh(ws.mesh(pid), mesh)
     write_features(ws.features(pid), features)
     for n in job.voxel_sizes:
