@@ -301,7 +301,7 @@ def _geometry(solid: StepSolid, row: CatalogRow, job: IngestJob) -> CatalogRow:
     """Mesh, features and voxels of one solid written to the workspace; the row, ok."""
     from cadio.cad.features import extract_features
     from cadio.cad.tessellate import brep_mass, mesh_volume, tessellate
-    from cadio.cad.voxels import voxelize
+    from cadio.cad.voxels import voxelize_sizes
 
     tol, ws, pid = job.tolerances, Workspace(Path(job.workspace)), row.part_id
     mass = brep_mass(solid.shape)
@@ -313,8 +313,9 @@ def _geometry(solid: StepSolid, row: CatalogRow, job: IngestJob) -> CatalogRow:
     features = extract_features(solid.shape, tol, mass)
     write_mesh(ws.mesh(pid), mesh)
     write_features(ws.features(pid), features)
-    for n in job.voxel_sizes:
-        write_voxels(ws.voxels(pid, n), voxelize(mesh, n, margin=tol.grid_margin))
+    grids = voxelize_sizes(mesh, job.voxel_sizes, margin=tol.grid_margin)
+    for n, grid in zip(job.voxel_sizes, grids, strict=True):
+        write_voxels(ws.voxels(pid, n), grid)
     mvol = mesh_volume(mesh)
     warning = (f"{mesh.missing_faces} face(s) could not be meshed: the mesh has holes and its "
                f"volume is off by {100 * (mvol - volume) / volume:.1f}%"
