@@ -13,7 +13,7 @@ Printed, all from the same run so that the shared machine's load falls on both s
 2. product: ``mateqa ingest STEP_DIR --workspace FRESH --workers WORKERS`` end to end in a
    subprocess (catalog, meshes, features, voxels at the default sizes, report);
 3. the ratio product / floor (the goal is at most 2);
-4. per stage, in this process: what each step of a worker's job costs per part.
+4. per stage, in this process: what each step of a worker's job costs per part (CPU time).
 
 Timings on a shared 2-core machine are noisy: ``--repeat`` runs floor and product alternately
 and prints every pair and the median ratio. The CPU seconds of each side's processes (user +
@@ -133,39 +133,40 @@ def compare(root: Path, workers: int, repeat: int) -> None:
 
 
 def stages(root: Path) -> None:
-    """Per-stage cost of a worker's job, in this process, ms per part."""
+    """Per-stage CPU cost of a worker's job, in this process, ms per part."""
     from cadio.cad.features import extract_features
     from cadio.cad.ingest import IngestConfig, discover
     from cadio.cad.step import read_step
-    from cadio.cad.tessellate import brep_volume, tessellate
-    from cadio.cad.voxels import voxelize
+    from cadio.cad.tessellate import brep_mass, tessellate
+    from cadio.cad.voxels import voxelize_sizes
     from cadio.workspace import write_features, write_mesh, write_voxels
 
-    sizes = IngestConfig().voxel_sizes
+    sizes, tol = IngestConfig().voxel_sizes, IngestConfig().tolerances
     seconds: dict[str, float] = defaultdict(float)
     parts = 0
 
     def timed(name: str, fn, *args):  # type: ignore[no-untyped-def]
-        t = time.perf_counter()
+        t = time.process_time()
         out = fn(*args)
-        seconds[name] += time.perf_counter() - t
+        seconds[name] += time.process_time() - t
         return out
 
     with tempfile.TemporaryDirectory() as tmp:
         out = Path(tmp)
         for found in discover(root):
             for solid in timed("read", read_step, found.path):
-                timed("volume", brep_volume, solid.shape)
+                mass = timed("mass", brep_mass, solid.shape)
                 mesh = timed("tessellate", tessellate, solid.shape)
-                features = timed("features", extract_features, solid.shape)
-                grids = [timed("voxels", voxelize, mesh, n) for n in sizes]
+                features = timed("features", extract_features, solid.shape, tol, mass)
+                grids = timed("voxels", voxelize_sizes, mesh, sizes)
                 timed("write", write_mesh, out / "m.ply", mesh)
                 timed("write", write_features, out / "f.json", features)
                 for n, grid in zip(sizes, grids, strict=True):
                     timed("write", write_voxels, out / f"v{n}.npz", grid)
                 parts += 1
     total = sum(seconds.values())
-    print(f"\nPer stage, in this process ({parts} parts; voxels at {sizes})")
+    print(f"\nPer stage, CPU in this process ({parts} parts; voxels at {sizes}; mass = volume "
+          "and centroid, features = per-face areas, recognition, groups, box)")
     print(f"{'stage':<12} {'seconds':>9} {'ms/part':>9}")
     for name, s in [*seconds.items(), ("total", total)]:
         print(f"{name:<12} {s:>9.2f} {1000 * s / parts:>9.1f}")
