@@ -124,7 +124,7 @@ def tight_bbox(shape: TopoDS_Shape) -> tuple[FloatArray, FloatArray]:
 
     The result is OpenCascade's optimal box (``BRepBndLib.AddOptimal_s`` without triangulation
     or tolerances), which is the union of its faces' optimal boxes. A B-spline, torus or sphere
-    face costs an optimisation (up to a second on a large B-spline), so such a face is skipped
+    face costs an optimisation (up to ~50 ms on the real files), so such a face is skipped
     when a cheap box that surely holds it (see ``_hull_box``) already lies inside the union of
     the faces done so far: it cannot change the union, and the result stays the same to the bit.
 
