@@ -106,9 +106,13 @@ def _face_triangles(face: TopoDS_Face) -> tuple[FloatArray, IntArray] | None:
     poly = BRep_Tool.Triangulation_s(face, location)
     if poly is None or poly.NbTriangles() == 0:
         return None
-    trsf = location.Transformation()
-    nodes = [poly.Node(i).Transformed(trsf) for i in range(1, poly.NbNodes() + 1)]
-    vertices = np.array([(p.X(), p.Y(), p.Z()) for p in nodes], dtype=np.float64)
+    count = range(1, poly.NbNodes() + 1)
+    if location.IsIdentity():  # most faces of a single part: no copy through an identity
+        vertices = np.array([poly.Node(i).Coord() for i in count], dtype=np.float64)
+    else:
+        trsf = location.Transformation()
+        vertices = np.array([poly.Node(i).Transformed(trsf).Coord() for i in count],
+                            dtype=np.float64)
     triangles = np.array(
         [poly.Triangle(i).Get() for i in range(1, poly.NbTriangles() + 1)], dtype=np.int64
     ) - 1
