@@ -13,11 +13,12 @@ import math
 from collections.abc import Mapping, Sequence
 from dataclasses import asdict, dataclass, fields
 from pathlib import Path
-from typing import Any
-
-import pandas as pd
+from typing import TYPE_CHECKING, Any
 
 from cadio.workspace import atomic_path
+
+if TYPE_CHECKING:
+    import pandas as pd
 
 STATUSES = ("ok", "failed", "skipped")
 
@@ -80,6 +81,8 @@ COLUMNS: dict[str, str] = {
 
 def _typed(name: str, value: Any) -> Any:
     """A frame value as the field's Python type (lists as tuples, missing text as "")."""
+    import pandas as pd  # here, not at the top: CAD worker processes build rows, never frames
+
     if name in _LIST_COLUMNS:
         return None if value is None else tuple(value)
     kind = _TYPES.get(name, str)
@@ -90,6 +93,8 @@ def _typed(name: str, value: Any) -> Any:
 
 def to_frame(rows: Sequence[CatalogRow]) -> pd.DataFrame:
     """Rows as a typed DataFrame, in catalog column order."""
+    import pandas as pd
+
     frame = pd.DataFrame([asdict(r) for r in rows], columns=list(COLUMNS))
     for name, dtype in COLUMNS.items():
         if dtype != "object":
@@ -109,6 +114,8 @@ def write_catalog(path: Path, frame: pd.DataFrame) -> None:
 
 def read_catalog(path: Path) -> pd.DataFrame:
     """Read a catalog written by ``write_catalog``; an absent file gives an empty catalog."""
+    import pandas as pd
+
     if not path.exists():
         return to_frame([])
     frame = pd.read_parquet(path)

@@ -14,6 +14,7 @@ import multiprocessing as mp
 import os
 import resource
 import signal
+import sys
 import time
 from collections import deque
 from collections.abc import Callable, Iterable, Iterator
@@ -170,13 +171,15 @@ class _Pool(Generic[P, R]):
         return Outcome(job, error=WorkerError(job.key, reason), seconds=elapsed)
 
     def close(self) -> None:
+        idle = [w for w in self.workers if w.job is None and w.process.is_alive()]
+        for worker in idle:  # all told first, so that they wind down side by side
+            try:
+                worker.conn.send(None)
+            except OSError:
+                pass
+        for worker in idle:
+            worker.process.join(2)
         for worker in self.workers:
-            if worker.job is None and worker.process.is_alive():
-                try:
-                    worker.conn.send(None)
-                except OSError:
-                    pass
-                worker.process.join(2)
             worker.kill()
         self.workers = []
 
@@ -200,7 +203,12 @@ def _rebuild_error(key: str, value: tuple[str, str]) -> InputFileError:
 
 
 def _worker_main(conn: Connection, fn: Callable[[Any], Any], memory_mb: int) -> None:
-    """Entry point of a worker: limit memory, silence the kernel's console, serve jobs."""
+    """Entry point of a worker: limit memory, silence the kernel's console, serve jobs.
+
+    When told to stop, the worker leaves with ``os._exit``: every result is sent by then, and
+    tearing down an interpreter that holds OCP and open3d costs about half a second of CPU
+    (exit handlers do not run in workers, so nothing may rely on them there).
+    """
     _limit_memory(memory_mb)
     devnull = os.open(os.devnull, os.O_WRONLY)
     os.dup2(devnull, 1)  # OpenCascade prints parser chatter straight to fd 1
@@ -208,10 +216,13 @@ def _worker_main(conn: Connection, fn: Callable[[Any], Any], memory_mb: int) -> 
         try:
             payload = conn.recv()
         except EOFError:
-            return
+            break
         if payload is None:
-            return
+            break
         conn.send(_serve(fn, payload, memory_mb))
+    logging.shutdown()
+    sys.stderr.flush()
+    os._exit(0)
 
 
 def _serve(fn: Callable[[Any], Any], payload: Any, memory_mb: int) -> tuple[str, Any]:

@@ -19,10 +19,13 @@ from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from dataclasses import asdict
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from cadio.errors import InputFileError
 from cadio.tolerances import DEFAULT_TOLERANCES, Tolerances, read_tolerances
-from flows.settings import Settings
+
+if TYPE_CHECKING:
+    from flows.settings import Settings
 
 # Third-party loggers that narrate every operation at INFO (build123d logs each sketch step).
 _CHATTY = ("httpx", "build123d")
@@ -52,6 +55,10 @@ def main(argv: list[str] | None = None) -> int:
 
 
 def _parser() -> argparse.ArgumentParser:
+    # Imported here, not at the top: the CAD workers that ``ingest`` spawns import this module
+    # afresh (multiprocessing re-runs the main module), and need neither pydantic nor pandas.
+    from flows.settings import Settings
+
     parser = argparse.ArgumentParser(prog="mateqa", description=__doc__.splitlines()[0])
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
     settings = Settings()
@@ -189,7 +196,7 @@ def _progress(description: str, total: int | None) -> Iterator[Callable[[str], N
 
 def _cmd_ingest(args: argparse.Namespace) -> int:
     from cadio.cad.ingest import discover, ingest
-    from flows.settings import ingest_config
+    from flows.settings import Settings, ingest_config
     from reports.render import build_ingest_report
 
     settings = Settings(workers=args.workers, file_timeout_s=args.timeout,
@@ -299,6 +306,7 @@ def _cmd_capture(args: argparse.Namespace) -> int:
 
 def _cmd_nightly(args: argparse.Namespace) -> int:
     from flows.server import server_env, start_server, stop_server
+    from flows.settings import Settings
 
     settings = Settings()
     proc = None

@@ -8,8 +8,10 @@ from pathlib import Path
 import build123d as bd
 import numpy as np
 import pytest
+from OCP.Bnd import Bnd_Box
 from OCP.BRep import BRep_Tool
 from OCP.BRepAdaptor import BRepAdaptor_Surface
+from OCP.BRepBndLib import BRepBndLib
 from OCP.BRepBuilderAPI import BRepBuilderAPI_NurbsConvert, BRepBuilderAPI_Transform
 from OCP.GeomAbs import GeomAbs_BSplineSurface
 from OCP.GeomConvert import GeomConvert_SurfToAnaSurf
@@ -17,8 +19,10 @@ from OCP.gp import gp_Ax1, gp_Dir, gp_Pnt, gp_Trsf, gp_Vec
 from OCP.Standard import Standard_NullObject
 from OCP.TopoDS import TopoDS_Shape
 
+from cadio.cad import features as features_module
 from cadio.cad.faces import CONE, recognise_faces
-from cadio.cad.features import extract_features, indexed_faces
+from cadio.cad.features import extract_features, indexed_faces, tight_bbox
+from cadio.cad.tessellate import brep_mass
 from cadio.records import Features
 from cadio.tolerances import DEFAULT_TOLERANCES
 from cadio.workspace import read_features, write_features
@@ -70,6 +74,18 @@ def assert_same_features(got: Features, want: Features, tol: float = 1e-6,
         assert got.principal_axis.face_ids == want.principal_axis.face_ids
     assert got.principal_plane_tie == want.principal_plane_tie
     assert got.principal_axis_tie == want.principal_axis_tie
+
+
+def occt_optimal_box(shape: TopoDS_Shape) -> tuple[float, ...]:
+    """OpenCascade's own optimal box of the whole shape (what ``tight_bbox`` must equal)."""
+    box = Bnd_Box()
+    BRepBndLib.AddOptimal_s(shape, box, False, False)
+    return tuple(box.Get())
+
+
+def assert_bbox_is_occts(shape: TopoDS_Shape) -> None:
+    lo, hi = tight_bbox(shape)
+    assert (*lo, *hi) == occt_optimal_box(shape)  # to the bit, not approximately
 
 
 def axis_check(features: Features, dimension: str) -> tuple[float, float]:
@@ -152,6 +168,44 @@ def test_ties_are_flagged_and_coaxial_faces_grouped() -> None:
     assert not f.principal_axis_tie
 
 
+def boss_on_plate() -> bd.Part:
+    """A plate with a filleted boss and a spherical pocket: a torus and a sphere inside."""
+    part = bd.Box(40, 40, 5) + bd.Pos(0, 0, 7.5) * bd.Cylinder(5, 10)
+    foot = part.edges().filter_by(bd.GeomType.CIRCLE).sort_by(bd.Axis.Z)[0]
+    return bd.fillet([foot], 2) - bd.Pos(10, 10, 0) * bd.Sphere(1.5)
+
+
+@pytest.mark.parametrize("make", [
+    boss_on_plate,
+    lambda: bd.fillet((bd.Box(30, 20, 10) - bd.Cylinder(4, 10)).edges(), 1.5),  # spheres too
+    lambda: bd.fillet(bd.Cylinder(8, 20).edges(), 2) + bd.Pos(0, 0, 12) * bd.Sphere(5),
+    lambda: bd.Torus(12, 3) - bd.Pos(12, 0, 0) * bd.Box(10, 40, 10),
+    lambda: bd.Pos(40, -7, 3) * bd.Rot(20, 35, 50) * bd.fillet(bd.Cylinder(6, 9).edges(), 1),
+])
+def test_tight_bbox_equals_occts_optimal_box(make) -> None:  # type: ignore[no-untyped-def]
+    shape = make().wrapped
+    assert_bbox_is_occts(shape)
+    assert_bbox_is_occts(BRepBuilderAPI_NurbsConvert(shape, True).Shape())  # B-spline faces
+
+
+def test_tight_bbox_skips_costly_faces_that_cannot_count(monkeypatch) -> None:  # type: ignore[no-untyped-def]
+    boxed = []
+    optimal_box = features_module._optimal_box
+    monkeypatch.setattr(features_module, "_optimal_box",
+                        lambda shape: boxed.append(shape) or optimal_box(shape))
+    shape = boss_on_plate().wrapped
+    tight_bbox(shape)
+    assert len(boxed) == len(indexed_faces(shape)) - 2  # the fillet and the pocket
+
+
+def test_given_mass_properties_change_nothing() -> None:
+    shape = bd.fillet(bd.Box(12, 8, 6).edges(), 1).wrapped
+    mass = brep_mass(shape)
+    given, computed = extract_features(shape, mass=mass), extract_features(shape)
+    assert given.to_dict() == computed.to_dict()
+    assert (given.volume, *given.centroid) == (mass[0], *mass[1])
+
+
 def test_features_round_trip_through_workspace(tmp_path: Path) -> None:
     f = extract_features((bd.Box(8, 8, 4) - bd.Cylinder(2, 4)).wrapped)
     write_features(tmp_path / "f.json", f)
@@ -179,6 +233,14 @@ def test_nut_principal_axis_is_its_bore(step_solids, name: str) -> None:
     assert along >= COS_1_DEG
     # kcl_hex-nut's hexagon is slightly irregular: its centroid sits 0.16 mm off the bore.
     assert gap <= 0.02 * float(np.linalg.norm(f.bbox_max - f.bbox_min))
+
+
+@pytest.mark.shared
+@pytest.mark.parametrize("name", [AS1, "linear-rotary-motion/kcl_ball-bearing.step",
+                                  "abc-misc/abc_00003455.step"])
+def test_tight_bbox_equals_occts_optimal_box_on_real_parts(step_solids, name: str) -> None:
+    for solid in step_solids(name):
+        assert_bbox_is_occts(solid)
 
 
 @pytest.mark.shared

@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import os
 import shutil
+import subprocess
+import sys
 from dataclasses import replace
 from pathlib import Path
 
@@ -12,9 +14,9 @@ import pandas as pd
 import pytest
 from sandbox_targets import process_or_crash
 
-from cadio.cad.ingest import IngestConfig, discover, ingest
+from cadio.cad.ingest import IngestConfig, discover, ingest, largest_first
 from cadio.catalog import read_catalog
-from cadio.sandbox import Limits
+from cadio.sandbox import Job, Limits
 from cadio.workspace import Workspace, read_features, read_mesh, read_voxels
 
 FAST = IngestConfig(voxel_sizes=(32,), limits=Limits(seconds=120, workers=2))
@@ -161,3 +163,23 @@ def test_a_real_reader_crash_does_not_stop_the_batch(tmp_path: Path, box_step: P
     assert crashed["status"] == "failed" and "SIGSEGV" in crashed["error"]
     assert _row(catalog, "before.step")["status"] == "ok"
     assert _row(catalog, "zafter.step")["status"] == "ok"
+
+
+def test_jobs_start_with_the_largest_file(tmp_path: Path) -> None:
+    sizes = {"small.step": 10, "large.step": 3000, "middle.step": 200, "also-middle.step": 200}
+    for name, size in sizes.items():
+        (tmp_path / name).write_bytes(b"x" * size)
+    jobs = [Job(str(tmp_path / name), name) for name in sizes]
+    order = [job.payload for job in largest_first(jobs)]
+    assert order == ["large.step", "also-middle.step", "middle.step", "small.step"]
+
+
+def test_the_supervisor_and_fresh_workers_load_no_heavy_library() -> None:
+    """The supervisor has no use for them, and every spawned worker re-imports flows.cli."""
+    heavy = ("OCP", "open3d", "pandas", "pydantic")
+    probe = ("import sys, flows.cli, cadio.cad.ingest; "
+             f"print(sorted(m for m in {heavy} if m in sys.modules))")
+    root = Path(__file__).resolve().parents[1]
+    out = subprocess.run([sys.executable, "-c", probe], capture_output=True, text=True,
+                         check=True, cwd=root, env={**os.environ, "PYTHONPATH": str(root)})
+    assert out.stdout.strip() == "[]"

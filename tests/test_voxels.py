@@ -6,11 +6,20 @@ from pathlib import Path
 
 import build123d as bd
 import numpy as np
+import open3d as o3d
 import pytest
 
 from cadio.cad.tessellate import brep_volume, tessellate
-from cadio.cad.voxels import grid_transform, iou, points_to_grid, voxel_centres, voxelize
-from cadio.records import VoxelGrid
+from cadio.cad.voxels import (
+    grid_transform,
+    iou,
+    occupancy_in,
+    points_to_grid,
+    voxel_centres,
+    voxelize,
+    voxelize_sizes,
+)
+from cadio.records import Mesh, VoxelGrid
 from cadio.workspace import read_voxels, write_voxels
 
 NUT = "fasteners/kcl_hex-nut.step"
@@ -110,3 +119,38 @@ def test_voxels_round_trip_through_workspace(nut_grids, tmp_path: Path) -> None:
         back = read_voxels(path)
         assert np.array_equal(back.occupancy, grid.occupancy)
         np.testing.assert_array_equal(back.grid_to_part, grid.grid_to_part)
+
+
+def asked_everywhere(mesh: Mesh, n: int, t: np.ndarray | None = None) -> np.ndarray:
+    """Occupancy from open3d at every voxel centre: what the skipped voxels must agree with."""
+    scene = o3d.t.geometry.RaycastingScene()
+    scene.add_triangles(o3d.core.Tensor.from_numpy(mesh.vertices.astype(np.float32)),
+                        o3d.core.Tensor.from_numpy(mesh.triangles.astype(np.uint32)))
+    if t is None:
+        t = grid_transform(mesh.vertices.min(axis=0), mesh.vertices.max(axis=0), n)
+    return scene.compute_occupancy(o3d.core.Tensor.from_numpy(voxel_centres(t, n))).numpy() > 0
+
+
+@pytest.mark.parametrize("make", [
+    lambda: bd.Box(40, 30, 2),  # a flat plate: most of its cube is provably empty
+    lambda: bd.Pos(500, -80, 20) * bd.Rot(10, 60, 30) * (bd.Cylinder(3, 50) + bd.Sphere(6)),
+    lambda: bd.fillet(bd.Box(20, 20, 20).edges(), 2) - bd.Sphere(6),  # a hollow
+])
+def test_voxels_skipped_as_empty_are_empty(make) -> None:  # type: ignore[no-untyped-def]
+    """The shortcut relies on open3d's ray direction; a mesh with a hole makes parity fragile."""
+    mesh = tessellate(make().wrapped)
+    holed = Mesh(vertices=mesh.vertices, triangles=mesh.triangles[5:])
+    for m in (mesh, holed):
+        for n, grid in zip((16, 33, 64), voxelize_sizes(m, (16, 33, 64)), strict=True):
+            assert np.array_equal(grid.occupancy, asked_everywhere(m, n))
+
+
+def test_occupancy_on_a_turned_grid_skips_only_empty_voxels() -> None:
+    """A grid placed by a camera's view is rotated and offset: the shortcut must still hold."""
+    mesh = tessellate((bd.Box(30, 12, 8) - bd.Cylinder(3, 8)).wrapped)
+    turn = np.eye(4)
+    turn[:3, :3] = 1.2 * np.linalg.qr(np.random.default_rng(3).normal(size=(3, 3)))[0]
+    turn[:3, 3] = np.array([1.0, -2.0, 0.5]) - turn[:3, :3] @ np.full(3, 16.0)  # near the middle
+    grid = occupancy_in(mesh, turn, 33)
+    assert grid.any() and not grid.all()
+    assert np.array_equal(grid, asked_everywhere(mesh, 33, turn))

@@ -14,13 +14,21 @@ from __future__ import annotations
 import logging
 import math
 from collections.abc import Callable, Sequence
+from typing import Any
 
 import numpy as np
+import numpy.typing as npt
 from OCP.Bnd import Bnd_Box
+from OCP.BRep import BRep_Tool
 from OCP.BRepBndLib import BRepBndLib
-from OCP.BRepGProp import BRepGProp
-from OCP.GProp import GProp_GProps
-from OCP.TopoDS import TopoDS_Shape
+from OCP.BRepTools import BRepTools
+from OCP.Geom import Geom_BSplineSurface
+from OCP.GeomAbs import GeomAbs_BSplineSurface, GeomAbs_Sphere, GeomAbs_Torus
+from OCP.GeomAdaptor import GeomAdaptor_Surface
+from OCP.gp import gp_Ax3
+from OCP.TopAbs import TopAbs_EDGE, TopAbs_FACE, TopAbs_VERTEX
+from OCP.TopExp import TopExp_Explorer
+from OCP.TopoDS import TopoDS_Face, TopoDS_Shape
 
 from cadio.cad.faces import (
     CONE,
@@ -32,7 +40,7 @@ from cadio.cad.faces import (
     recognise_faces,
     surface_props,
 )
-from cadio.cad.tessellate import MASS_PROPS_REL_EPS
+from cadio.cad.tessellate import brep_mass
 from cadio.errors import GeometryError
 from cadio.records import AxisGroup, Features, FloatArray, PlaneGroup, canonical_direction
 from cadio.tolerances import DEFAULT_TOLERANCES, Tolerances
@@ -51,15 +59,28 @@ log = logging.getLogger(__name__)
 TIE_FRACTION = 0.99
 # Angles computed from dot products carry ~1e-8 rad of rounding: keep values at a tolerance in.
 _ANGLE_SLACK = 1e-9
+# A costly face's box is skipped (see ``tight_bbox``) only when its hull lies this far inside
+# the union: OpenCascade enlarges an optimised face box by Precision::Confusion (1e-7 mm), and
+# the hull itself carries rounding relative to the coordinates. Not a tolerance of the result.
+_HULL_MARGIN_MM = 1e-6
+_HULL_MARGIN_REL = 1e-9
+# ...and the face's parameter box is widened by this fraction (plus 1e-8) before bounding it:
+# OpenCascade's optimal box works on its own, slightly different, parameter bounds.
+_UV_WIDEN = 1e-6
 
 
-def extract_features(shape: TopoDS_Shape, tol: Tolerances = DEFAULT_TOLERANCES) -> Features:
+def extract_features(
+    shape: TopoDS_Shape,
+    tol: Tolerances = DEFAULT_TOLERANCES,
+    mass: tuple[float, FloatArray] | None = None,
+) -> Features:
     """Compute the geometric features of one part from its exact B-rep.
 
     Args:
         shape: a solid (or compound of solids), mm.
         tol: ``group_angle_deg`` groups planes, ``coaxial_deg``/``coaxial_mm`` group axes and
             ``freeform_fit_mm`` bounds the fit of freeform faces.
+        mass: ``brep_mass(shape)`` when the caller has it already (it is the costliest part).
 
     Returns:
         Features: volume centroid and volume, total area, tight axis-aligned box, plane groups
@@ -73,7 +94,9 @@ def extract_features(shape: TopoDS_Shape, tol: Tolerances = DEFAULT_TOLERANCES) 
     faces = indexed_faces(shape)
     if not faces:
         raise GeometryError("features", "shape has no faces")
-    centroid, volume = _volume_properties(shape)
+    volume, centroid = mass if mass is not None else brep_mass(shape)
+    if volume == 0.0:
+        raise GeometryError("features", "shape encloses no volume")
     props = [surface_props(f) for f in faces]
     prims = recognise_faces(faces, tol, props)
     planes = group_planes([p for p in prims if p.kind == PLANE], tol.group_angle_deg)
@@ -99,6 +122,12 @@ def extract_features(shape: TopoDS_Shape, tol: Tolerances = DEFAULT_TOLERANCES) 
 def tight_bbox(shape: TopoDS_Shape) -> tuple[FloatArray, FloatArray]:
     """Axis-aligned box of the exact geometry (not the mesh, not enlarged by tolerances).
 
+    The result is OpenCascade's optimal box (``BRepBndLib.AddOptimal_s`` without triangulation
+    or tolerances), which is the union of its faces' optimal boxes. A B-spline, torus or sphere
+    face costs an optimisation (up to ~50 ms on the real files), so such a face is skipped
+    when a cheap box that surely holds it (see ``_hull_box``) already lies inside the union of
+    the faces done so far: it cannot change the union, and the result stays the same to the bit.
+
     Args:
         shape: any non-empty shape, mm.
 
@@ -108,23 +137,142 @@ def tight_bbox(shape: TopoDS_Shape) -> tuple[FloatArray, FloatArray]:
     Raises:
         GeometryError: when the shape has no geometry to bound.
     """
+    if _has_loose_edges(shape):
+        lo, hi = _optimal_box(shape)
+    else:
+        lo, hi = _union_of_faces(indexed_faces(shape))
+    if not np.all(lo <= hi):
+        raise GeometryError("features", "shape has an empty bounding box")
+    return lo, hi
+
+
+def _union_of_faces(faces: Sequence[TopoDS_Face]) -> tuple[FloatArray, FloatArray]:
+    """Union of the faces' optimal boxes; costly faces last, skipped where they cannot count."""
+    lo, hi = np.full(3, np.inf), np.full(3, -np.inf)
+    costly = []
+    for face in faces:
+        hull = _hull_box(face)
+        if hull is None:
+            lo, hi = _union(lo, hi, _optimal_box(face))
+        else:
+            costly.append((face, hull))
+    for face, (hull_lo, hull_hi) in costly:
+        margin = _HULL_MARGIN_MM + _HULL_MARGIN_REL * float(np.max(np.abs([hull_lo, hull_hi])))
+        if np.all(hull_lo - margin >= lo) and np.all(hull_hi + margin <= hi):
+            continue
+        lo, hi = _union(lo, hi, _optimal_box(face))
+    return lo, hi
+
+
+def _union(
+    lo: FloatArray, hi: FloatArray, box: tuple[FloatArray, FloatArray]
+) -> tuple[FloatArray, FloatArray]:
+    return np.minimum(lo, box[0]), np.maximum(hi, box[1])
+
+
+def _optimal_box(shape: TopoDS_Shape) -> tuple[FloatArray, FloatArray]:
+    """OpenCascade's optimal box of a shape; an empty one is (+inf, -inf)."""
     box = Bnd_Box()
     BRepBndLib.AddOptimal_s(shape, box, False, False)
     if box.IsVoid():
-        raise GeometryError("features", "shape has an empty bounding box")
+        return np.full(3, np.inf), np.full(3, -np.inf)
     x0, y0, z0, x1, y1, z1 = box.Get()
     return np.array([x0, y0, z0]), np.array([x1, y1, z1])
 
 
-def _volume_properties(shape: TopoDS_Shape) -> tuple[FloatArray, float]:
-    """(volume centroid (3,) mm, volume mm^3) of a shape."""
-    props = GProp_GProps()
-    BRepGProp.VolumeProperties_s(shape, props, MASS_PROPS_REL_EPS)
-    volume = float(props.Mass())
-    if abs(volume) <= 0.0:
-        raise GeometryError("features", "shape encloses no volume")
-    c = props.CentreOfMass()
-    return np.array([c.X(), c.Y(), c.Z()]), volume
+def _hull_box(face: TopoDS_Face) -> tuple[FloatArray, FloatArray] | None:
+    """A box surely holding a costly face, or None for a face OpenCascade boxes cheaply.
+
+    Both bounds work on the face's parameter box, widened a little (``_uv_box``). B-spline:
+    the box of the poles whose basis functions reach into it (a rational B-spline with
+    positive weights lies in the convex hull of those). Torus and sphere: interval bounds of
+    their parametric formula. Planes, cylinders and cones are boxed from their edges by
+    OpenCascade; other freeform kinds are rare and simply computed.
+    """
+    surface = GeomAdaptor_Surface(BRep_Tool.Surface_s(face))  # located: shape coordinates
+    kind = surface.GetType()
+    if kind == GeomAbs_BSplineSurface:
+        return _bspline_hull(surface.BSpline(), _uv_box(face))
+    if kind == GeomAbs_Torus:
+        torus = surface.Torus()
+        return _revolved_hull(torus.Position(), torus.MajorRadius(), torus.MinorRadius(),
+                              _uv_box(face))
+    if kind == GeomAbs_Sphere:
+        sphere = surface.Sphere()  # a torus of major radius 0 in OpenCascade's formulas
+        return _revolved_hull(sphere.Position(), 0.0, sphere.Radius(), _uv_box(face))
+    return None
+
+
+def _uv_box(face: TopoDS_Face) -> tuple[float, float, float, float]:
+    """The face's parameter box, widened beyond the rounding of OpenCascade's own UV bounds."""
+    u0, u1, v0, v1 = BRepTools.UVBounds_s(face)
+    du, dv = _UV_WIDEN * (u1 - u0) + 1e-8, _UV_WIDEN * (v1 - v0) + 1e-8
+    return u0 - du, u1 + du, v0 - dv, v1 + dv
+
+
+def _bspline_hull(
+    surface: Geom_BSplineSurface, uv: tuple[float, float, float, float]
+) -> tuple[FloatArray, FloatArray]:
+    """Box of the poles that shape ``surface`` over ``uv`` (all of them along periodic sides)."""
+    poles = surface.Poles()
+    xyz = np.array([[poles.Value(i, j).Coord()
+                     for j in range(poles.LowerCol(), poles.UpperCol() + 1)]
+                    for i in range(poles.LowerRow(), poles.UpperRow() + 1)])  # (nu, nv, 3)
+    rows = _reaching(surface.UKnotSequence(), surface.UDegree(), len(xyz), uv[0], uv[1],
+                     surface.IsUPeriodic())
+    cols = _reaching(surface.VKnotSequence(), surface.VDegree(), xyz.shape[1], uv[2], uv[3],
+                     surface.IsVPeriodic())
+    used = xyz[rows][:, cols].reshape(-1, 3)
+    return used.min(axis=0), used.max(axis=0)
+
+
+def _reaching(
+    flat_knots: Any, degree: int, n: int, lo: float, hi: float, periodic: bool
+) -> npt.NDArray[np.bool_]:
+    """Which of ``n`` B-spline basis functions are non-zero somewhere on [lo, hi]."""
+    if periodic:
+        return np.ones(n, dtype=bool)
+    t = np.array([flat_knots.Value(k) for k in range(flat_knots.Lower(), flat_knots.Upper() + 1)])
+    return np.asarray((t[:n] <= hi) & (t[degree + 1:degree + 1 + n] >= lo))
+
+
+def _revolved_hull(
+    position: gp_Ax3, major: float, minor: float, uv: tuple[float, float, float, float]
+) -> tuple[FloatArray, FloatArray]:
+    """Interval box of P(u, v) = C + (major + minor cos v)(cos u X + sin u Y) + minor sin v Z."""
+    u0, u1, v0, v1 = uv
+    x, y, z = (np.array(d.Coord()) for d in
+               (position.XDirection(), position.YDirection(), position.Direction()))
+    centre = np.array(position.Location().Coord())
+    rho = major + minor * np.array(_cos_range(v0, v1))  # (lo, hi)
+    sin_v = np.array(_cos_range(v0 - math.pi / 2, v1 - math.pi / 2))
+    lo, hi = np.empty(3), np.empty(3)
+    for k in range(3):
+        # cos u x_k + sin u y_k = A cos(u - phi): its exact range over [u0, u1]
+        amp, phi = math.hypot(x[k], y[k]), math.atan2(y[k], x[k])
+        radial = amp * np.array(_cos_range(u0 - phi, u1 - phi))
+        products = np.outer(rho, radial)
+        axial = minor * z[k] * sin_v
+        lo[k] = centre[k] + products.min() + axial.min()
+        hi[k] = centre[k] + products.max() + axial.max()
+    return lo, hi
+
+
+def _cos_range(lo: float, hi: float) -> tuple[float, float]:
+    """(min, max) of cos over [lo, hi] radians."""
+    if hi - lo >= 2 * math.pi:
+        return -1.0, 1.0
+    ends = (math.cos(lo), math.cos(hi))
+    top = 1.0 if 2 * math.pi * math.floor(hi / (2 * math.pi)) >= lo else max(ends)
+    bottom = -1.0 if 2 * math.pi * math.floor((hi - math.pi) / (2 * math.pi)) + math.pi >= lo \
+        else min(ends)
+    return bottom, top
+
+
+def _has_loose_edges(shape: TopoDS_Shape) -> bool:
+    """Whether the shape has edges outside faces or vertices outside edges (not a solid's)."""
+    return bool(TopExp_Explorer(shape, TopAbs_EDGE, TopAbs_FACE).More()
+                or TopExp_Explorer(shape, TopAbs_VERTEX, TopAbs_EDGE).More())
 
 
 def _parallel(a: FloatArray, b: FloatArray, angle_deg: float) -> bool:

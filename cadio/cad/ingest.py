@@ -3,9 +3,13 @@
 Files are found recursively (``.step``/``.stp`` in any letter case), hashed, and checked cheaply
 in this process (size limit, not a regular file, unreadable, duplicate content). The real work,
 reading through OpenCascade and deriving geometry (``process_file``, the worker's job), runs in
-crash-isolated worker processes (``cadio.sandbox``). Every file found is accounted for by at
-least one ``CatalogRow``: ok + failed + skipped = found. A rerun reuses the rows of files whose
-content hash and configuration are unchanged.
+crash-isolated worker processes (``cadio.sandbox``), largest file first so that a big file does
+not run alone at the end. Every file found is accounted for by at least one ``CatalogRow``:
+ok + failed + skipped = found. A rerun reuses the rows of files whose content hash and
+configuration are unchanged.
+
+This process never loads OCP or open3d (seconds of start-up on a small machine, while the
+workers load them anyway): the worker's job at the bottom imports the CAD modules itself.
 """
 
 from __future__ import annotations
@@ -17,20 +21,23 @@ import time
 from collections.abc import Callable, Iterable, Sequence
 from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
+from typing import TYPE_CHECKING, TypeVar
 
-import pandas as pd
-
-from cadio.cad.features import extract_features
-from cadio.cad.step import STEP_SUFFIXES, StepSolid, read_step
-from cadio.cad.tessellate import brep_volume, mesh_volume, tessellate
-from cadio.cad.voxels import voxelize
 from cadio.catalog import CatalogRow, catalog_rows, read_catalog, to_frame, write_catalog
 from cadio.errors import GeometryError, InputFileError, WorkerError
 from cadio.sandbox import Job, Limits, run_isolated
 from cadio.tolerances import DEFAULT_TOLERANCES, Tolerances
 from cadio.workspace import Workspace, write_features, write_mesh, write_voxels
 
+if TYPE_CHECKING:
+    import pandas as pd
+
+    from cadio.cad.step import StepSolid
+
 log = logging.getLogger(__name__)
+
+STEP_SUFFIXES = (".step", ".stp")
+P = TypeVar("P")
 
 # Bump when the derived artefacts change meaning, so cached rows are recomputed.
 INGEST_VERSION = "2"
@@ -218,8 +225,7 @@ def _job(item: Found, sha: str, ws: Workspace, cfg: IngestConfig) -> IngestJob:
 def _run_jobs(jobs: Sequence[Job[IngestJob]], cfg: IngestConfig,
               done: Callable[[str], None]) -> list[CatalogRow]:
     rows: list[CatalogRow] = []
-    ordered = sorted(jobs, key=lambda job: job.key)  # a stable order for reproducible logs
-    for outcome in run_isolated(cfg.worker or process_file, ordered, cfg.limits):
+    for outcome in run_isolated(cfg.worker or process_file, largest_first(jobs), cfg.limits):
         job = outcome.job.payload
         done(job.path)
         if outcome.error is None:
@@ -229,6 +235,22 @@ def _run_jobs(jobs: Sequence[Job[IngestJob]], cfg: IngestConfig,
                           seconds=outcome.seconds, config_key=_failure_key(outcome.error, job))
         rows.append(_row(base, "failed", outcome.error.reason))
     return rows
+
+
+def largest_first(jobs: Iterable[Job[P]]) -> list[Job[P]]:
+    """Jobs largest file first, then by path (a stable order for reproducible logs).
+
+    File size is the cheapest guess of the work a file holds; starting the big ones first
+    keeps both workers busy until near the end instead of leaving one idle behind the last.
+    """
+    return sorted(jobs, key=lambda job: (-_size(Path(job.key)), job.key))
+
+
+def _size(path: Path) -> int:
+    try:
+        return path.stat().st_size
+    except OSError:  # vanished since it was hashed: its worker reports that
+        return 0
 
 
 def _failure_key(error: InputFileError, job: IngestJob) -> str:
@@ -253,6 +275,8 @@ def process_file(job: IngestJob) -> list[CatalogRow]:
     Raises:
         StepReadError: the file cannot be read into solids.
     """
+    from cadio.cad.step import read_step
+
     path = Path(job.path)
     solids = read_step(path)
     base = CatalogRow(category=job.category, source=str(path), source_sha256=job.sha256,
@@ -275,17 +299,23 @@ def _process_solid(solid: StepSolid, base: CatalogRow, job: IngestJob) -> Catalo
 
 def _geometry(solid: StepSolid, row: CatalogRow, job: IngestJob) -> CatalogRow:
     """Mesh, features and voxels of one solid written to the workspace; the row, ok."""
+    from cadio.cad.features import extract_features
+    from cadio.cad.tessellate import brep_mass, mesh_volume, tessellate
+    from cadio.cad.voxels import voxelize_sizes
+
     tol, ws, pid = job.tolerances, Workspace(Path(job.workspace)), row.part_id
-    volume = brep_volume(solid.shape)
+    mass = brep_mass(solid.shape)
+    volume = mass[0]
     if volume <= 0:
         reason = f"non-positive B-rep volume {volume:.3g} mm^3 (open or inverted shell)"
         raise GeometryError("solid", reason)
     mesh = tessellate(solid.shape, tol)
-    features = extract_features(solid.shape, tol)
+    features = extract_features(solid.shape, tol, mass)
     write_mesh(ws.mesh(pid), mesh)
     write_features(ws.features(pid), features)
-    for n in job.voxel_sizes:
-        write_voxels(ws.voxels(pid, n), voxelize(mesh, n, margin=tol.grid_margin))
+    grids = voxelize_sizes(mesh, job.voxel_sizes, margin=tol.grid_margin)
+    for n, grid in zip(job.voxel_sizes, grids, strict=True):
+        write_voxels(ws.voxels(pid, n), grid)
     mvol = mesh_volume(mesh)
     warning = (f"{mesh.missing_faces} face(s) could not be meshed: the mesh has holes and its "
                f"volume is off by {100 * (mvol - volume) / volume:.1f}%"

@@ -48,7 +48,6 @@ if TYPE_CHECKING:
 
 log = logging.getLogger(__name__)
 
-STEP_SUFFIXES = (".step", ".stp")
 _HEADER = b"ISO-10303-21"
 _TRAILER = b"END-ISO-10303-21"
 _COLOUR_TYPES = (XCAFDoc_ColorType.XCAFDoc_ColorSurf, XCAFDoc_ColorType.XCAFDoc_ColorGen)

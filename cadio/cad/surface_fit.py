@@ -15,7 +15,6 @@ from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.optimize import least_squares
 
 from cadio.records import FloatArray, perpendicular_pair
 
@@ -173,5 +172,8 @@ def _cone_residuals(points: FloatArray, d0: FloatArray, p0: FloatArray
 
 def _refine(residuals: Callable[[FloatArray], FloatArray], start: FloatArray) -> FloatArray:
     """Parameters minimising the squared residuals (Levenberg-Marquardt), from ``start``."""
+    # Imported here: few faces get this far, and scipy.optimize costs every CAD worker 0.15 s.
+    from scipy.optimize import least_squares
+
     result = least_squares(residuals, start, method="lm", xtol=1e-15, ftol=1e-15, gtol=1e-15)
     return np.asarray(result.x, dtype=np.float64)
