@@ -20,8 +20,8 @@ from OCP.Standard import Standard_NullObject
 from OCP.TopoDS import TopoDS_Shape
 
 from cadio.cad import features as features_module
-from cadio.cad.faces import CONE, recognise_faces
-from cadio.cad.features import extract_features, indexed_faces, tight_bbox
+from cadio.cad.faces import CONE, indexed_faces, recognise_faces
+from cadio.cad.features import extract_features, tight_bbox
 from cadio.cad.tessellate import brep_mass
 from cadio.records import Features
 from cadio.tolerances import DEFAULT_TOLERANCES

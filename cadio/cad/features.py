@@ -31,11 +31,9 @@ from OCP.TopExp import TopExp_Explorer
 from OCP.TopoDS import TopoDS_Face, TopoDS_Shape
 
 from cadio.cad.faces import (
-    CONE,
     CYLINDER,
     PLANE,
     FacePrimitive,
-    face_area,
     indexed_faces,
     recognise_faces,
     surface_props,
@@ -44,12 +42,6 @@ from cadio.cad.tessellate import brep_mass
 from cadio.errors import GeometryError
 from cadio.records import AxisGroup, Features, FloatArray, PlaneGroup, canonical_direction
 from cadio.tolerances import DEFAULT_TOLERANCES, Tolerances
-
-# Face recognition lives in cadio.cad.faces; its names are re-exported for existing callers.
-__all__ = [
-    "CONE", "CYLINDER", "PLANE", "FacePrimitive", "extract_features", "face_area", "group_axes",
-    "group_planes", "indexed_faces", "recognise_faces", "tight_bbox",
-]
 
 log = logging.getLogger(__name__)
 
