@@ -144,7 +144,8 @@ def test_second_call_leaves_files_alone(library) -> None:
     assert [p.stat().st_mtime_ns for p in paths] == before
     assert (out / LIBRARY_INDEX).stat().st_mtime_ns == index
     stamp = json.loads((out / LIBRARY_INDEX).read_text())["stamp"]
-    assert stamp["config"] == {"step_timestamp": SampleConfig().step_timestamp, "gears": True}
+    assert stamp["config"] == {"step_timestamp": SampleConfig().step_timestamp, "gears": True,
+                               "variants": 0, "variant_seed": 0}
 
 
 def test_generation_is_deterministic_across_processes(library, tmp_path) -> None:
@@ -169,3 +170,16 @@ def test_generation_is_deterministic_across_processes(library, tmp_path) -> None
     for path in [*paths, out / LIBRARY_INDEX]:
         other = tmp_path / path.relative_to(out)
         assert other.read_bytes() == path.read_bytes(), path.relative_to(out)
+
+
+def test_variants_are_seeded_distinct_and_valid() -> None:
+    from cadio.samples.variants import draw_variants
+
+    first, again = draw_variants(3, seed=5), draw_variants(3, seed=5)
+    assert [v.description for v in first] == [v.description for v in again]
+    assert [v.description for v in first] != [v.description for v in draw_variants(3, seed=6)]
+    assert len({(v.category, v.name) for v in first}) == len(first) == 12
+    assert {v.category for v in first} == set(Category.paper())
+    for v in first[::3]:  # one of each category builds into one valid, labelled solid
+        solid = v.build()
+        assert solid.is_valid and solid.volume > 0 and solid.label == v.name
