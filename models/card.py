@@ -60,7 +60,7 @@ def model_card(folder: Path, data: pd.DataFrame, categories: pd.DataFrame,
         rows = categories[categories["protocol"] == protocol]
         if len(rows):
             lines += [f"## Held-out IoU, one view (protocol: {protocol})", "",
-                      markdown_table(paper_iou_table(rows)), ""]
+                      markdown_table(paper_iou_table(rows).round(2)), ""]
     if config:
         lines += ["## Training", "", ", ".join(f"{k} {v}" for k, v in config.items()), ""]
     lines += [*notes, "", "Trained with:", "", f"    {command}", ""]
