@@ -185,7 +185,7 @@ def train_model(ws: Workspace, method: str, protocol: str, steps: int, out_dir: 
         cfg, CompletionDataset(paths=train), CompletionDataset(paths=val) if val else None,
         steps=steps, progress=progress, resume=snapshot if snapshot.exists() else None,
         data_info={"protocol": protocol, "train_parts": parts, "train_examples": len(train),
-                   "val_examples": len(val), "dataset": str(dataset_dir(ws))})
+                   "val_examples": len(val), "dataset": str(dataset_dir(ws).relative_to(ws.root))})
     path = save_checkpoint(result.checkpoint, out_dir / f"completion-{method}-{protocol}.pt")
     best = result.checkpoint["metrics"]
     return Trained(str(path), method, protocol, int(result.checkpoint["step"]),
