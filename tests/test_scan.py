@@ -85,7 +85,8 @@ def test_inputs_are_examples_of_each_part_in_both_protocols(ws: Workspace) -> No
         assert all(n.startswith(("observed-", "oracle-box-")) for n in names)
         assert len(names) == summary.examples // 2 and names
         with np.load(folder / "points.npz") as z:
-            assert z["points"].shape == (600, 3)
+            assert z["points"].shape[1:] == (600, 3)
+            assert len(z["view"]) == len(z["points"]) == len(z["world_to_camera"])
         truth = read_voxels(ws.voxels(pid, 32)).occupancy
         oracle = read_example(next(folder.glob("oracle-box-0.npz")))
         # the oracle-box protocol is the ingest's truth grid: observed voxels sit on the truth

@@ -181,6 +181,40 @@ def capture_batch(scene_ids: list[str], ws: Workspace, cfg: ScanConfig) -> list[
     return [c if c.error else with_inputs(c, ws, cfg) for c in captured]
 
 
+ASSEMBLY_PREFIX = "assembly-"
+
+
+def assembly_pairs(mates: pd.DataFrame) -> list[list[str]]:
+    """Part pairs of an assembly's mates table: pairs with a face mate or a joint first, then
+    those with part-level relations only, each in table order."""
+    mated = mates[mates["level"] != "part"]
+    ordered = [*zip(mated["part_a"], mated["part_b"], strict=True),
+               *zip(mates["part_a"], mates["part_b"], strict=True)]
+    return [list(p) for p in dict.fromkeys((str(a), str(b)) for a, b in ordered)]
+
+
+def capture_assembly(assembly: str, category: str, part_ids: list[str], ws: Workspace,
+                     cfg: ScanConfig) -> CaptureSummary:
+    """Render an assembly (its parts as placed in the file) into
+    ``captures/assembly-<name>.mcap`` and derive its inputs; the pairs its mates table names
+    are the capture's labelled pairs. A failure comes back as the summary's error."""
+    scene_id = f"{ASSEMBLY_PREFIX}{assembly}"
+    try:
+        mates = pd.read_parquet(ws.mates(assembly), columns=["part_a", "part_b", "level"])
+        parts = [PlacedPart(instance_id=i + 1, mesh=read_mesh(ws.mesh(pid)), pose=np.eye(4),
+                            colour="#b4b4b4", part_id=pid, label=pid)
+                 for i, pid in enumerate(part_ids)]
+        path = ws.capture(scene_id)
+        labels = {"assembly": assembly, "category": category, "pairs": assembly_pairs(mates)}
+        frames = _write_views(path, parts, cfg, labels)
+    except (OSError, ValueError, CaptureError) as exc:
+        log.warning("assembly %s: %s", assembly, exc)
+        return CaptureSummary(scene_id=scene_id, path="", error=str(exc))
+    summary = CaptureSummary(scene_id=scene_id, path=str(path), frames=frames,
+                             parts=len(parts), bytes=path.stat().st_size)
+    return with_inputs(summary, ws, cfg)
+
+
 def read_captures(captures_dir: Path, ws: Workspace, cfg: ScanConfig) -> list[CaptureSummary]:
     """Learning inputs of every capture recorded elsewhere (``*.mcap`` under the folder)."""
     out = []
@@ -206,7 +240,7 @@ def scan_inputs(path: Path, ws: Workspace, cfg: ScanConfig) -> InputsSummary:
     Parts are told apart by the instance ids (our captures) or, in a recording without them,
     by removing the support plane and clustering (scored against the ids when both exist).
     Each part seen in the scene meta gets its completion examples (``part_examples``) and 600
-    observed points of the first view that sees it (world metres, for the relation network).
+    observed points of every view that sees it (world metres, for the relation network).
     A recording without scene meta yields clusters but no part to score.
 
     Raises:
@@ -236,7 +270,7 @@ def scan_inputs(path: Path, ws: Workspace, cfg: ScanConfig) -> InputsSummary:
         for name, example in written.items():
             write_example(ws.inputs(path.stem, pid) / f"{name}.npz", example,
                           {"part_id": pid, "capture": path.stem})
-        _write_points(ws.inputs(path.stem, pid) / "points.npz", views[0].points, cfg)
+        _write_points(ws.inputs(path.stem, pid) / "points.npz", views, cfg)
         parts, examples = parts + 1, examples + len(written)
     return replace(summary, parts=parts, examples=examples)
 
@@ -269,10 +303,17 @@ def part_examples(views: list[PartView], mesh: Mesh, to_world: FloatArray,
     return out
 
 
-def _write_points(path: Path, points: FloatArray, cfg: ScanConfig) -> None:
+def _write_points(path: Path, views: list[PartView], cfg: ScanConfig) -> None:
+    """Every view's ``n_points`` observed points of a part (the relation stage's input):
+    points (V, k, 3) float32 world metres, view (V,) indices, world_to_camera (V, 4, 4) and
+    observed (V,) counts before sampling."""
     with atomic_write(path) as fh:
-        np.savez_compressed(fh, points=sample_points(points, cfg.n_points),
-                            observed=len(points))
+        np.savez_compressed(
+            fh, points=np.stack([sample_points(v.points, cfg.n_points) for v in views]
+                                ).astype(np.float32),
+            view=np.array([v.view for v in views], dtype=np.int64),
+            world_to_camera=np.stack([v.evidence.world_to_camera for v in views]),
+            observed=np.array([len(v.points) for v in views], dtype=np.int64))
 
 
 def capture_step(target: str, workspace: Path, cfg: ScanConfig,

@@ -48,6 +48,8 @@ EVIDENCE_COLUMNS = (
 )
 # Centroids closer than this (mm) give no direction: the directional relations are undefined.
 _MIN_OFFSET_MM = 1e-9
+# Offsets below this (mm) are exact contact or coaxiality, not a near miss of a tolerance.
+_EXACT_MM = 1e-6
 
 
 @dataclass(frozen=True)
@@ -352,3 +354,35 @@ def _line_distance(xa: AxisGroup, xb: AxisGroup, ref: FloatArray) -> float:
     mean = mean / np.linalg.norm(mean)
     diff = pa - pb
     return float(np.linalg.norm(diff - float(np.dot(diff, mean)) * mean))
+
+
+@dataclass(frozen=True)
+class BoundaryMargins:
+    """How close to a tolerance a pair is "near the boundary" (the scene generator's margins).
+
+    A near-boundary pair's truth could flip with a hair of noise; reports keep such pairs apart.
+    """
+
+    direction_deg: float = 1.0  # 14 to 16 degrees around the 15 degree cone
+    plane_deg: float = 0.1  # 0.9 to 1.1 degrees (parallel), 88.9 to 89.1 (perpendicular)
+    offset_factor: float = 2.0  # gaps and axis distances up to twice their tolerance
+
+
+def near_boundary(result: RelationResult, margins: BoundaryMargins = BoundaryMargins()) -> bool:
+    """Whether any of the pair's relations sits within ``margins`` of its tolerance."""
+    tol = result.tolerances
+    angles = np.asarray(result.direction_deg, dtype=np.float64)
+    if np.any(np.abs(angles[np.isfinite(angles)] - tol.direction_cone_deg)
+              <= margins.direction_deg):
+        return True
+    plane = result.plane_angle_deg
+    if plane is not None and min(abs(plane - tol.parallel_deg),
+                                 abs(90.0 - plane - tol.parallel_deg)) <= margins.plane_deg:
+        return True
+    gap, distance = result.plane_gap_mm, result.axis_distance_mm
+    offsets = [(gap, tol.coplanar_mm), (distance, tol.coaxial_mm)]
+    if any(v is not None and _EXACT_MM < v <= margins.offset_factor * limit
+           for v, limit in offsets):
+        return True  # (exactly touching or coaxial parts, offsets ~0, are not near)
+    axis = result.axis_angle_deg
+    return axis is not None and abs(axis - tol.coaxial_deg) <= margins.plane_deg

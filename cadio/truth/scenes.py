@@ -20,7 +20,7 @@ import hashlib
 import json
 import logging
 import math
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
@@ -116,12 +116,15 @@ def label_pair(a: Features, b: Features, pose_a: FloatArray, pose_b: FloatArray,
     return relate(a.transformed(pose_a), b.transformed(pose_b), cfg.view_axis, cfg.tolerances)
 
 
-def generate_scenes(parts: Sequence[ScenePart], cfg: SceneConfig) -> pd.DataFrame:
+def generate_scenes(parts: Sequence[ScenePart], cfg: SceneConfig,
+                    splits: Mapping[str, str] | None = None) -> pd.DataFrame:
     """Pairs of parts placed for each relation, with the ten labels from ``relate``.
 
     Args:
         parts: catalog parts with features in part coordinates (mm); ids must be unique.
         cfg: the generator's knobs; a fixed seed gives identical scenes.
+        splits: part id -> split where the caller fixes them (a training corpus whose other
+            learned stages split the same parts); default drawn from ``cfg`` per part.
 
     Returns:
         One row per scene: scene_id, split, part_a, part_b, category_a, category_b, pose_a and
@@ -137,7 +140,8 @@ def generate_scenes(parts: Sequence[ScenePart], cfg: SceneConfig) -> pd.DataFram
         raise ValueError("part ids must be unique")
     if min(cfg.split_fractions().values()) < 0 or not 0 <= cfg.near_boundary_fraction <= 1:
         raise ValueError(f"fractions must lie in [0, 1]: {cfg}")
-    splits = assign_splits(sorted(by_id), cfg.seed, cfg.val_fraction, cfg.test_fraction)
+    drawn = assign_splits(sorted(by_id), cfg.seed, cfg.val_fraction, cfg.test_fraction)
+    splits = {pid: (splits or {}).get(pid, drawn[pid]) for pid in by_id}
     rows: list[dict[str, Any]] = []
     for s, split in enumerate(SPLITS):
         members = [by_id[pid] for pid in sorted(by_id) if splits[pid] == split]
@@ -411,11 +415,15 @@ def _lateral(a0: Features, b0: Features, rng: np.random.Generator) -> FloatArray
     return np.array([rng.uniform(-half[0], half[0]), rng.uniform(-half[1], half[1]), 0.0])
 
 
-def build_scenes(catalog: pd.DataFrame, workspace: Path, cfg: SceneConfig) -> ScenesSummary:
-    """The scenes stage: scenes of the catalog's single parts, written to ``scenes.parquet``."""
+def build_scenes(catalog: pd.DataFrame, workspace: Path, cfg: SceneConfig,
+                 splits: Mapping[str, str] | None = None) -> ScenesSummary:
+    """The scenes stage: scenes of the catalog's single parts, written to ``scenes.parquet``
+    (``splits``: part id -> split where the caller fixes them, as ``generate_scenes``)."""
     ws = Workspace(Path(workspace))
     parts = read_scene_parts(catalog, ws.root)
-    table = generate_scenes(parts, cfg)
+    if splits is not None:  # a training corpus: only the parts its other stages split
+        parts = [p for p in parts if p.part_id in splits]
+    table = generate_scenes(parts, cfg, splits)
     write_scenes(ws.scenes, table)
     return ScenesSummary(path=str(ws.scenes), scenes=len(table), parts=len(parts))
 

@@ -1,0 +1,234 @@
+"""Pairs of parts seen by one camera: the relation stage's inputs and their truth.
+
+A capture (a scene of two parts, or a whole assembly) shows its parts in several views. Each
+view of each pair is one ``PairView``: the two parts' points in three inputs, and the ten
+relations of the pair *as that camera's observer sees them*. The directional relations follow
+the observer (DESIGN.md: the camera's forward axis on the ground is "behind"), so the same pair
+seen from the other side swaps left and right; the symmetric ones do not change.
+
+Inputs, each (2, k, 3) float32 world metres:
+- ``truth``: points sampled on the CAD surfaces of the parts, placed as in the scene;
+- ``partial``: the segmented observed points of that view (``points.npz`` of the capture's
+  learning inputs, written by ``cadio.capture.scan``);
+- ``completed``: the completion network's shape of that view under the observed protocol
+  (computed by ``models``, handed in as a mapping).
+
+The truth labels come from ``cadio.truth.relations.relate`` on the B-rep features of the parts
+placed in the CAD frame, with the camera's view axis: one definition for scenes and assemblies.
+The networks see only ``observer_points`` (the points turned into the observer's frame), never
+the poses or the features.
+"""
+
+from __future__ import annotations
+
+import hashlib
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import numpy.typing as npt
+
+from cadio.capture.mcap_io import read_scene_meta
+from cadio.capture.observe import observer_rotation
+from cadio.capture.pointcloud import sample_points
+from cadio.errors import CaptureError
+from cadio.records import Features, FloatArray, Mesh
+from cadio.tolerances import DEFAULT_TOLERANCES, Tolerances
+from cadio.truth.relations import BoundaryMargins, near_boundary, relate
+from cadio.workspace import Workspace, read_features, read_mesh
+
+INPUTS = ("truth", "partial", "completed")
+Cloud = npt.NDArray[np.float32]
+
+
+@dataclass(frozen=True)
+class PairConfig:
+    """Knobs of the relation stage's inputs."""
+
+    n_points: int = 600  # per part (the paper's grounding MLP reads 600)
+    # A part showing fewer observed points in a view gives no pair view there (the camera barely
+    # saw it; the capture's inputs already drop views under ``examples.MIN_POINTS``).
+    min_observed: int = 30
+    max_pairs: int = 300  # per capture: an assembly of n parts has n(n - 1)/2 pairs
+    margins: BoundaryMargins = field(default_factory=BoundaryMargins)
+    tolerances: Tolerances = DEFAULT_TOLERANCES
+
+
+DEFAULT_PAIRS = PairConfig()
+
+
+@dataclass(frozen=True, eq=False)
+class PairView:
+    """One ordered pair of parts in one view.
+
+    labels: (10,) bool in ``Relation`` order, for this view's observer. points: input name ->
+    (2, k, 3) float32 world metres (part a, part b). world_to_camera: (4, 4) the view's camera.
+    """
+
+    scene: str
+    view: int
+    part_a: str
+    part_b: str
+    category: str
+    labels: npt.NDArray[np.bool_]
+    near_boundary: bool
+    world_to_camera: FloatArray
+    scale_m_per_mm: float
+    points: dict[str, Cloud]
+
+    def observer_points(self, name: str) -> Cloud:
+        """(2, k, 3) float32: the input's points in the observer frame (right, behind, up),
+        metres, about the same origin as the world (all a camera and gravity tell)."""
+        rot = observer_rotation(self.world_to_camera)
+        return np.asarray(self.points[name] @ rot, dtype=np.float32)
+
+    @property
+    def view_axis(self) -> FloatArray:
+        """(3,) the camera's forward direction in the world."""
+        return np.asarray(self.world_to_camera[2, :3], dtype=np.float64)
+
+
+@dataclass(frozen=True)
+class CapturedPart:
+    """A part's observed points in every view that saw it (``points.npz``).
+
+    views: (V,) view indices. points: (V, k, 3) float32 world metres. world_to_camera: (V, 4, 4).
+    observed: (V,) observed points before sampling.
+    """
+
+    part_id: str
+    views: npt.NDArray[np.int64]
+    points: Cloud
+    world_to_camera: FloatArray
+    observed: npt.NDArray[np.int64]
+
+
+def read_part_points(path: Path, part_id: str) -> CapturedPart:
+    """A part's ``points.npz``.
+
+    Raises:
+        CaptureError: the file is missing or lacks the per-view arrays.
+    """
+    try:
+        with np.load(path) as z:
+            return CapturedPart(part_id, z["view"].astype(np.int64),
+                                z["points"].astype(np.float32),
+                                z["world_to_camera"].astype(np.float64),
+                                z["observed"].astype(np.int64))
+    except (OSError, KeyError, ValueError) as exc:
+        raise CaptureError(path, f"no per-view observed points: {exc}") from exc
+
+
+def surface_samples(mesh: Mesh, k: int, seed: int) -> FloatArray:
+    """k points uniformly on a mesh's surface (area-weighted triangles), its unit (mm).
+
+    Raises:
+        ValueError: a mesh without area.
+    """
+    tri = mesh.vertices[mesh.triangles]  # (t, 3, 3)
+    area = 0.5 * np.linalg.norm(np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]), axis=1)
+    if not np.isfinite(area.sum()) or area.sum() <= 0:
+        raise ValueError("mesh has no surface area to sample")
+    rng = np.random.default_rng(seed)
+    pick = rng.choice(len(tri), size=k, p=area / area.sum())
+    u, v = rng.random((2, k))
+    flip = u + v > 1.0
+    u[flip], v[flip] = 1.0 - u[flip], 1.0 - v[flip]
+    t = tri[pick]
+    return np.asarray(t[:, 0] + u[:, None] * (t[:, 1] - t[:, 0]) + v[:, None] * (t[:, 2] - t[:, 0]))
+
+
+def pair_category(a: str, b: str) -> str:
+    """The category of a pair: the parts' common category, or both joined by "+"."""
+    return a if a == b else "+".join(sorted((a, b)))
+
+
+def capture_pairs(capture: Path, ws: Workspace, categories: Mapping[str, str],
+                  cfg: PairConfig = DEFAULT_PAIRS,
+                  completed: Mapping[tuple[str, int], FloatArray] | None = None
+                  ) -> list[PairView]:
+    """Every view of every labelled pair of a capture.
+
+    Args:
+        capture: the MCAP file; its ``/scene`` meta names the parts, their poses and the pairs
+            (``labels.pair`` of a scene, ``labels.pairs`` of an assembly).
+        ws: the workspace holding the parts' features, meshes and the capture's inputs.
+        categories: part id -> category.
+        completed: (part id, view) -> (m, 3) world metres, the completion of that view.
+
+    Raises:
+        CaptureError: the capture has no scene meta or its inputs were never derived.
+    """
+    meta = read_scene_meta(capture)
+    if not meta or not meta.get("parts"):
+        raise CaptureError(capture, "no scene description: its parts are unknown")
+    pairs = _labelled_pairs(meta)[:cfg.max_pairs]
+    placed = {str(p["part_id"]): p for p in meta["parts"]}
+    needed = sorted({pid for pair in pairs for pid in pair if pid in placed})
+    seen = {pid: read_part_points(ws.inputs(capture.stem, pid) / "points.npz", pid)
+            for pid in needed if (ws.inputs(capture.stem, pid) / "points.npz").exists()}
+    scale = float(meta["scale_m_per_mm"])
+    parts = {pid: _Placed(pid, placed[pid], ws, scale, cfg.n_points) for pid in seen}
+    out = []
+    for a, b in pairs:
+        if a in parts and b in parts:
+            out += _pair_views(capture.stem, parts[a], parts[b], seen[a], seen[b],
+                               pair_category(categories.get(a, "?"), categories.get(b, "?")),
+                               scale, cfg, completed or {})
+    return out
+
+
+def _labelled_pairs(meta: dict[str, Any]) -> list[tuple[str, str]]:
+    labels = meta.get("labels") or {}
+    if "pairs" in labels:
+        return [(str(a), str(b)) for a, b in labels["pairs"]]
+    if "pair" in labels:
+        a, b = labels["pair"]
+        return [(str(a), str(b))]
+    return []
+
+
+class _Placed:
+    """A part of the capture: its features in the CAD frame (mm) and its truth samples."""
+
+    def __init__(self, part_id: str, meta: dict[str, Any], ws: Workspace, scale: float,
+                 k: int) -> None:
+        pose = np.asarray(meta["pose_mm"], dtype=np.float64)
+        self.features: Features = read_features(ws.features(part_id)).transformed(pose)
+        seed = int(hashlib.sha256(part_id.encode()).hexdigest()[:8], 16)
+        local = surface_samples(read_mesh(ws.mesh(part_id)), k, seed)
+        self.truth = np.asarray((local @ pose[:3, :3].T + pose[:3, 3]) * scale, dtype=np.float32)
+
+
+def _pair_views(scene: str, a: _Placed, b: _Placed, seen_a: CapturedPart, seen_b: CapturedPart,
+                category: str, scale: float, cfg: PairConfig,
+                completed: Mapping[tuple[str, int], FloatArray]) -> list[PairView]:
+    index_b = {int(v): i for i, v in enumerate(seen_b.views)}
+    out = []
+    for i, view in enumerate(seen_a.views.tolist()):
+        j = index_b.get(view)
+        if j is None or min(seen_a.observed[i], seen_b.observed[j]) < cfg.min_observed:
+            continue
+        w2c = seen_a.world_to_camera[i]
+        rr = relate(a.features, b.features, w2c[2, :3], cfg.tolerances)
+        points = {"truth": np.stack([a.truth, b.truth]),
+                  "partial": np.stack([seen_a.points[i], seen_b.points[j]])}
+        done_a, done_b = (completed.get((p.part_id, view)) for p in (seen_a, seen_b))
+        if done_a is not None and done_b is not None:
+            points["completed"] = np.stack([_k_points(done_a, cfg.n_points),
+                                            _k_points(done_b, cfg.n_points)])
+        out.append(PairView(scene, view, seen_a.part_id, seen_b.part_id, category,
+                            np.array(rr.truth, dtype=bool), near_boundary(rr, cfg.margins),
+                            w2c, scale, points))
+    return out
+
+
+def _k_points(points: FloatArray, k: int) -> Cloud:
+    return np.asarray(sample_points(points, k, method="random"), dtype=np.float32)
+
+
+def stack_inputs(views: Sequence[PairView], name: str) -> Cloud:
+    """(N, 2, k, 3) float32 observer-frame points of one input over pair views that have it."""
+    return np.stack([v.observer_points(name) for v in views if name in v.points])

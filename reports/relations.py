@@ -1,0 +1,162 @@
+"""The relation report: per-pair predictions, per-relation scores, and agreement with the CAD.
+
+Three files other tools read (names and columns are a contract, DESIGN.md):
+
+- ``relations_pairs.parquet``: one row per pair view x input x method x relation (``PAIR_COLUMNS``,
+  plus ``violation``: the method's raw outputs broke an axiom that involves the relation);
+- ``relations_summary.csv``: input x method x relation x category (``all`` too) over the pairs
+  clear of every tolerance boundary (``SUMMARY_COLUMNS``); ``relations_near_boundary.csv``
+  holds the same scores over the near-boundary pairs, reported apart;
+- ``assembly_mates.csv``: per assembly (and ``all``) and relation, the product method's
+  predictions on the assemblies' captures against the CAD (``ASSEMBLY_COLUMNS``).
+
+``relations.md`` puts the accuracies beside the paper's Table III. Plain pandas: no CAD, no torch.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Iterable, Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pandas as pd
+
+from cadio.workspace import atomic_path, atomic_write
+from reports.tables import markdown_table
+
+PAIR_COLUMNS = ("scene", "view", "part_a", "part_b", "category", "input", "method", "relation",
+                "truth", "predicted", "confidence", "near_boundary")
+SUMMARY_COLUMNS = ("input", "method", "relation", "category", "n", "accuracy", "precision",
+                   "recall", "f1", "violation_rate")
+ASSEMBLY_COLUMNS = ("assembly", "relation", "n_cad", "n_pred", "precision", "recall", "f1")
+RELATIONS = ("left", "right", "above", "below", "front", "behind", "parallel", "perpendicular",
+             "concentric", "coincident")
+# The product's answer, which the assembly table and the exported notes use.
+PRODUCT = ("completed", "ltn")
+# Table III of the paper: its accuracies (%) and those it quotes for RANSEM and CPN.
+PAPER_TABLE_III = {
+    "left": (99.7, 86.8, 79.0), "right": (99.5, 88.9, 79.0), "above": (99.6, None, 82.0),
+    "below": (99.4, None, 79.0), "front": (99.5, None, None), "behind": (99.5, None, None),
+    "coincident": (99.3, None, None), "parallel": (99.7, None, None),
+    "perpendicular": (99.4, None, None), "concentric": (99.1, None, None),
+}
+
+
+def pairs_frame(rows: Iterable[dict[str, Any]]) -> pd.DataFrame:
+    """The ``relations_pairs`` table from row dicts (missing ``violation`` is False)."""
+    df = pd.DataFrame(list(rows), columns=[*PAIR_COLUMNS, "violation"])
+    df["violation"] = df["violation"].fillna(False).astype(bool)
+    for col in ("truth", "predicted", "near_boundary"):
+        df[col] = df[col].astype(bool)
+    df["view"] = df["view"].astype("int64")
+    df["confidence"] = df["confidence"].astype("float64")
+    return df
+
+
+def scores(truth: np.ndarray, predicted: np.ndarray) -> dict[str, float]:
+    """n, accuracy, precision, recall and F1 of boolean predictions (NaN where undefined)."""
+    t, p = np.asarray(truth, dtype=bool), np.asarray(predicted, dtype=bool)
+    tp, fp, fn = int(np.sum(t & p)), int(np.sum(~t & p)), int(np.sum(t & ~p))
+    precision = tp / (tp + fp) if tp + fp else math.nan
+    recall = tp / (tp + fn) if tp + fn else math.nan
+    f1 = 2 * tp / (2 * tp + fp + fn) if tp + fp + fn else math.nan
+    accuracy = float(np.mean(t == p)) if len(t) else math.nan
+    return {"n": len(t), "accuracy": accuracy, "precision": precision, "recall": recall,
+            "f1": f1}
+
+
+def summary_frame(pairs: pd.DataFrame) -> pd.DataFrame:
+    """``relations_summary`` rows: input x method x relation x category, and category "all"."""
+    rows = []
+    for (inp, method, rel), group in pairs.groupby(["input", "method", "relation"], sort=True):
+        parts = [("all", group), *group.groupby("category", sort=True)]
+        for category, g in parts:
+            rows.append({"input": inp, "method": method, "relation": rel, "category": category,
+                         **scores(g["truth"].to_numpy(), g["predicted"].to_numpy()),
+                         "violation_rate": float(g["violation"].mean()) if len(g) else math.nan})
+    return pd.DataFrame(rows, columns=list(SUMMARY_COLUMNS))
+
+
+def assembly_frame(pairs: pd.DataFrame, product: tuple[str, str] = PRODUCT) -> pd.DataFrame:
+    """``assembly_mates`` rows: per assembly scene (and "all") and relation, the CAD's count
+    (n_cad), the product method's (n_pred) and their precision, recall and F1."""
+    inp, method = product
+    mine = pairs[(pairs["input"] == inp) & (pairs["method"] == method)]
+    rows = []
+    for assembly, group in [("all", mine), *mine.groupby("scene", sort=True)]:
+        for rel in RELATIONS:
+            g = group[group["relation"] == rel]
+            s = scores(g["truth"].to_numpy(), g["predicted"].to_numpy())
+            rows.append({"assembly": assembly, "relation": rel, "n_cad": int(g["truth"].sum()),
+                         "n_pred": int(g["predicted"].sum()), "precision": s["precision"],
+                         "recall": s["recall"], "f1": s["f1"]})
+    return pd.DataFrame(rows, columns=list(ASSEMBLY_COLUMNS))
+
+
+def accuracy_table(summary: pd.DataFrame) -> pd.DataFrame:
+    """Accuracy (%) per relation (rows) and input/method (columns), category "all", with the
+    paper's Table III beside it."""
+    alls = summary[summary["category"] == "all"]
+    table = alls.pivot_table(index="relation", columns=["input", "method"], values="accuracy")
+    table.columns = [f"{i}/{m}" for i, m in table.columns]
+    table = (100.0 * table).reindex([r for r in RELATIONS if r in table.index])
+    for k, name in enumerate(("paper", "RANSEM", "CPN")):
+        table[name] = [PAPER_TABLE_III[r][k] for r in table.index]
+    return table
+
+
+def violation_table(summary: pd.DataFrame) -> pd.DataFrame:
+    """Violation rate (%) per relation and input/method, category "all"."""
+    alls = summary[summary["category"] == "all"]
+    table = alls.pivot_table(index="relation", columns=["input", "method"],
+                             values="violation_rate")
+    table.columns = [f"{i}/{m}" for i, m in table.columns]
+    return 100.0 * table.reindex([r for r in RELATIONS if r in table.index])
+
+
+def relations_markdown(summary: pd.DataFrame, near: pd.DataFrame, assemblies: pd.DataFrame,
+                       notes: Sequence[str] = ()) -> str:
+    """The Markdown report: accuracy beside Table III, violations, near-boundary, assemblies."""
+    out = ["# Relations", *notes, "",
+           "## Accuracy per relation (%, clear pairs), beside the paper's Table III", ""]
+    out += [_markdown(accuracy_table(summary)) if len(summary) else "no pair scored", ""]
+    out += ["## Violation rate of the raw outputs (%)", ""]
+    out += [_markdown(violation_table(summary)) if len(summary) else "no pair scored", ""]
+    out += ["## Near-boundary pairs: accuracy (%)", ""]
+    out += [_markdown(accuracy_table(near).drop(columns=["paper", "RANSEM", "CPN"]))
+            if len(near) else "no near-boundary pair", ""]
+    out += [f"## Against the CAD mates of the assemblies ({PRODUCT[1]} on {PRODUCT[0]} inputs)",
+            ""]
+    out += [markdown_table(assemblies.round(3)) if len(assemblies) else "no assembly captured"]
+    return "\n".join(out) + "\n"
+
+
+def _markdown(table: pd.DataFrame) -> str:
+    return markdown_table(table.round(1).reset_index())
+
+
+def write_relation_report(out: Path, pairs: pd.DataFrame, notes: Sequence[str] = ()) -> Path:
+    """Write the relation files of a run folder, each atomically; the Markdown report's path."""
+    out.mkdir(parents=True, exist_ok=True)
+    with atomic_path(out / "relations_pairs.parquet") as tmp:
+        pairs.to_parquet(tmp, index=False)
+    clear, near = pairs[~pairs["near_boundary"]], pairs[pairs["near_boundary"]]
+    summary, near_summary = summary_frame(clear), summary_frame(near)
+    assemblies = assembly_frame(pairs[pairs["scene"].astype(str).str.startswith("assembly-")])
+    for name, frame in (("relations_summary.csv", summary),
+                        ("relations_near_boundary.csv", near_summary),
+                        ("assembly_mates.csv", assemblies)):
+        with atomic_write(out / name, "w") as fh:
+            frame.to_csv(fh, index=False)
+    path = out / "relations.md"
+    with atomic_write(path, "w") as fh:
+        fh.write(relations_markdown(summary, near_summary, assemblies, notes))
+    return path
+
+
+def combine_pairs(paths: Sequence[Path]) -> pd.DataFrame:
+    """The ``relations_pairs`` rows of several batch files, in one table."""
+    frames = [pd.read_parquet(p) for p in paths if Path(p).exists()]
+    return pairs_frame([]) if not frames else pd.concat(frames, ignore_index=True)

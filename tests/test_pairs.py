@@ -1,0 +1,140 @@
+"""Pair views of captures: per-view labels in the observer's frame, inputs, assemblies."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from cadio.cad.ingest import IngestConfig, ingest
+from cadio.cad.step import write_step
+from cadio.capture.pairs import PairConfig, capture_pairs, surface_samples
+from cadio.capture.scan import (
+    ScanConfig,
+    assembly_pairs,
+    capture_assembly,
+    capture_scenes,
+    scan_inputs,
+)
+from cadio.catalog import read_catalog
+from cadio.records import Relation
+from cadio.sandbox import Limits
+from cadio.truth.assemblies import assembly_jobs, mates_job
+from cadio.truth.scenes import SceneConfig, generate_scenes, read_scene_parts
+from cadio.workspace import Workspace, read_mesh
+
+# Two views on opposite sides of the circle (0 and 62 of 125: 178.6 degrees apart).
+CFG = ScanConfig(views_per_scene=2, n_in=16, n_out=16, lengths=(), protocols=("observed",))
+LEFT, RIGHT = list(Relation).index(Relation.LEFT), list(Relation).index(Relation.RIGHT)
+
+
+@pytest.fixture(scope="module")
+def ws(tmp_path_factory: pytest.TempPathFactory) -> Workspace:
+    import build123d as bd
+
+    lib = tmp_path_factory.mktemp("lib")
+    (lib / "parts").mkdir()
+    (lib / "assemblies").mkdir()
+    write_step(bd.Box(30, 20, 10), lib / "parts" / "block.step")
+    write_step(bd.Cylinder(6, 30), lib / "parts" / "pin.step")
+    plate = bd.Box(60, 60, 5, align=(bd.Align.CENTER, bd.Align.CENTER, bd.Align.MIN))
+    block = bd.Pos(0, 0, 5) * bd.Box(20, 20, 10,
+                                     align=(bd.Align.CENTER, bd.Align.CENTER, bd.Align.MIN))
+    plate.label, block.label = "plate", "block"
+    write_step(bd.Compound(children=[plate, block], label="stack"),
+               lib / "assemblies" / "stack.step")
+    space = Workspace(tmp_path_factory.mktemp("ws"))
+    ingest(lib, space.root, IngestConfig(voxel_sizes=(16,), limits=Limits(workers=1)))
+    return space
+
+
+def _side_by_side(ws: Workspace) -> pd.DataFrame:
+    """One scene: the block 80 mm at -X of the pin (left of it for an observer looking +Y)."""
+    parts = read_scene_parts(read_catalog(ws.catalog), ws.root)
+    scenes = generate_scenes(parts, SceneConfig(pairs_per_relation=1, val_fraction=0.0,
+                                                test_fraction=0.0)).head(1).copy()
+    block = next(p for p in parts if p.features.volume == pytest.approx(6000, rel=1e-3))
+    pin = next(p for p in parts if p is not block)
+    pose_a, pose_b = np.eye(4), np.eye(4)
+    pose_a[:3, 3] = -block.features.centroid + [-80.0, 0.0, 0.0]
+    pose_b[:3, 3] = -pin.features.centroid
+    scenes.loc[scenes.index[0], ["part_a", "part_b", "category_a", "category_b",
+                                 "scene_id"]] = [block.part_id, pin.part_id, "parts", "parts",
+                                                 "side"]
+    scenes.at[scenes.index[0], "pose_a"] = pose_a.ravel().tolist()
+    scenes.at[scenes.index[0], "pose_b"] = pose_b.ravel().tolist()
+    return scenes
+
+
+def test_a_pair_seen_from_opposite_sides_swaps_left_and_right(ws: Workspace) -> None:
+    captured = capture_scenes(_side_by_side(ws), read_catalog(ws.catalog), ws, CFG)
+    assert captured[0].error == ""
+    scan_inputs(Path(captured[0].path), ws, CFG)
+    views = capture_pairs(Path(captured[0].path), ws, {}, PairConfig())
+    assert [v.view for v in views] == [0, 1]  # numbered in capture order
+    front, back = views
+    assert front.labels[LEFT] and not front.labels[RIGHT]
+    assert back.labels[RIGHT] and not back.labels[LEFT]
+    symmetric = [list(Relation).index(r) for r in (Relation.PARALLEL, Relation.PERPENDICULAR,
+                                                   Relation.CONCENTRIC, Relation.COINCIDENT)]
+    assert np.array_equal(front.labels[symmetric], back.labels[symmetric])
+    for view, sign in ((front, -1.0), (back, 1.0)):  # what the network sees agrees
+        for name in ("truth", "partial"):
+            obs = view.observer_points(name)
+            assert obs.shape == (2, 600, 3)
+            assert sign * (obs[0, :, 0].mean() - obs[1, :, 0].mean()) > 0.02
+
+
+def test_pair_inputs_are_the_observed_points_and_the_cad_surface(ws: Workspace) -> None:
+    captured = capture_scenes(_side_by_side(ws), read_catalog(ws.catalog), ws, CFG)
+    scan_inputs(Path(captured[0].path), ws, CFG)
+    view = capture_pairs(Path(captured[0].path), ws, {}, PairConfig())[0]
+    partial, truth = view.points["partial"], view.points["truth"]
+    # a single view sees one side of a part: its points span less depth than the surface's
+    depth = np.ptp(view.observer_points("partial")[0, :, 1])
+    assert depth < np.ptp(view.observer_points("truth")[0, :, 1])
+    # the block is axis-aligned: every observed point lies on a face of the truth's box
+    lo, hi = truth[0].min(axis=0), truth[0].max(axis=0)
+    centre, half = (lo + hi) / 2, (hi - lo) / 2
+    off_face = np.abs(np.abs(partial[0] - centre) - half).min(axis=1)
+    inside = np.all(np.abs(partial[0] - centre) <= half + 0.02 * half.max(), axis=1)
+    assert inside.mean() > 0.98 and np.median(off_face) < 0.01 * half.max()
+
+
+def test_surface_samples_are_on_the_mesh_and_seeded(ws: Workspace) -> None:
+    catalog = read_catalog(ws.catalog)
+    mesh = read_mesh(ws.mesh(str(catalog["part_id"].iloc[0])))
+    a, b = surface_samples(mesh, 500, 1), surface_samples(mesh, 500, 1)
+    assert np.array_equal(a, b) and not np.array_equal(a, surface_samples(mesh, 500, 2))
+    lo, hi = mesh.vertices.min(axis=0), mesh.vertices.max(axis=0)
+    assert np.all(a >= lo - 1e-9) and np.all(a <= hi + 1e-9)
+
+
+def test_an_assembly_capture_labels_its_mated_pairs_in_every_view(ws: Workspace) -> None:
+    job = assembly_jobs(read_catalog(ws.catalog), ws.root)[0]
+    summary = mates_job(job)
+    assert summary.ok and summary.face_mates >= 1
+    mates = pd.read_parquet(ws.mates(job.assembly))
+    pairs = assembly_pairs(mates)
+    assert len(pairs) == 1 and set(pairs[0]) == set(job.part_ids.values())
+    captured = capture_assembly(job.assembly, job.category, list(job.part_ids.values()), ws,
+                                CFG)
+    assert captured.error == "" and captured.input_parts == 2
+    views = capture_pairs(Path(captured.path), ws, {}, PairConfig())
+    assert len(views) == 2
+    names = dict(zip(mates["part_a"], mates["name_a"], strict=False))
+    above = list(Relation).index(Relation.ABOVE)
+    coincident = list(Relation).index(Relation.COINCIDENT)
+    for v in views:  # block on plate: above/below and coincident whatever the camera
+        assert v.labels[above] == (names.get(v.part_a) == "block")
+        assert v.labels[coincident]
+
+
+def test_a_capture_without_inputs_gives_no_pair(ws: Workspace, tmp_path: Path) -> None:
+    captured = capture_scenes(_side_by_side(ws), read_catalog(ws.catalog), ws, CFG)
+    other = Workspace(tmp_path)  # the capture's inputs were never derived there
+    for sub in ("features", "meshes"):
+        (tmp_path / sub).symlink_to(ws.root / sub)
+    assert capture_pairs(Path(captured[0].path), other, {}, PairConfig()) == []
