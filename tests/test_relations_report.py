@@ -1,0 +1,65 @@
+"""The relation report's files: columns that other tools read, and scores that add up."""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from reports.relations import (
+    ASSEMBLY_COLUMNS,
+    PAIR_COLUMNS,
+    SUMMARY_COLUMNS,
+    accuracy_table,
+    pairs_frame,
+    scores,
+    write_relation_report,
+)
+
+
+def _rows(scene: str, method: str, truth: list[bool], predicted: list[bool],
+          near: bool = False, category: str = "gears") -> list[dict[str, object]]:
+    return [{"scene": scene, "view": i, "part_a": "a", "part_b": "b", "category": category,
+             "input": "completed", "method": method, "relation": "left", "truth": t,
+             "predicted": p, "confidence": 0.9, "near_boundary": near, "violation": i == 0}
+            for i, (t, p) in enumerate(zip(truth, predicted, strict=True))]
+
+
+def test_scores_count_hits_and_misses() -> None:
+    s = scores(np.array([1, 1, 0, 0], bool), np.array([1, 0, 1, 0], bool))
+    assert (s["n"], s["accuracy"], s["precision"], s["recall"], s["f1"]) == (4, 0.5, 0.5, 0.5,
+                                                                              0.5)
+    none = scores(np.zeros(3, bool), np.zeros(3, bool))
+    assert none["accuracy"] == 1.0 and math.isnan(none["precision"]) and math.isnan(none["f1"])
+
+
+def test_report_files_keep_their_columns_and_split_near_boundary_pairs(tmp_path: Path) -> None:
+    rows = (_rows("s1", "ltn", [True, False, True], [True, False, False])
+            + _rows("s2", "ltn", [True], [False], near=True)
+            + _rows("assembly-stack", "ltn", [True, True], [True, True], category="asm"))
+    md = write_relation_report(tmp_path, pairs_frame(rows), notes=["a note"])
+    pairs = pd.read_parquet(tmp_path / "relations_pairs.parquet")
+    assert tuple(pairs.columns[:len(PAIR_COLUMNS)]) == PAIR_COLUMNS and len(pairs) == 6
+    summary = pd.read_csv(tmp_path / "relations_summary.csv")
+    assert tuple(summary.columns) == SUMMARY_COLUMNS
+    overall = summary[summary["category"] == "all"].iloc[0]
+    assert overall["n"] == 5 and overall["accuracy"] == 4 / 5  # the near pair is left out
+    assert overall["violation_rate"] == 2 / 5
+    near = pd.read_csv(tmp_path / "relations_near_boundary.csv")
+    assert near[near["category"] == "all"]["n"].tolist() == [1]
+    asm = pd.read_csv(tmp_path / "assembly_mates.csv")
+    assert tuple(asm.columns) == ASSEMBLY_COLUMNS
+    left = asm[(asm["assembly"] == "assembly-stack") & (asm["relation"] == "left")].iloc[0]
+    assert (left["n_cad"], left["n_pred"], left["f1"]) == (2, 2, 1.0)
+    assert "Table III" in md.read_text() and "a note" in md.read_text()
+
+
+def test_accuracy_table_sits_beside_the_paper() -> None:
+    from reports.relations import summary_frame
+
+    table = accuracy_table(summary_frame(pairs_frame(_rows("s", "mlp", [True, False],
+                                                           [True, True]))))
+    assert table.loc["left", "completed/mlp"] == 50.0
+    assert table.loc["left", "paper"] == 99.7 and table.loc["left", "RANSEM"] == 86.8
