@@ -1,0 +1,383 @@
+"""Relation network: the paper's Logic Tensor Network over the ten relations of a part pair.
+
+Each part's point cloud is grounded by a shared five-layer per-point MLP with max pooling
+(PointNet's shape, so point order does not matter); the pair vector [e_a, e_b, e_a - e_b] feeds
+one Neural Tensor Network predicate per relation. Training (``models.relations_train``)
+maximises the satisfaction of a knowledge base written in product real logic: the labelled
+facts and, for the ``ltn`` method, the paper's rules (converse, asymmetry, symmetry,
+exclusion). The ``mlp`` method is the same network trained on the facts alone.
+
+Inference decides a pair and its swap together (``combine`` then ``decide``), so the answers
+obey the rules for any network output; ``violations`` says where the raw outputs do not.
+
+Points are (B, 2, P, 3) in the observer's frame (x right, y behind = the camera's forward
+direction on the ground, z up), any length unit: each pair is centred on the mean of its two
+clouds' centroids and divided by its RMS radius, which keeps the parts' relative position.
+No I/O here.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, fields
+from itertools import pairwise
+from typing import TypeVar
+
+import numpy as np
+import numpy.typing as npt
+import torch
+from torch import Tensor, nn
+
+from cadio.records import CONVERSE, DIRECTIONAL, SYMMETRIC, Relation
+
+RELATIONS = tuple(Relation)
+_INDEX = {r: i for i, r in enumerate(RELATIONS)}
+# Column permutation taking the relations of (a, b) to those of (b, a): converse for the
+# directional ones, identity for the symmetric ones.
+CONVERSE_INDEX = tuple(_INDEX[CONVERSE.get(r, r)] for r in RELATIONS)
+DIRECTIONAL_INDEX = tuple(_INDEX[r] for r in DIRECTIONAL)
+SYMMETRIC_INDEX = tuple(_INDEX[r] for r in SYMMETRIC)
+PARALLEL, PERPENDICULAR = _INDEX[Relation.PARALLEL], _INDEX[Relation.PERPENDICULAR]
+OPPOSITES = ((0, 1), (2, 3), (4, 5))  # left/right, above/below, front/behind: never both
+EXCLUSIVE = (*OPPOSITES, (PARALLEL, PERPENDICULAR))  # pairs of one pair's relations, at most one
+N_DESCRIPTORS = 15  # per part: centroid 3, principal directions 3 x 3, extents 3
+METHODS = ("ltn", "mlp")
+
+BoolArray = npt.NDArray[np.bool_]
+FloatArray = npt.NDArray[np.floating]
+G = TypeVar("G", bound=np.generic)
+
+
+@dataclass(frozen=True)
+class RelationConfig:
+    """The network, its logic and its training; ``method`` names the variant."""
+
+    method: str = "ltn"  # "ltn": facts and rules; "mlp": the same network on the facts only
+    n_points: int = 600  # points per part the data layer delivers (inference takes any count)
+    train_points: int = 256  # random subset per part per training step (augmentation, speed)
+    widths: tuple[int, ...] = (32, 64, 64, 128)  # hidden widths of the per-point MLP
+    embed: int = 64  # part embedding: the MLP's fifth layer, max-pooled
+    pair_diff: bool = True  # pair vector [e_a, e_b, e_a - e_b] (False: [e_a, e_b])
+    ntn_k: int = 4  # slices of each predicate's bilinear tensor
+    descriptors: bool = False  # append centroid, PCA directions and extents to each embedding
+    p_forall: float = 2.0  # p of the p-mean-error Forall (LTN's default)
+    p_sat: float = 2.0  # p of the aggregation of the axioms into the KB's satisfaction
+    rule_weight: float = 1.0  # weight of each rule axiom relative to one fact axiom
+    lr: float = 1e-3  # Adam
+    steps: int = 1500
+    batch_size: int = 64
+    eval_every: int = 100  # steps between validations (the best one is kept)
+    jitter: float = 0.005  # Gaussian noise on training points, times the pair's RMS radius
+    # Present each training pair as (b, a) with probability 1/2 (labels by the rules), so both
+    # methods see both orders in their facts and differ by the rules alone.
+    swap_augment: bool = True
+    seed: int = 0  # torch, numpy and python seeds; also keys batches and augmentation
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "widths", tuple(int(w) for w in self.widths))
+        if self.method not in METHODS:
+            raise ValueError(f"method must be one of {METHODS}, got {self.method!r}")
+        if min(self.widths, default=0) < 1 or min(self.embed, self.ntn_k, self.n_points) < 1:
+            raise ValueError("widths, embed, ntn_k and n_points must be positive")
+        if min(self.train_points, self.steps, self.batch_size, self.eval_every) < 1:
+            raise ValueError("train_points, steps, batch_size and eval_every must be >= 1")
+        if min(self.p_forall, self.p_sat) < 1 or min(self.lr, self.rule_weight) <= 0:
+            raise ValueError("p must be >= 1; lr and rule_weight must be positive")
+
+    @classmethod
+    def from_dict(cls, config: dict[str, object]) -> RelationConfig:
+        """The config from its plain dict (a checkpoint's ``config``).
+
+        Raises:
+            ValueError: unknown fields or bad values.
+        """
+        unknown = set(config) - {f.name for f in fields(cls)}
+        if unknown:
+            raise ValueError(f"unknown relation config fields {sorted(unknown)}")
+        return cls(**config)  # type: ignore[arg-type]
+
+
+# Fuzzy semantics: product real logic with LTNtorch's stable operators (ltn/fuzzy_ops.py:
+# NotStandard, AndProd, OrProbSum, ImpliesReichenbach, AggregPMean, AggregPMeanError). Six
+# one-line functions rather than a new dependency; the projections pi_0 and pi_1 keep operands
+# off 0 and 1 where the gradient of a product or of a p-th root would vanish or explode.
+EPS = 1e-4  # LTNtorch's eps
+
+
+def _pi0(x: Tensor) -> Tensor:
+    return (1 - EPS) * x + EPS  # [0, 1] -> (0, 1]
+
+
+def _pi1(x: Tensor) -> Tensor:
+    return (1 - EPS) * x  # [0, 1] -> [0, 1)
+
+
+def not_(a: Tensor) -> Tensor:
+    """Standard negation 1 - a."""
+    return 1 - a
+
+
+def and_(a: Tensor, b: Tensor) -> Tensor:
+    """Product t-norm a b (stable: both operands through pi_0)."""
+    return _pi0(a) * _pi0(b)
+
+
+def or_(a: Tensor, b: Tensor) -> Tensor:
+    """Probabilistic sum a + b - a b (stable: both operands through pi_1)."""
+    a, b = _pi1(a), _pi1(b)
+    return a + b - a * b
+
+
+def implies(a: Tensor, b: Tensor) -> Tensor:
+    """Reichenbach implication 1 - a + a b (stable: a through pi_0, b through pi_1)."""
+    a, b = _pi0(a), _pi1(b)
+    return 1 - a + a * b
+
+
+def forall(x: Tensor, p: float) -> Tensor:
+    """p-mean-error aggregation 1 - mean((1 - x)^p)^(1/p) over all of x: a scalar."""
+    return 1 - (1 - _pi1(x)).pow(p).mean().pow(1 / p)
+
+
+def exists(x: Tensor, p: float) -> Tensor:
+    """p-mean aggregation mean(x^p)^(1/p) over all of x: a scalar."""
+    return _pi0(x).pow(p).mean().pow(1 / p)
+
+
+def weighted_forall(x: Tensor, weights: Tensor, p: float) -> Tensor:
+    """``forall`` with a weight per element (the KB's aggregation of its axioms): a scalar."""
+    err = (1 - _pi1(x)).pow(p)
+    return 1 - ((err * weights).sum() / weights.sum()).pow(1 / p)
+
+
+def normalise_pair(points: Tensor) -> Tensor:
+    """Centre each pair on the mean of its two centroids, divide by the pair's RMS radius.
+
+    Computed in float64 (finite float32 coordinates of any size stay finite) with operations
+    symmetric in the two parts, so the swapped pair normalises to exactly the swapped result.
+
+    Args:
+        points: (B, 2, P, 3) any float dtype, any length unit.
+
+    Returns:
+        (B, 2, P, 3) float32, unit-free.
+    """
+    x = points.double()
+    a, b = x[:, 0], x[:, 1]  # (B, P, 3) each
+    centre = (a.mean(1) + b.mean(1)) / 2  # (B, 3)
+    ms_a = (a - centre[:, None]).square().sum(-1).mean(1)  # (B,)
+    ms_b = (b - centre[:, None]).square().sum(-1).mean(1)
+    radius = ((ms_a + ms_b) / 2).sqrt().clamp_min(1e-300)  # (B,)
+    return ((x - centre[:, None, None]) / radius[:, None, None, None]).float()
+
+
+@torch.no_grad()
+def part_descriptors(points: Tensor) -> Tensor:
+    """Centroid, principal directions (canonical sign) and extents of normalised parts.
+
+    Args:
+        points: (B, P, 3) one part of each normalised pair.
+
+    Returns:
+        (B, 15) float32: centroid (3), the three principal directions by falling variance with
+        their largest component made positive (9), extents along them, max - min (3).
+    """
+    x = points.double()
+    centroid = x.mean(1)  # (B, 3)
+    centred = x - centroid[:, None]  # (B, P, 3)
+    cov = centred.transpose(1, 2) @ centred / x.shape[1]  # (B, 3, 3)
+    _, vecs = torch.linalg.eigh(cov)  # ascending eigenvalues; directions are columns
+    dirs = vecs.flip(-1).transpose(1, 2)  # (B, 3, 3) rows, by falling variance
+    big = torch.gather(dirs, -1, dirs.abs().argmax(-1, keepdim=True))  # (B, 3, 1)
+    dirs = dirs * torch.where(big < 0, -1.0, 1.0)
+    proj = centred @ dirs.transpose(1, 2)  # (B, P, 3)
+    extents = proj.amax(1) - proj.amin(1)  # (B, 3)
+    return torch.cat([centroid, dirs.flatten(1), extents], 1).float()
+
+
+class PointEncoder(nn.Module):
+    """Shared per-point MLP (len(widths) + 1 linear layers), max pool, tanh: a part's embedding."""
+
+    def __init__(self, widths: tuple[int, ...], embed: int) -> None:
+        super().__init__()
+        dims = [3, *widths, embed]
+        layers: list[nn.Module] = []
+        for a, b in pairwise(dims):
+            layers += [nn.Linear(a, b), nn.ReLU()]
+        self.mlp = nn.Sequential(*layers[:-1])  # no ReLU before the pooling
+
+    def forward(self, points: Tensor) -> Tensor:
+        """points (B, P, 3) -> (B, E) in (-1, 1)."""
+        # Bounded embeddings keep each predicate's quadratic form x^T W x in tanh's working
+        # range; unbounded max-pooled features grew until training stalled or diverged.
+        return torch.tanh(self.mlp(points).amax(1))  # (B, P, E) -> (B, E)
+
+
+class NTNPredicate(nn.Module):
+    """One relation: sigmoid(u^T tanh(x^T W[1:k] x + V x + b)); ``forward`` gives the logit."""
+
+    def __init__(self, dim: int, k: int) -> None:
+        super().__init__()
+        self.W = nn.Parameter(torch.randn(k, dim, dim) / dim)  # x^T W x ~ O(1) at init
+        self.V = nn.Linear(dim, k)  # V x + b
+        self.u = nn.Linear(k, 1, bias=False)
+        # The logit is bounded by |u|_1: torch's default init (|u_i| < 1/sqrt(k)) caps the first
+        # truth values near [0.2, 0.8] and Adam then needs ~1000 steps to grow u; N(0, 1) lets a
+        # predicate approach 0 or 1 within a few hundred steps without saturating at the start.
+        nn.init.normal_(self.u.weight, 0.0, 1.0)
+
+    def forward(self, x: Tensor) -> Tensor:
+        """x (B, D) pair vectors -> (B,) logits."""
+        xw = torch.einsum("bi,kij->bkj", x, self.W)  # (B, k, D)
+        bilinear = (xw * x[:, None]).sum(-1)  # (B, k)
+        return self.u(torch.tanh(bilinear + self.V(x)))[:, 0]  # (B,)
+
+
+class RelationNet(nn.Module):
+    """Points of a pair -> logits of the ten relations for (a, b) and for (b, a)."""
+
+    def __init__(self, cfg: RelationConfig) -> None:
+        super().__init__()
+        self.cfg = cfg
+        self.encoder = PointEncoder(cfg.widths, cfg.embed)
+        part = cfg.embed + (N_DESCRIPTORS if cfg.descriptors else 0)
+        dim = part * (3 if cfg.pair_diff else 2)
+        self.predicates = nn.ModuleList(NTNPredicate(dim, cfg.ntn_k) for _ in RELATIONS)
+
+    def embed(self, points: Tensor) -> tuple[Tensor, Tensor]:
+        """points (B, 2, P, 3) -> part embeddings e_a, e_b, (B, E') each.
+
+        The parts go through the encoder in two calls of the same shape, so the swapped pair
+        gets bit-identical embeddings (and outputs) whatever the kernels' row blocking.
+
+        Raises:
+            ValueError: not (B, 2, P, 3) with B, P >= 1, or non-finite coordinates.
+        """
+        if points.dim() != 4 or points.shape[1] != 2 or points.shape[3] != 3 or 0 in points.shape:
+            raise ValueError(f"points must have shape (B, 2, P, 3); got {tuple(points.shape)}")
+        if not bool(torch.isfinite(points).all()):
+            raise ValueError("points must be finite")
+        x = normalise_pair(points.to(next(self.parameters()).device))  # (B, 2, P, 3)
+        parts = []
+        for j in (0, 1):
+            e = self.encoder(x[:, j])  # (B, E)
+            if self.cfg.descriptors:
+                e = torch.cat([e, part_descriptors(x[:, j])], 1)  # (B, E + 15)
+            parts.append(e)
+        return parts[0], parts[1]
+
+    def head(self, e_a: Tensor, e_b: Tensor) -> Tensor:
+        """Part embeddings (B, E') each -> logits of the ordered pair (a, b): (B, 10)."""
+        x = torch.cat([e_a, e_b, e_a - e_b] if self.cfg.pair_diff else [e_a, e_b], 1)  # (B, D)
+        return torch.stack([pred(x) for pred in self.predicates], 1)  # (B, 10)
+
+    def forward(self, points: Tensor) -> tuple[Tensor, Tensor]:
+        """points (B, 2, P, 3) -> logits for (a, b) and for (b, a), (B, 10) each."""
+        e_a, e_b = self.embed(points)
+        return self.head(e_a, e_b), self.head(e_b, e_a)
+
+
+def knowledge_base(t_ab: Tensor, t_ba: Tensor, labels: Tensor, cfg: RelationConfig
+                   ) -> dict[str, Tensor]:
+    """Satisfaction of the knowledge base on a batch, and of its facts and rules apart.
+
+    Facts: for every relation, Forall over the positives of r(a, b) and Forall over the
+    negatives of Not r(a, b), as two axioms: a relation positive in 10% of pairs would otherwise
+    be satisfied 90% by predicting False everywhere. Rules (``ltn`` only), each a Forall over
+    the batch's pairs and their swaps: converse r(x) -> conv(r)(swap x) for the six directional
+    relations (over a domain closed under swapping, these are both implications of each
+    equivalence), asymmetry r(x) -> Not r(swap x), symmetry of the four symmetric relations,
+    and Not(parallel(x) And perpendicular(x)).
+
+    Args:
+        t_ab, t_ba: (B, 10) truth values in [0, 1] of (a, b) and (b, a).
+        labels: (B, 10) 0/1 of (a, b).
+
+    Returns:
+        "sat", "facts", "rules": scalars in [0, 1] ("rules" is 1 for ``mlp``).
+    """
+    p = cfg.p_forall
+    facts = []
+    for r in range(len(RELATIONS)):
+        pos = labels[:, r] > 0.5
+        for holds, mask in ((t_ab[:, r], pos), (not_(t_ab[:, r]), ~pos)):
+            if bool(mask.any()):  # an empty class has no axiom in this batch
+                facts.append(forall(holds[mask], p))
+    rules = []
+    if cfg.method == "ltn":
+        t, s = torch.cat([t_ab, t_ba]), torch.cat([t_ba, t_ab])  # (2B, 10): x and swap x
+        for r in DIRECTIONAL_INDEX:
+            rules.append(forall(implies(t[:, r], s[:, CONVERSE_INDEX[r]]), p))
+            rules.append(forall(implies(t[:, r], not_(s[:, r])), p))
+        rules += [forall(implies(t[:, r], s[:, r]), p) for r in SYMMETRIC_INDEX]
+        rules.append(forall(not_(and_(t[:, PARALLEL], t[:, PERPENDICULAR])), p))
+    axioms = torch.stack(facts + rules)
+    weights = torch.tensor([1.0] * len(facts) + [cfg.rule_weight] * len(rules),
+                           device=axioms.device)
+    one = axioms.new_ones(())
+    return {"sat": weighted_forall(axioms, weights, cfg.p_sat),
+            "facts": weighted_forall(torch.stack(facts), weights[:len(facts)], cfg.p_sat),
+            "rules": forall(torch.stack(rules), cfg.p_sat) if rules else one}
+
+
+def swap_decision(decided: npt.NDArray[G]) -> npt.NDArray[G]:
+    """Per-relation values of (a, b) -> those of (b, a): the converse columns swapped, (N, 10)."""
+    return decided[:, list(CONVERSE_INDEX)]
+
+
+def combine(raw_ab: FloatArray, raw_ba: FloatArray) -> FloatArray:
+    """The pair's score of each relation of (a, b), from both orders' outputs: (N, 10).
+
+    Directional r: mean of r(a, b) and conv(r)(b, a); symmetric r: mean of r(a, b) and
+    r(b, a). The swapped pair's scores are exactly ``swap_decision`` of these (the two terms
+    are the same numbers, and float addition commutes).
+    """
+    ab, ba = np.asarray(raw_ab, dtype=np.float64), np.asarray(raw_ba, dtype=np.float64)
+    return (ab + swap_decision(ba)) / 2
+
+
+def decide(score: FloatArray) -> BoolArray:
+    """Relations that hold, (N, 10) bool, from ``combine``'s scores.
+
+    A score above 0.5 holds, except that of each exclusive pair (left/right, above/below,
+    front/behind, parallel/perpendicular) only the stronger may hold; on an exact tie neither
+    does (any other choice would break the converse rule on the swapped pair).
+    """
+    score = np.asarray(score)
+    decided = score > 0.5
+    for i, j in EXCLUSIVE:
+        both = decided[:, i] & decided[:, j]
+        decided[:, i] &= ~both | (score[:, i] > score[:, j])
+        decided[:, j] &= ~both | (score[:, j] > score[:, i])
+    return decided
+
+
+def violations(raw_ab: FloatArray, raw_ba: FloatArray, threshold: float = 0.5) -> BoolArray:
+    """Where the thresholded raw outputs break a rule involving each relation: (N, 10) bool.
+
+    Directional r: r(a, b) disagrees with conv(r)(b, a), or r holds both ways. Symmetric r:
+    r(a, b) disagrees with r(b, a). Parallel and perpendicular: also both holding for (a, b)
+    or for (b, a).
+    """
+    a, b = np.asarray(raw_ab) > threshold, np.asarray(raw_ba) > threshold
+    out = a != swap_decision(b)
+    d = list(DIRECTIONAL_INDEX)
+    out[:, d] |= a[:, d] & b[:, d]
+    clash = (a[:, PARALLEL] & a[:, PERPENDICULAR]) | (b[:, PARALLEL] & b[:, PERPENDICULAR])
+    out[:, [PARALLEL, PERPENDICULAR]] |= clash[:, None]
+    return out
+
+
+def expected_calibration_error(confidence: FloatArray, correct: npt.ArrayLike,
+                               bins: int = 15) -> float:
+    """ECE: sum over equal-width confidence bins of (share of items) |accuracy - mean confidence|.
+
+    Args:
+        confidence: any shape, in [0, 1]; correct: same shape, bool (or 0/1).
+    """
+    conf = np.asarray(confidence, dtype=np.float64).ravel()
+    hit = np.asarray(correct, dtype=np.float64).ravel()
+    if conf.shape != hit.shape or not conf.size:
+        raise ValueError("confidence and correct must be non-empty and of one shape")
+    which = np.minimum((conf * bins).astype(int), bins - 1)
+    gap = np.bincount(which, hit - conf, minlength=bins)  # per bin: sum(correct - confidence)
+    return float(np.abs(gap).sum() / conf.size)

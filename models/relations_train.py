@@ -1,0 +1,369 @@
+"""Training, calibration, inference and checkpoints of the relation network (``ltn``, ``mlp``).
+
+``train_relations`` runs ``cfg.steps`` Adam steps on loss = 1 - satisfaction of the knowledge
+base, seeded throughout; each step's batch, point subsets, jitter and swaps are pure functions
+of (seed, step). Every ``eval_every`` steps it scores the validation pairs (mean per-relation
+accuracy of the consistent decisions) and keeps the best weights; it then fits one temperature
+per relation on the validation scores (converse relations share one, so a pair and its swap get
+the same confidences) and returns a self-describing checkpoint. ``predict_relations`` gives raw
+outputs for both orders, consistent decisions and calibrated confidences.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import logging
+import time
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass, field
+from datetime import UTC, datetime
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import numpy.typing as npt
+import torch
+
+from models.checkpoint import (
+    FORMAT,
+    KEYS,
+    Checkpoint,
+    code_version,
+    load_checkpoint,
+    save_checkpoint,
+)
+from models.checkpoint import state_copy as _state_copy
+from models.errors import CheckpointError
+from models.relations import (
+    METHODS,
+    OPPOSITES,
+    RELATIONS,
+    RelationConfig,
+    RelationNet,
+    combine,
+    decide,
+    expected_calibration_error,
+    knowledge_base,
+    swap_decision,
+    violations,
+)
+from models.train import TrainEvent, seeded
+
+logger = logging.getLogger(__name__)
+
+RELATION_KEYS = ("temperatures",)  # beyond the completion checkpoints' keys
+_T_GRID = np.exp(np.linspace(np.log(0.05), np.log(20.0), 241))  # temperatures tried
+
+
+@dataclass(frozen=True, eq=False)
+class RelationData:
+    """Labelled part pairs.
+
+    points: (N, 2, P, 3) float32, the two parts' clouds in the observer's frame, any unit.
+    labels: (N, 10) bool, the relations of the ordered pair (a, b) in ``Relation`` order.
+    """
+
+    points: npt.NDArray[np.float32]
+    labels: npt.NDArray[np.bool_]
+
+    def __post_init__(self) -> None:
+        points = np.asarray(self.points, dtype=np.float32)
+        labels = np.asarray(self.labels).astype(bool)
+        if points.ndim != 4 or points.shape[1:2] + points.shape[3:] != (2, 3):
+            raise ValueError(f"points must be (N, 2, P, 3); got {points.shape}")
+        if labels.shape != (len(points), len(RELATIONS)):
+            raise ValueError(f"labels must be ({len(points)}, 10); got {labels.shape}")
+        object.__setattr__(self, "points", points)
+        object.__setattr__(self, "labels", labels)
+
+    def __len__(self) -> int:
+        return len(self.points)
+
+    def swapped(self) -> RelationData:
+        """The pairs (b, a), labelled by the rules."""
+        return RelationData(self.points[:, ::-1].copy(), swap_decision(self.labels))
+
+
+@dataclass(frozen=True)
+class RelationPrediction:
+    """Outputs for N pairs; every array (N, 10) in ``Relation`` order."""
+
+    raw_ab: npt.NDArray[np.float32]  # network probabilities for (a, b)
+    raw_ba: npt.NDArray[np.float32]  # network probabilities for (b, a)
+    decided: npt.NDArray[np.bool_]  # consistent decisions for (a, b)
+    confidence: npt.NDArray[np.float64]  # calibrated probability of the decided answer
+    probability: npt.NDArray[np.float64]  # calibrated probability that the relation holds
+
+
+@dataclass
+class RelationResult:
+    """The outcome of ``train_relations``."""
+
+    model: RelationNet  # best weights, eval mode
+    checkpoint: Checkpoint  # best weights, temperatures, metrics: ship this
+    temperatures: npt.NDArray[np.float64]  # (10,)
+    history: list[dict[str, float]] = field(default_factory=list)  # one record per evaluation
+    losses: list[dict[str, float]] = field(default_factory=list)  # one per step
+
+
+def training_batch(data: RelationData, cfg: RelationConfig, step: int
+                   ) -> tuple[torch.Tensor, torch.Tensor]:
+    """Step ``step``'s batch: points (B, 2, T, 3) float32 and labels (B, 10) float32.
+
+    Pairs drawn without replacement (with, when there are fewer than B), ``train_points``
+    points per part drawn without replacement, Gaussian jitter of ``jitter`` times the pair's
+    RMS radius, and a swap to (b, a) with probability 1/2 when ``swap_augment``.
+    """
+    rng = np.random.default_rng([cfg.seed, step, 7])
+    idx = rng.choice(len(data), cfg.batch_size, replace=len(data) < cfg.batch_size)
+    pts, labels = data.points[idx], data.labels[idx]  # (B, 2, P, 3), (B, 10)
+    n = pts.shape[2]
+    keep = np.argsort(rng.random(pts.shape[:3]), axis=-1)[..., :min(cfg.train_points, n)]
+    pts = np.take_along_axis(pts, keep[..., None], axis=2)  # (B, 2, T, 3)
+    centred = pts - pts.mean(axis=(1, 2), keepdims=True)
+    radius = np.sqrt(np.square(centred).sum(-1).mean(axis=(1, 2)))  # (B,)
+    pts = pts + rng.standard_normal(pts.shape) * (cfg.jitter * radius[:, None, None, None])
+    if cfg.swap_augment:
+        flip = rng.random(len(idx)) < 0.5
+        pts[flip] = pts[flip][:, ::-1]
+        labels = np.where(flip[:, None], swap_decision(labels), labels)
+    return (torch.from_numpy(pts.astype(np.float32)),
+            torch.from_numpy(labels.astype(np.float32)))
+
+
+def _logit(p: npt.NDArray[np.floating]) -> npt.NDArray[np.float64]:
+    p = np.clip(np.asarray(p, dtype=np.float64), 1e-7, 1 - 1e-7)
+    return np.log(p) - np.log1p(-p)
+
+
+def calibrate(score: npt.NDArray[np.floating], temperatures: npt.ArrayLike
+              ) -> npt.NDArray[np.float64]:
+    """Calibrated probabilities sigmoid(logit(score) / T) per relation: (N, 10)."""
+    t = np.asarray(temperatures, dtype=np.float64)
+    return 1 / (1 + np.exp(-_logit(score) / t))
+
+
+def fit_temperatures(score: npt.NDArray[np.floating], labels: npt.NDArray[np.bool_]
+                     ) -> npt.NDArray[np.float64]:
+    """Per-relation temperatures minimising the log loss of ``calibrate`` on labelled scores.
+
+    Converse relations share one temperature (fitted on both columns), so that the confidences
+    of a pair's swap are exactly the swapped confidences. A grid over [0.05, 20]: 1-D, exact
+    enough and deterministic.
+    """
+    z, y = _logit(score), np.asarray(labels, dtype=np.float64)
+    temps = np.ones(len(RELATIONS))
+    groups = [list(p) for p in OPPOSITES]
+    groups += [[r] for r in range(len(RELATIONS)) if all(r not in g for g in groups)]
+    for cols in groups:
+        zz, yy = z[:, cols].ravel()[None], y[:, cols].ravel()[None]  # (1, M)
+        s = zz / _T_GRID[:, None]  # (G, M)
+        nll = (np.logaddexp(0, s) - yy * s).mean(1)  # log loss of sigmoid(s)
+        temps[cols] = _T_GRID[int(np.argmin(nll))]
+    return temps
+
+
+@torch.no_grad()
+def _raw(model: RelationNet, points: npt.ArrayLike | torch.Tensor, batch: int
+         ) -> tuple[npt.NDArray[np.float32], npt.NDArray[np.float32]]:
+    """Network probabilities for (a, b) and (b, a), (N, 10) each, in batches."""
+    model.eval()
+    x = points if isinstance(points, torch.Tensor) else torch.from_numpy(np.asarray(points))
+    outs = [model(x[s:s + batch]) for s in range(0, len(x), batch)]
+    if not outs:
+        empty = np.zeros((0, len(RELATIONS)), np.float32)
+        return empty, empty
+    ab = torch.sigmoid(torch.cat([o[0] for o in outs])).cpu().numpy()
+    ba = torch.sigmoid(torch.cat([o[1] for o in outs])).cpu().numpy()
+    return ab, ba
+
+
+def predict_relations(model_or_checkpoint: RelationNet | Mapping[str, Any] | Path | str,
+                      points: npt.ArrayLike | torch.Tensor, batch: int = 256,
+                      temperatures: npt.ArrayLike | None = None) -> RelationPrediction:
+    """Relations of N ordered pairs, decided consistently with their swaps.
+
+    Args:
+        model_or_checkpoint: a ``RelationNet`` (temperatures from the argument, default 1), or a
+            checkpoint dict or path (its temperatures unless given).
+        points: (N, 2, P, 3) float, observer frame, any unit; any P >= 1.
+        batch: pairs per forward pass.
+
+    Returns:
+        A ``RelationPrediction``; ``swap_decision(decided)`` is what the swapped pairs decide.
+
+    Raises:
+        ValueError: points of the wrong shape or not finite.
+        CheckpointError: an unusable checkpoint.
+    """
+    if isinstance(model_or_checkpoint, RelationNet):
+        model, temps = model_or_checkpoint, np.ones(len(RELATIONS))
+    elif isinstance(model_or_checkpoint, Path | str):
+        model, temps, _ = load_relation_model(model_or_checkpoint)
+    else:
+        model, temps = relation_model_from_checkpoint(model_or_checkpoint)
+    if temperatures is not None:
+        temps = np.asarray(temperatures, dtype=np.float64)
+    raw_ab, raw_ba = _raw(model, points, batch)
+    score = combine(raw_ab, raw_ba)
+    decided = decide(score)
+    prob = calibrate(score, temps)
+    return RelationPrediction(raw_ab, raw_ba, decided, np.where(decided, prob, 1 - prob), prob)
+
+
+def evaluate(model: RelationNet, data: RelationData, batch: int = 256,
+             temperatures: npt.ArrayLike | None = None) -> dict[str, float]:
+    """Accuracy (mean over relations) of the decisions and of the raw (a, b) outputs, balanced
+    accuracy, violation rates of the raw outputs (per entry and per pair) and ECE."""
+    pred = predict_relations(model, data.points, batch, temperatures)
+    truth = data.labels
+    hit = pred.decided == truth
+    pos, neg = truth.sum(0).clip(min=1), (~truth).sum(0).clip(min=1)
+    balanced = ((hit & truth).sum(0) / pos + (hit & ~truth).sum(0) / neg) / 2
+    viol = violations(pred.raw_ab, pred.raw_ba)
+    return {"accuracy": float(hit.mean(0).mean()), "balanced_accuracy": float(balanced.mean()),
+            "raw_accuracy": float(((pred.raw_ab > 0.5) == truth).mean()),
+            "violation_rate": float(viol.mean()), "pairs_violating": float(viol.any(1).mean()),
+            "ece": expected_calibration_error(pred.confidence, hit)}
+
+
+def make_relation_checkpoint(model: RelationNet, temperatures: npt.ArrayLike, step: int,
+                             metrics: Mapping[str, float],
+                             data: Mapping[str, Any] | None = None) -> Checkpoint:
+    """The self-describing checkpoint of ``model`` (float32 weights, copied)."""
+    config = dataclasses.asdict(model.cfg)
+    config["widths"] = list(config["widths"])
+    return {"format": FORMAT, "method": model.cfg.method, "config": config,
+            "state_dict": _state_copy(model, half=False), "precision": "float32",
+            "step": int(step), "metrics": {k: float(v) for k, v in metrics.items()},
+            "code_version": code_version(), "data": dict(data or {}),
+            "created": datetime.now(UTC).isoformat(timespec="seconds"),
+            "temperatures": [float(t) for t in np.asarray(temperatures).ravel()]}
+
+
+def relation_model_from_checkpoint(ckpt: Mapping[str, Any], method: str | None = None
+                                   ) -> tuple[RelationNet, npt.NDArray[np.float64]]:
+    """Rebuild the network (eval mode) and its temperatures from a checkpoint dict.
+
+    Raises:
+        CheckpointError: another format or method, missing keys, or weights that do not fit.
+    """
+    where = str(ckpt.get("created", "<checkpoint>"))
+    if ckpt.get("format") != FORMAT:
+        raise CheckpointError(where, f"not a {FORMAT} checkpoint")
+    if ckpt.get("method") not in METHODS or (method and ckpt["method"] != method):
+        want = repr(method) if method else " or ".join(map(repr, METHODS))
+        raise CheckpointError(where, f"method {ckpt.get('method')!r} is not {want}")
+    missing = [k for k in (*KEYS, *RELATION_KEYS) if k not in ckpt]
+    if missing:
+        raise CheckpointError(where, f"missing keys {missing}")
+    temps = np.asarray(ckpt["temperatures"], dtype=np.float64)
+    try:
+        cfg = RelationConfig.from_dict(dict(ckpt["config"]))
+        if cfg.method != ckpt["method"] or temps.shape != (len(RELATIONS),):
+            raise ValueError("config method or temperatures do not match the checkpoint")
+        model = RelationNet(cfg)
+        model.load_state_dict({k: v.float() if v.is_floating_point() else v
+                               for k, v in ckpt["state_dict"].items()})
+    except (ValueError, TypeError, RuntimeError) as exc:
+        raise CheckpointError(where, f"does not rebuild a relation network: {exc}") from exc
+    return model.eval(), temps
+
+
+def save_relation_checkpoint(path: Path | str, ckpt: Mapping[str, Any]) -> Path:
+    """Check that ``ckpt`` rebuilds, then write it atomically; returns the path."""
+    relation_model_from_checkpoint(ckpt)
+    return save_checkpoint(ckpt, path)
+
+
+def load_relation_model(path: Path | str, method: str | None = None
+                        ) -> tuple[RelationNet, npt.NDArray[np.float64], Checkpoint]:
+    """Read with ``torch.load(weights_only=True)``: (model in eval mode, temperatures, dict).
+
+    Raises:
+        CheckpointError: unreadable, missing keys, another method (or not ``method``).
+    """
+    ckpt = load_checkpoint(path)
+    try:
+        model, temps = relation_model_from_checkpoint(ckpt, method)
+    except CheckpointError as exc:
+        raise CheckpointError(path, exc.reason) from exc
+    return model, temps, ckpt
+
+
+def train_relations(cfg: RelationConfig, train: RelationData, val: RelationData | None = None,
+                    progress: Callable[[TrainEvent], None] | None = None,
+                    data_info: Mapping[str, Any] | None = None) -> RelationResult:
+    """Train ``cfg.method`` for ``cfg.steps`` steps on ``train``, keep the best on ``val``.
+
+    Args:
+        cfg: the config; its seed fixes initialisation, batches and augmentation.
+        train: labelled pairs. val: pairs for model selection and calibration; when None or
+            empty, the last weights are kept and the temperatures are 1.
+        progress: called after every step with a ``TrainEvent`` (``epoch`` set after an
+            evaluation).
+        data_info: stored as the checkpoint's ``data`` (plain values).
+
+    Returns:
+        A ``RelationResult``: best model, its checkpoint with temperatures, history, losses.
+
+    Raises:
+        ValueError: no training pairs.
+    """
+    if not len(train):
+        raise ValueError("no training pairs")
+    val = val if val is not None and len(val) else None
+    info = {"train": len(train), "val": len(val or ()), **(data_info or {})}
+    losses: list[dict[str, float]] = []
+    history: list[dict[str, float]] = []
+    with seeded(cfg.seed):
+        model = RelationNet(cfg)
+        opt = torch.optim.Adam(model.parameters(), lr=cfg.lr)
+        best: tuple[float, int, dict[str, torch.Tensor]] | None = None
+        clock = time.perf_counter()
+        for step in range(cfg.steps):
+            losses.append(_step(model, opt, cfg, *training_batch(train, cfg, step)))
+            event = TrainEvent(step + 1, cfg.steps, losses[-1])
+            if (step + 1) % cfg.eval_every == 0 or step + 1 == cfg.steps:
+                record = {"step": float(step + 1), "seconds": time.perf_counter() - clock,
+                          **{f"train_{k}": float(np.mean([s[k] for s in
+                                                          losses[-cfg.eval_every:]]))
+                             for k in losses[-1]}}
+                if val is not None:
+                    record.update({f"val_{k}": v for k, v in evaluate(model, val).items()})
+                history.append(record)
+                logger.info("step %d: %s", step + 1,
+                            ", ".join(f"{k} {v:.4g}" for k, v in record.items()))
+                score = record.get("val_accuracy", float(step))
+                if best is None or score > best[0]:
+                    best = (score, step + 1, _state_copy(model, half=False))
+                event = dataclasses.replace(event, epoch=record)
+            if progress is not None:
+                progress(event)
+    assert best is not None
+    model.load_state_dict(best[2])
+    model.eval()
+    temps, metrics = np.ones(len(RELATIONS)), dict(history[-1])
+    if val is not None:
+        raw_ab, raw_ba = _raw(model, val.points, 256)
+        temps = fit_temperatures(combine(raw_ab, raw_ba), val.labels)
+        metrics = {**next(h for h in history if h["step"] == best[1]),
+                   **{f"val_{k}_calibrated": v
+                      for k, v in evaluate(model, val, temperatures=temps).items()
+                      if k == "ece"}}
+    ckpt = make_relation_checkpoint(model, temps, best[1], metrics, info)
+    return RelationResult(model, ckpt, temps, history, losses)
+
+
+def _step(model: RelationNet, opt: torch.optim.Optimizer, cfg: RelationConfig,
+          points: torch.Tensor, labels: torch.Tensor) -> dict[str, float]:
+    """One Adam step on 1 - sat: the losses and satisfactions."""
+    model.train()
+    logits_ab, logits_ba = model(points)  # (B, 10) each
+    kb = knowledge_base(torch.sigmoid(logits_ab), torch.sigmoid(logits_ba), labels, cfg)
+    loss = 1 - kb["sat"]
+    opt.zero_grad(set_to_none=True)
+    loss.backward()  # type: ignore[no-untyped-call]
+    opt.step()
+    return {"loss": loss.item(), **{k: v.item() for k, v in kb.items()}}
+

@@ -1,0 +1,256 @@
+"""The relation network (models.relations, models.relations_train) on the CPU at small sizes:
+truth values in range, the knowledge base learned, decisions obeying the rules for any input,
+seeding, checkpoints, overfitting, violations and calibration error."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+
+from cadio.records import CONVERSE, DIRECTIONAL, SYMMETRIC, Relation
+from models.checkpoint import build_model, make_checkpoint, save_checkpoint
+from models.completion import CompletionConfig
+from models.errors import CheckpointError
+from models.relations import (
+    PARALLEL,
+    PERPENDICULAR,
+    RELATIONS,
+    RelationConfig,
+    RelationNet,
+    and_,
+    combine,
+    decide,
+    exists,
+    expected_calibration_error,
+    forall,
+    implies,
+    knowledge_base,
+    normalise_pair,
+    or_,
+    swap_decision,
+    violations,
+)
+from models.relations_train import (
+    RelationData,
+    load_relation_model,
+    make_relation_checkpoint,
+    predict_relations,
+    save_relation_checkpoint,
+    train_relations,
+    training_batch,
+)
+from models.synthetic import relation_pairs
+
+TINY = {"n_points": 64, "train_points": 48, "widths": (8, 16, 16, 32), "embed": 16,
+        "ntn_k": 2, "batch_size": 16, "eval_every": 10, "steps": 10, "lr": 3e-3}
+IDX = {r: i for i, r in enumerate(RELATIONS)}
+
+
+@pytest.fixture(autouse=True)
+def one_thread():  # type: ignore[no-untyped-def]
+    before = torch.get_num_threads()
+    torch.set_num_threads(1)
+    yield
+    torch.set_num_threads(before)
+
+
+def tiny(**overrides: object) -> RelationConfig:
+    return RelationConfig(**{**TINY, **overrides})  # type: ignore[arg-type]
+
+
+@pytest.fixture(scope="module")
+def pairs() -> RelationData:
+    return relation_pairs(64, n_points=128, seed=1)
+
+
+def random_net(seed: int, **overrides: object) -> RelationNet:
+    torch.manual_seed(seed)
+    return RelationNet(tiny(**overrides)).eval()
+
+
+def test_synthetic_labels_follow_the_rules(pairs: RelationData) -> None:
+    labels = pairs.labels
+    assert labels.shape == (64, 10) and pairs.points.shape == (64, 2, 128, 3)
+    assert labels[:, IDX[Relation.CONCENTRIC]].any() and labels[:, IDX[Relation.LEFT]].any()
+    assert not (labels[:, PARALLEL] & labels[:, PERPENDICULAR]).any()
+    for r in DIRECTIONAL:  # the cones of opposite directions never overlap
+        assert not (labels[:, IDX[r]] & labels[:, IDX[CONVERSE[r]]]).any()
+
+
+def test_operators_match_product_real_logic() -> None:
+    a, b = torch.tensor([0.0, 0.3, 1.0]), torch.tensor([1.0, 0.6, 0.0])
+    assert torch.allclose(and_(a, b), a * b, atol=3e-4)
+    assert torch.allclose(or_(a, b), a + b - a * b, atol=3e-4)
+    assert torch.allclose(implies(a, b), 1 - a + a * b, atol=3e-4)
+    x = torch.tensor([1.0, 1.0, 0.0, 0.5])
+    assert forall(x, 2).item() == pytest.approx(1 - np.sqrt((1 + 0.25) / 4), abs=1e-3)
+    assert exists(x, 2).item() == pytest.approx(np.sqrt((1 + 1 + 0.25) / 4), abs=1e-3)
+    assert forall(torch.ones(5), 2).item() < 1  # the stable forms never reach 1 or 0 ...
+    one = torch.ones(3, requires_grad=True)
+    forall(one, 2).backward()  # ... so the gradient at full truth stays finite
+    assert one.grad is not None and torch.isfinite(one.grad).all()
+
+
+@pytest.mark.parametrize("scale", [1e-30, 1.0, 1e30])
+def test_predicates_in_unit_interval(scale: float) -> None:
+    net = random_net(0, descriptors=True)
+    points = torch.randn(8, 2, 64, 3) * scale
+    points[0, 0] = 0.0  # a part collapsed to one point
+    points[1] = 5.0  # both parts at one point: zero radius
+    logits_ab, logits_ba = net(points)
+    for t in (torch.sigmoid(logits_ab), torch.sigmoid(logits_ba)):
+        assert t.shape == (8, 10) and torch.isfinite(t).all()
+        assert (t >= 0).all() and (t <= 1).all()
+    with pytest.raises(ValueError, match="finite"):
+        net(torch.full((1, 2, 4, 3), float("nan")))
+    with pytest.raises(ValueError, match=r"\(B, 2, P, 3\)"):
+        net(torch.zeros(1, 3, 4, 3))
+
+
+def test_normalisation_is_unit_free_and_keeps_relative_position() -> None:
+    pts = torch.randn(4, 2, 32, 3, dtype=torch.float64)
+    pts[:, 0] += torch.tensor([3.0, 0.0, 0.0], dtype=torch.float64)
+    moved = normalise_pair(pts * 1e3 + 7.0)
+    assert torch.allclose(normalise_pair(pts), moved, atol=1e-5)
+    assert (moved[:, 0, :, 0].mean(1) > moved[:, 1, :, 0].mean(1)).all()  # a stays right of b
+    net = random_net(1)
+    with torch.no_grad():
+        assert torch.allclose(net(pts.float())[0], net((pts * 1e-3 - 2).float())[0], atol=1e-4)
+
+
+def test_training_satisfies_the_knowledge_base(pairs: RelationData) -> None:
+    results = {}
+    for method in ("ltn", "mlp"):
+        cfg = tiny(method=method, descriptors=True, steps=300, batch_size=32, eval_every=100,
+                   train_points=96, widths=(16, 32, 32, 64), embed=32)
+        res = train_relations(cfg, pairs, pairs)
+        pred = predict_relations(res.checkpoint, pairs.points)
+        kb = knowledge_base(torch.from_numpy(pred.raw_ab), torch.from_numpy(pred.raw_ba),
+                            torch.from_numpy(pairs.labels).float(), cfg)
+        acc = (pred.decided == pairs.labels).mean()
+        results[method] = (kb, acc, res)
+    kb, acc, res = results["ltn"]
+    # Untrained, the KB sits near 0.6; a broken axiom or operator keeps it well below 0.85.
+    assert kb["sat"].item() > 0.85 and kb["rules"].item() > 0.9
+    assert acc > 0.95
+    assert res.history[-1]["train_sat"] > res.history[0]["train_sat"] + 0.05
+    assert res.checkpoint["method"] == "ltn" and len(res.temperatures) == 10
+    kb, acc, res = results["mlp"]
+    assert kb["rules"].item() == 1.0 and kb["facts"].item() > 0.8 and acc > 0.9
+    assert res.history[-1]["train_facts"] > res.history[0]["train_facts"]
+
+
+@pytest.mark.parametrize("seed", range(5))
+def test_decisions_obey_the_rules_for_any_input(seed: int) -> None:
+    gen = torch.Generator().manual_seed(seed)
+    net = random_net(seed, descriptors=bool(seed % 2))
+    scale = 10.0 ** torch.randint(-3, 4, (24, 1, 1, 1), generator=gen)
+    points = torch.randn(24, 2, 40, 3, generator=gen) * scale
+    points[:, 0] += torch.randn(24, 1, 3, generator=gen) * scale[:, 0]
+    temps = np.linspace(0.5, 2.0, 10)
+    ab = predict_relations(net, points, batch=7, temperatures=temps)
+    ba = predict_relations(net, points[:, [1, 0]], batch=7, temperatures=temps)
+    np.testing.assert_array_equal(ba.raw_ab, ab.raw_ba)
+    np.testing.assert_array_equal(ba.decided, swap_decision(ab.decided))
+    for d in (ab.decided, ba.decided):
+        for r in DIRECTIONAL:  # converse pairs of one pair never both hold (asymmetry)
+            assert not (d[:, IDX[r]] & d[:, IDX[CONVERSE[r]]]).any()
+        assert not (d[:, PARALLEL] & d[:, PERPENDICULAR]).any()
+    for r in SYMMETRIC:
+        np.testing.assert_array_equal(ab.decided[:, IDX[r]], ba.decided[:, IDX[r]])
+    assert ((ab.confidence >= 0) & (ab.confidence <= 1)).all()
+    assert (ab.confidence[ab.decided] >= 0.5).all()
+    # Hand-made raw outputs hitting every tie and threshold: still consistent.
+    raw = np.random.default_rng(seed).choice([0.0, 0.5, 0.7, 1.0], (50, 10))
+    raw_ba = np.random.default_rng(seed + 9).choice([0.0, 0.5, 0.7, 1.0], (50, 10))
+    d_ab, d_ba = decide(combine(raw, raw_ba)), decide(combine(raw_ba, raw))
+    np.testing.assert_array_equal(d_ba, swap_decision(d_ab))
+
+
+def test_same_seed_same_losses(pairs: RelationData) -> None:
+    def losses(seed: int) -> list[float]:
+        return [s["loss"] for s in train_relations(tiny(seed=seed), pairs).losses]
+
+    first = losses(3)
+    assert first == losses(3)
+    assert first != losses(4)
+    b1, b2 = training_batch(pairs, tiny(seed=3), 5), training_batch(pairs, tiny(seed=3), 5)
+    assert torch.equal(b1[0], b2[0]) and torch.equal(b1[1], b2[1])
+
+
+def test_checkpoint_round_trip(pairs: RelationData, tmp_path: Path) -> None:
+    res = train_relations(tiny(method="mlp", descriptors=True), pairs, pairs)
+    path = save_relation_checkpoint(tmp_path / "rel.pt", res.checkpoint)
+    _, temps, ckpt = load_relation_model(path)
+    assert ckpt["method"] == "mlp" and ckpt["config"]["descriptors"] is True
+    assert ckpt["code_version"] and ckpt["step"] == 10 and "val_accuracy" in ckpt["metrics"]
+    np.testing.assert_array_equal(temps, res.temperatures)
+    before = predict_relations(res.model, pairs.points, temperatures=res.temperatures)
+    after = predict_relations(path, pairs.points)
+    for field in ("raw_ab", "raw_ba", "decided", "confidence"):
+        np.testing.assert_array_equal(getattr(before, field), getattr(after, field))
+    assert torch.load(path, weights_only=True)["temperatures"] == ckpt["temperatures"]
+
+
+def test_bad_checkpoints_fail_clearly(pairs: RelationData, tmp_path: Path) -> None:
+    ckpt = make_relation_checkpoint(random_net(0), np.ones(10), 0, {})
+    with pytest.raises(CheckpointError, match="'mlp'"):
+        load_relation_model(save_checkpoint(ckpt, tmp_path / "ltn.pt"), method="mlp")
+    broken = {k: v for k, v in ckpt.items() if k != "temperatures"}
+    with pytest.raises(CheckpointError, match="temperatures"):
+        load_relation_model(save_checkpoint(broken, tmp_path / "broken.pt"))
+    with pytest.raises(CheckpointError, match="temperatures"):
+        save_relation_checkpoint(tmp_path / "never.pt", broken)
+    assert not (tmp_path / "never.pt").exists()
+    no_step = {k: v for k, v in ckpt.items() if k != "step"}
+    with pytest.raises(CheckpointError, match="missing keys"):
+        load_relation_model(save_checkpoint(no_step, tmp_path / "no_step.pt"))
+    cfg = CompletionConfig(n_in=16, n_out=32, width=4, gan=False, lstm=False, max_views=1)
+    other = save_checkpoint(make_checkpoint(build_model(cfg), 0, {}), tmp_path / "ae.pt")
+    with pytest.raises(CheckpointError, match="method 'ae'"):
+        load_relation_model(other)
+    wrong = {**ckpt, "config": {**ckpt["config"], "embed": 7}}
+    with pytest.raises(CheckpointError, match="does not rebuild"):
+        load_relation_model(save_checkpoint(wrong, tmp_path / "wrong.pt"))
+
+
+def test_loss_falls_on_two_samples_and_shapes() -> None:
+    data = relation_pairs(2, n_points=64, seed=5)
+    res = train_relations(tiny(steps=60, batch_size=2, eval_every=60, descriptors=True), data)
+    losses = [s["loss"] for s in res.losses]
+    assert np.mean(losses[-5:]) < 0.6 * np.mean(losses[:5])
+    pred = predict_relations(res.model, data.points)
+    for field in ("raw_ab", "raw_ba", "decided", "confidence", "probability"):
+        assert getattr(pred, field).shape == (2, 10)
+    assert pred.decided.dtype == bool
+    logits_ab, logits_ba = res.model(torch.from_numpy(data.points[:, :, :17]))  # any P
+    assert logits_ab.shape == logits_ba.shape == (2, 10)
+    assert predict_relations(res.model, np.zeros((0, 2, 5, 3), np.float32)).decided.shape == (0, 10)
+
+
+def test_violations_and_calibration_error() -> None:
+    raw_ab, raw_ba = np.full((3, 10), 0.1), np.full((3, 10), 0.1)
+    raw_ab[0, IDX[Relation.LEFT]] = raw_ba[0, IDX[Relation.RIGHT]] = 0.9  # consistent
+    raw_ab[1, IDX[Relation.LEFT]] = 0.9  # converse missing: (b, a) is not right
+    raw_ab[2, IDX[Relation.CONCENTRIC]] = 0.9  # symmetric relation in one order only
+    raw_ab[2, PARALLEL] = raw_ab[2, PERPENDICULAR] = raw_ba[2, PARALLEL] = 0.8
+    raw_ba[2, PERPENDICULAR] = 0.8
+    v = violations(raw_ab, raw_ba)
+    assert not v[0].any()
+    assert v[1, IDX[Relation.LEFT]] and v[1].sum() == 1
+    assert v[2, IDX[Relation.CONCENTRIC]] and v[2, PARALLEL] and v[2, PERPENDICULAR]
+    assert not violations(np.full((1, 10), 0.1), np.full((1, 10), 0.1)).any()
+    both = np.full((1, 10), 0.1)
+    both[0, IDX[Relation.ABOVE]] = both[0, IDX[Relation.BELOW]] = 0.9  # above both ways
+    assert violations(both, both)[0, IDX[Relation.ABOVE]]
+
+    conf = np.repeat([0.55, 0.7, 0.9, 1.0], 20)
+    correct = np.concatenate([np.arange(20) < k for k in (11, 14, 18, 20)])
+    assert expected_calibration_error(conf, correct) == pytest.approx(0.0, abs=1e-12)
+    rng = np.random.default_rng(0)
+    c = rng.uniform(0.5, 1.0, 200_000)
+    assert expected_calibration_error(c, rng.random(c.size) < c) < 0.01
+    assert expected_calibration_error(c, np.zeros(c.size, bool)) == pytest.approx(c.mean(), 1e-9)
