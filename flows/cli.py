@@ -104,12 +104,13 @@ def _parser() -> argparse.ArgumentParser:
     p.add_argument("--noise", action="store_true", help="switch the depth noise model on")
     p.set_defaults(func=_cmd_capture)
 
-    p = sub.add_parser("train", help="train the learned stages (completion)",
+    p = sub.add_parser("train", help="train the learned stages (completion, relations)",
                        description="Train the completion checkpoints on a corpus of generated "
-                       "and real parts, score them on held-out parts beside the baselines, and "
-                       "write them with their model card (no Prefect; the train flow runs the "
-                       "same steps).")
-    p.add_argument("stage", choices=["completion"], help="what to train")
+                       "and real parts, or the relation networks on pairs of that corpus's "
+                       "parts (after completion, in the same workspace); score them on "
+                       "held-out parts beside the baselines, and write them with their model "
+                       "card (no Prefect; the train flow runs the same steps).")
+    p.add_argument("stage", choices=["completion", "relations"], help="what to train")
     p.add_argument("--workspace", type=Path, default=Path("train-workspace"),
                    help="training workspace: corpus, dataset, snapshots, reports")
     p.add_argument("--shared", type=Path, default=None,
@@ -118,12 +119,17 @@ def _parser() -> argparse.ArgumentParser:
                    help="parametric variants per category of the sample library")
     p.add_argument("--seed", type=int, default=0, help="seed of variants and splits")
     p.add_argument("--steps", type=int, default=2000, help="training steps per model")
-    p.add_argument("--methods", nargs="+", default=["gan_lstm", "ae", "r2n2"],
-                   help="learned methods to train")
+    p.add_argument("--methods", nargs="+", default=None,
+                   help="learned methods to train (default: gan_lstm ae r2n2 for completion, "
+                   "ltn mlp for relations)")
+    p.add_argument("--inputs", nargs="+", default=["truth", "partial", "completed"],
+                   help="relations: the inputs to train a network for")
+    p.add_argument("--pairs-per-relation", type=int, default=80,
+                   help="relations: corpus scenes per relation (split by part)")
     p.add_argument("--protocols", nargs="+", default=["observed", "oracle-box"],
                    help="input protocols to train for")
     p.add_argument("--out", type=Path, default=None,
-                   help="checkpoint folder (default: the shipped models/checkpoints/completion)")
+                   help="checkpoint folder (default: the shipped models/checkpoints/<stage>)")
     p.add_argument("--workers", type=int, default=os.cpu_count() or 1,
                    help="worker processes for CAD work and rendering")
     p.add_argument("--grids", type=int, nargs=2, default=[32, 64], metavar=("N_IN", "N_OUT"),
@@ -216,6 +222,8 @@ def _cmd_ingest(args: argparse.Namespace) -> int:
 
 
 def _cmd_train(args: argparse.Namespace) -> int:
+    if args.stage == "relations":
+        return _cmd_train_relations(args)
     import shlex
     import time
 
@@ -245,7 +253,7 @@ def _cmd_train(args: argparse.Namespace) -> int:
         return 2
     print(f"corpus: {corpus.parts} parts {corpus.splits}, {corpus.failed} failed")
     for protocol in args.protocols:
-        for method in args.methods:
+        for method in args.methods or ["gan_lstm", "ae", "r2n2"]:
             with _progress(f"{method}/{protocol}", args.steps) as advance:
                 trained = train_model(ws, method, protocol, args.steps, out,
                                       on_step=lambda *a: advance(""),
@@ -260,6 +268,53 @@ def _cmd_train(args: argparse.Namespace) -> int:
                             {"steps": args.steps, "variants": args.variants, "seed": args.seed,
                              "threads": args.threads})
     print(Path(run_dir / "completion.md").read_text())
+    print(f"model card: {card}")
+    return 0
+
+
+def _cmd_train_relations(args: argparse.Namespace) -> int:
+    import shlex
+    import time
+
+    import torch
+
+    from cadio.workspace import Workspace
+    from flows.train_relations import (
+        build_dataset,
+        corpus_captures,
+        evaluate_relations,
+        train_relation_model,
+        write_relation_card,
+    )
+    from models.evaluate import SHIPPED
+    from models.relate import SHIPPED_RELATIONS
+
+    torch.set_num_threads(args.threads)
+    ws = Workspace(args.workspace.resolve())
+    out = (args.out or SHIPPED_RELATIONS).resolve()
+    try:
+        with _progress("corpus scenes", None) as advance:
+            captures = corpus_captures(ws, args.pairs_per_relation, args.seed, advance)
+        with _progress("pair views", len(captures)) as advance:
+            rows = build_dataset(ws, SHIPPED, advance)
+    except (FileNotFoundError, ValueError) as exc:
+        print(f"mateqa train relations: {exc} (run mateqa train completion in this workspace "
+              "first)", file=sys.stderr)
+        return 2
+    print(f"corpus: {len(captures)} captures, pair views per split {rows}")
+    for name in args.inputs:
+        for method in args.methods or ["ltn", "mlp"]:
+            with _progress(f"{method}/{name}", args.steps) as advance:
+                trained = train_relation_model(ws, method, name, args.steps, out,
+                                               on_step=lambda: advance(""))
+            print(f"{method}/{name}: best val accuracy {trained.val_accuracy:.4f} at step "
+                  f"{trained.step} ({trained.seconds:.0f} s) -> {trained.path}")
+    run_dir = ws.run_dir(time.strftime("relations-%Y%m%dT%H%M%SZ", time.gmtime()))
+    report = evaluate_relations(ws, out, run_dir)
+    card = write_relation_card(ws, out, run_dir, "mateqa " + shlex.join(args.argv),
+                               {"steps": args.steps, "seed": args.seed,
+                                "pairs_per_relation": args.pairs_per_relation})
+    print(report.read_text())
     print(f"model card: {card}")
     return 0
 

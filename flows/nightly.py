@@ -1,4 +1,5 @@
-"""The nightly flow, the main job: ingest -> mates -> scenes -> captures -> report.
+"""The nightly flow, the main job: ingest -> mates -> scenes -> captures -> completion ->
+relations -> report.
 
 Later stages (completion, relations, export) join this same flow. Each task is one call into
 the packages; the flow only fans work out in coarse batches (SQLite-backed servers struggle
@@ -29,7 +30,7 @@ from cadio.cad.ingest import (
     ingest_files,
     mark_duplicates,
 )
-from cadio.capture.scan import ScanConfig, capture_batch, read_captures
+from cadio.capture.scan import ScanConfig, capture_assembly, capture_batch, read_captures
 from cadio.catalog import CatalogRow, read_catalog, to_frame, write_catalog
 from cadio.contracts import CaptureSummary, MatesSummary, ScenesSummary
 from cadio.sandbox import Limits
@@ -50,6 +51,8 @@ from models.evaluate import (
     part_inputs,
     write_completion_report,
 )
+from models.relate import SHIPPED_RELATIONS, RelateBatch, relate_batch
+from reports.relations import combine_pairs, write_relation_report
 from reports.render import (
     IngestTotals,
     StageTotals,
@@ -81,6 +84,7 @@ class NightlySummary:
     ingest_report: str
     stages_report: str
     completion_report: str
+    relations_report: str
     ingest: IngestTotals
     stages: StageTotals
 
@@ -181,6 +185,34 @@ def read_captures_task(captures: str, workspace: str, cfg: ScanConfig) -> list[C
     return read_captures(Path(captures), Workspace(Path(workspace)), cfg)
 
 
+@task(name="capture-assemblies")
+def capture_assemblies_task(jobs: list[AssemblyJob], workspace: str,
+                            cfg: ScanConfig) -> list[CaptureSummary]:
+    """Render a batch of assemblies (their parts as placed) and derive their inputs."""
+    ws = Workspace(Path(workspace))
+    return [capture_assembly(j.assembly, j.category, list(j.part_ids.values()), ws, cfg)
+            for j in jobs]
+
+
+@task(name="relate")
+def relate_task(captures: list[str], workspace: str, relations_models: str,
+                completion_models: str, out: str) -> RelateBatch:
+    """Relations of every pair view of a batch of captures, by every method and input."""
+    return relate_batch([Path(c) for c in captures], Workspace(Path(workspace)),
+                        Path(relations_models), Path(completion_models), Path(out))
+
+
+@task(name="relations-report")
+def relations_report_task(run: Run, batches: list[RelateBatch]) -> str:
+    """The run's relation files (pairs, summary, near-boundary, assembly mates, Markdown)."""
+    failed = [f for b in batches for f in b.failed]
+    notes = [f"{sum(b.pair_views for b in batches)} pair views of "
+             f"{sum(b.captures for b in batches)} captures; {len(failed)} captures failed."]
+    notes += [f"- {f}" for f in failed]
+    pairs = combine_pairs([Path(b.path) for b in batches])
+    return str(write_relation_report(Path(run.run_dir), pairs, notes))
+
+
 @task(name="complete")
 def complete_task(folders: list[str], models_dir: str, workspace: str) -> Scores:
     """Complete and score a batch of captured parts with every method."""
@@ -255,6 +287,27 @@ def capture_stage(scenes: ScenesSummary, run: Run, cfg: ScanConfig,
     return [c for f in futures for c in f.result()]
 
 
+def assembly_stage(catalog: str, mates: list[MatesSummary], run: Run,
+                   cfg: ScanConfig) -> list[CaptureSummary]:
+    """Capture every assembly whose mates were extracted, two per task."""
+    ok = {m.assembly for m in mates if m.ok}
+    jobs = [j for j in assembly_jobs(read_catalog(Path(catalog)), Path(run.workspace))
+            if j.assembly in ok]
+    futures = [capture_assemblies_task.submit(b, run.workspace, cfg) for b in _batches(jobs, 2)]
+    return [c for f in futures for c in f.result()]
+
+
+def relate_stage(captured: list[CaptureSummary], run: Run, relations_models: str,
+                 completion_models: str) -> list[RelateBatch]:
+    """Every capture's pair views related by every method, ten captures per task."""
+    paths = [c.path for c in captured if not c.error and c.path]
+    out = Path(run.run_dir) / "relations"
+    futures = [relate_task.submit(b, run.workspace, relations_models, completion_models,
+                                  str(out / f"batch-{i:04d}.parquet"))
+               for i, b in enumerate(_batches(paths, 10))]
+    return [f.result() for f in futures]
+
+
 class _Stopwatch:
     """Seconds since the last lap, for the one log line of each stage."""
 
@@ -279,6 +332,7 @@ def nightly(
     noise: bool = False,
     captures: str | None = None,
     completion_models: str | None = None,
+    relation_models: str | None = None,
     seed: int = 0,
     workers: int | None = None,
     file_timeout_s: float | None = None,
@@ -298,6 +352,7 @@ def nightly(
         noise: switch the depth sensor noise model on.
         captures: folder of MCAP captures to read instead of rendering (real logs).
         completion_models: folder of completion checkpoints (default: the shipped ones).
+        relation_models: folder of relation checkpoints (default: the shipped ones).
         seed: seed of the scene generator.
         workers, file_timeout_s, file_memory_mb, max_file_mb: CAD worker processes per task
             and per-file limits (None: the ``MATEQA_*`` settings).
@@ -329,6 +384,8 @@ def nightly(
     log.info("scenes: %d from %d parts (%.1f s)", scenes.scenes, scenes.parts, clock.lap())
     scan_cfg = ScanConfig(views_per_scene=views_per_scene, noise=noise, tolerances=tolerances)
     captured = capture_stage(scenes, run, scan_cfg, captures)
+    if not captures:  # recordings stand on their own; a rendered run captures the assemblies
+        captured += assembly_stage(catalog, mates, run, scan_cfg)
     log.info("captures: %d, %d failed, %d frames (%.1f s)", len(captured),
              sum(bool(c.error) for c in captured), sum(c.frames for c in captured), clock.lap())
     scores = complete_stage(captured, run, completion_models or str(SHIPPED))
@@ -336,12 +393,20 @@ def nightly(
     log.info("completion: %d scores of %d examples, %d failed (%.1f s)",
              sum(len(s.parts) for s in scores), sum(len(s.registration) for s in scores),
              sum(len(s.failed) for s in scores), clock.lap())
+    completion_dir = completion_models or str(SHIPPED)
+    batches = relate_stage(captured, run, relation_models or str(SHIPPED_RELATIONS),
+                           completion_dir)
+    relations = relations_report_task(run, batches)
+    log.info("relations: %d pair views, %d rows, %d captures failed (%.1f s)",
+             sum(b.pair_views for b in batches), sum(b.rows for b in batches),
+             sum(len(b.failed) for b in batches), clock.lap())
     ingest, stages = report_task(run, catalog, mates, scenes.path, captured)
     log.info("report: %s (%.1f s)", run.run_dir, clock.lap())
     summary = NightlySummary(
         run_id=run.run_id, library=str(lib), workspace=run.workspace, run_dir=run.run_dir,
         ingest_report=str(Path(run.run_dir) / "ingest.md"),
         stages_report=str(Path(run.run_dir) / "stages.md"), completion_report=completion,
+        relations_report=relations,
         ingest=ingest, stages=stages)
     write_json(Path(run.run_dir) / "summary.json", asdict(summary))
     Workspace(Path(run.workspace)).mark_latest(run.run_id)

@@ -39,7 +39,7 @@ SYMMETRIC_INDEX = tuple(_INDEX[r] for r in SYMMETRIC)
 PARALLEL, PERPENDICULAR = _INDEX[Relation.PARALLEL], _INDEX[Relation.PERPENDICULAR]
 OPPOSITES = ((0, 1), (2, 3), (4, 5))  # left/right, above/below, front/behind: never both
 EXCLUSIVE = (*OPPOSITES, (PARALLEL, PERPENDICULAR))  # pairs of one pair's relations, at most one
-N_DESCRIPTORS = 15  # per part: centroid 3, principal directions 3 x 3, extents 3
+N_DESCRIPTORS = 24  # per part: centroid 3, principal directions' d d^T 3 x 6, extents 3
 METHODS = ("ltn", "mlp")
 
 BoolArray = npt.NDArray[np.bool_]
@@ -59,6 +59,9 @@ class RelationConfig:
     pair_diff: bool = True  # pair vector [e_a, e_b, e_a - e_b] (False: [e_a, e_b])
     ntn_k: int = 4  # slices of each predicate's bilinear tensor
     descriptors: bool = False  # append centroid, PCA directions and extents to each embedding
+    # Pool by max and mean: the mean counts how many points share a feature (the principal
+    # plane is the direction carrying the most planar area), which max cannot.
+    mean_pool: bool = True
     p_forall: float = 2.0  # p of the p-mean-error Forall (LTN's default)
     p_sat: float = 2.0  # p of the aggregation of the axioms into the KB's satisfaction
     rule_weight: float = 1.0  # weight of each rule axiom relative to one fact axiom
@@ -172,14 +175,15 @@ def normalise_pair(points: Tensor) -> Tensor:
 
 @torch.no_grad()
 def part_descriptors(points: Tensor) -> Tensor:
-    """Centroid, principal directions (canonical sign) and extents of normalised parts.
+    """Centroid, principal directions (sign-free) and extents of normalised parts.
 
     Args:
         points: (B, P, 3) one part of each normalised pair.
 
     Returns:
-        (B, 15) float32: centroid (3), the three principal directions by falling variance with
-        their largest component made positive (9), extents along them, max - min (3).
+        (B, 24) float32: centroid (3), the six distinct entries of d d^T for each of the three
+        principal directions by falling variance (18: a direction's sign is arbitrary, and a
+        canonical sign flips discontinuously), extents along them, max - min (3).
     """
     x = points.double()
     centroid = x.mean(1)  # (B, 3)
@@ -187,29 +191,34 @@ def part_descriptors(points: Tensor) -> Tensor:
     cov = centred.transpose(1, 2) @ centred / x.shape[1]  # (B, 3, 3)
     _, vecs = torch.linalg.eigh(cov)  # ascending eigenvalues; directions are columns
     dirs = vecs.flip(-1).transpose(1, 2)  # (B, 3, 3) rows, by falling variance
-    big = torch.gather(dirs, -1, dirs.abs().argmax(-1, keepdim=True))  # (B, 3, 1)
-    dirs = dirs * torch.where(big < 0, -1.0, 1.0)
+    i, j = torch.triu_indices(3, 3)
+    outer = (dirs[..., :, None] * dirs[..., None, :])[..., i, j]  # (B, 3, 6)
     proj = centred @ dirs.transpose(1, 2)  # (B, P, 3)
     extents = proj.amax(1) - proj.amin(1)  # (B, 3)
-    return torch.cat([centroid, dirs.flatten(1), extents], 1).float()
+    return torch.cat([centroid, outer.flatten(1), extents], 1).float()
 
 
 class PointEncoder(nn.Module):
-    """Shared per-point MLP (len(widths) + 1 linear layers), max pool, tanh: a part's embedding."""
+    """Shared per-point MLP (len(widths) + 1 linear layers), max (and mean) pool, tanh: a
+    part's embedding."""
 
-    def __init__(self, widths: tuple[int, ...], embed: int) -> None:
+    def __init__(self, widths: tuple[int, ...], embed: int, in_dim: int = 3,
+                 mean_pool: bool = False) -> None:
         super().__init__()
-        dims = [3, *widths, embed]
+        dims = [in_dim, *widths, embed]
         layers: list[nn.Module] = []
         for a, b in pairwise(dims):
             layers += [nn.Linear(a, b), nn.ReLU()]
         self.mlp = nn.Sequential(*layers[:-1])  # no ReLU before the pooling
+        self.mean_pool = mean_pool
 
     def forward(self, points: Tensor) -> Tensor:
-        """points (B, P, 3) -> (B, E) in (-1, 1)."""
+        """points (B, P, F) -> (B, E) (or (B, 2E) with mean pooling) in (-1, 1)."""
         # Bounded embeddings keep each predicate's quadratic form x^T W x in tanh's working
         # range; unbounded max-pooled features grew until training stalled or diverged.
-        return torch.tanh(self.mlp(points).amax(1))  # (B, P, E) -> (B, E)
+        h = self.mlp(points)  # (B, P, E)
+        pooled = torch.cat([h.amax(1), h.mean(1)], 1) if self.mean_pool else h.amax(1)
+        return torch.tanh(pooled)
 
 
 class NTNPredicate(nn.Module):
@@ -238,8 +247,9 @@ class RelationNet(nn.Module):
     def __init__(self, cfg: RelationConfig) -> None:
         super().__init__()
         self.cfg = cfg
-        self.encoder = PointEncoder(cfg.widths, cfg.embed)
-        part = cfg.embed + (N_DESCRIPTORS if cfg.descriptors else 0)
+        self.encoder = PointEncoder(cfg.widths, cfg.embed, mean_pool=cfg.mean_pool)
+        part = cfg.embed * (2 if cfg.mean_pool else 1) + (N_DESCRIPTORS if cfg.descriptors
+                                                          else 0)
         dim = part * (3 if cfg.pair_diff else 2)
         self.predicates = nn.ModuleList(NTNPredicate(dim, cfg.ntn_k) for _ in RELATIONS)
 

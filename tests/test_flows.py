@@ -8,6 +8,7 @@ import shutil
 from dataclasses import asdict
 from pathlib import Path
 
+import pandas as pd
 import pytest
 from prefect.testing.utilities import prefect_test_harness
 
@@ -55,6 +56,17 @@ def test_nightly_ingests_reports_and_caches(harness: object, tmp_path: Path,
     assert parts["iou"].between(0, 1).all() and set(parts["n_views"]) >= {1, 2}
     assert "protocol: observed" in Path(first.completion_report).read_text()
     assert (ws / "runs" / "latest").resolve() == Path(first.run_dir)
+
+    # every captured pair related in every view, by every method on every input
+    pairs = pd.read_parquet(Path(first.run_dir) / "relations_pairs.parquet")
+    assert set(pairs["method"]) == {"ltn", "mlp", "geometric"}
+    assert set(pairs["input"]) == {"truth", "partial", "completed"}
+    assert set(pairs["view"]) == {0, 1} and pairs["relation"].nunique() == 10
+    learned = pairs[pairs["method"] != "geometric"]
+    assert learned["confidence"].between(0.0, 1.0).all()
+    summary = pd.read_csv(Path(first.run_dir) / "relations_summary.csv")
+    assert {"all"} < set(summary["category"]) and summary["n"].gt(0).all()
+    assert Path(first.relations_report).read_text().startswith("# Relations")
 
     meshes = sorted((ws / "meshes").glob("*.ply"))
     stamps = [m.stat().st_mtime_ns for m in meshes]

@@ -1,0 +1,240 @@
+"""Relations of captured pairs by every method on every input, in one harness.
+
+The relation stage of the nightly flow and the held-out evaluation of ``mateqa train
+relations`` both come here. For each capture, the completion network's shape of every part in
+every view is computed (``completed_clouds``: the shipped ``gan_lstm`` under the observed
+protocol, one view at a time), the pair views are assembled with their per-view truth
+(``cadio.capture.pairs``), and each method decides the ten relations on each input:
+
+- ``ltn`` and ``mlp``: the relation networks (one checkpoint per method and input), which see
+  only the points in the observer's frame; a pair and its swap are decided together;
+- ``geometric``: planes and cylinders fitted to the same points by RANSAC, turned into the
+  ground truth's features and handed to the ground truth's relation function.
+
+One row per pair view x input x method x relation (``reports.relations.PAIR_COLUMNS``).
+"""
+
+from __future__ import annotations
+
+import logging
+import re
+from collections.abc import Iterable, Mapping, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+import numpy.typing as npt
+
+from cadio.capture.examples import OBSERVED, read_example
+from cadio.capture.pairs import DEFAULT_PAIRS, INPUTS, PairConfig, PairView, capture_pairs
+from cadio.errors import CaptureError
+from cadio.records import Features, FloatArray, Relation
+from cadio.truth.relations import relate
+from cadio.workspace import Workspace
+from models.relations import RelationNet, violations
+from models.relations_train import load_relation_model, predict_relations
+from models.train import Model, predict
+from reports.metrics import surface_points
+
+if TYPE_CHECKING:
+    from cadio.capture.primitives import PrimitiveConfig
+
+log = logging.getLogger(__name__)
+
+SHIPPED_RELATIONS = Path(__file__).resolve().parent / "checkpoints" / "relations"
+LEARNED = ("ltn", "mlp")
+METHODS = (*LEARNED, "geometric")
+RELATIONS = tuple(r.value for r in Relation)
+THRESHOLD = 0.5  # a voxel of the completion is solid above this probability
+# In the observer frame the view axis is +Y (behind), whatever the camera.
+OBSERVER_VIEW_AXIS = (0.0, 1.0, 0.0)
+_SINGLE = re.compile(rf"^{OBSERVED}-(\d+)\.npz$")
+
+
+@dataclass(frozen=True)
+class RelationModels:
+    """Loaded relation networks by (method, input), their temperatures and what each says."""
+
+    models: dict[tuple[str, str], tuple[RelationNet, Any]]
+    cards: dict[tuple[str, str], dict[str, Any]]
+
+    def trained_on(self) -> set[str]:
+        """Part ids any network was trained on (never scored as held out)."""
+        return {p for c in self.cards.values() for p in c.get("data", {}).get("train_parts", [])}
+
+    def versions(self) -> dict[str, str]:
+        return {f"{m}/{i}": f"step {c['step']}, code {c['code_version']}"
+                for (m, i), c in sorted(self.cards.items())}
+
+
+def load_relation_models(folder: Path = SHIPPED_RELATIONS) -> RelationModels:
+    """Every relation checkpoint (``<method>-<input>.pt``) of a folder; none when absent."""
+    models, cards = {}, {}
+    for path in sorted(Path(folder).glob("*.pt")) if Path(folder).is_dir() else []:
+        model, temperatures, ckpt = load_relation_model(path)
+        key = (str(ckpt["method"]), str(ckpt["data"].get("input", "")))
+        models[key] = (model, temperatures)
+        cards[key] = {k: v for k, v in ckpt.items() if k != "state_dict"}
+    return RelationModels(models, cards)
+
+
+def completed_clouds(folder: Path, model: Model) -> dict[int, FloatArray]:
+    """The completion of each single observed view of one part: view -> (m, 3) world metres
+    (centres of the surface voxels of the solid predicted in the view's observed grid)."""
+    files = sorted((int(m.group(1)), p) for p in Path(folder).glob(f"{OBSERVED}-*.npz")
+                   if (m := _SINGLE.match(p.name)))
+    if not files:
+        return {}
+    examples = [read_example(p) for _, p in files]
+    probs = predict(model, [e.inputs for e in examples], batch_size=16)
+    out = {}
+    n = probs.shape[-1]
+    for (view, _), example, p in zip(files, examples, probs, strict=True):
+        solid = p > THRESHOLD
+        to_world = example.grid.grid_to_world(n)
+        pts = surface_points(solid, example.grid.voxel_m(n), to_world) if solid.any() else \
+            example.points  # nothing predicted: the scan is all there is
+        out[view] = np.asarray(pts, dtype=np.float64)
+    return out
+
+
+def capture_completions(capture: str, part_ids: Iterable[str], ws: Workspace,
+                        model: Model | None) -> dict[tuple[str, int], FloatArray]:
+    """(part id, view) -> completed points for the parts of one capture (none without model)."""
+    if model is None:
+        return {}
+    return {(pid, view): pts for pid in part_ids
+            for view, pts in completed_clouds(ws.inputs(capture, pid), model).items()}
+
+
+def geometric_decisions(points: npt.NDArray[np.float32], mm_per_unit: npt.NDArray[Any],
+                        keys: Sequence[tuple[Any, Any]] | None = None,
+                        cfg: PrimitiveConfig | None = None) -> npt.NDArray[np.bool_]:
+    """(N, 10) the geometric baseline's relations of pairs in the observer frame.
+
+    Args:
+        points: (N, 2, k, 3) observer-frame points (the view axis is +Y there).
+        mm_per_unit: (N,) millimetres of the CAD per unit of ``points`` (1 / scale_m_per_mm).
+        keys: per row, a key of each part's cloud (part, view, input): a cloud met again (a part
+            of an assembly in many pairs) is fitted once.
+    """
+    from cadio.capture.primitives import PrimitiveConfig, fit_features
+
+    fit_cfg = cfg or PrimitiveConfig()
+    cache: dict[Any, Features] = {}
+
+    def features(i: int, k: int) -> Features:
+        key = (i, k) if keys is None else keys[i][k]
+        if key not in cache:
+            cache[key] = fit_features(np.asarray(points[i, k], np.float64) * mm_per_unit[i],
+                                      fit_cfg)
+        return cache[key]
+
+    return np.array([relate(features(i, 0), features(i, 1), OBSERVER_VIEW_AXIS).truth
+                     for i in range(len(points))], dtype=bool).reshape(-1, len(RELATIONS))
+
+
+def decide(points: npt.NDArray[np.float32], mm_per_unit: npt.NDArray[Any], method: str,
+           model: tuple[RelationNet, Any] | None,
+           keys: Sequence[tuple[Any, Any]] | None = None
+           ) -> tuple[npt.NDArray[np.bool_], npt.NDArray[np.float64],
+                      npt.NDArray[np.bool_]] | None:
+    """One method's (decided, confidence, violation), each (N, 10), on observer-frame pairs
+    (N, 2, k, 3); None for a learned method without its checkpoint."""
+    if method == "geometric":
+        decided = geometric_decisions(points, mm_per_unit, keys)
+        # relate's converse and symmetric rules hold by construction: nothing to violate; a
+        # hard geometric decision carries no calibrated probability.
+        return decided, np.full(decided.shape, np.nan), np.zeros(decided.shape, dtype=bool)
+    if model is None:
+        return None
+    net, temperatures = model
+    pred = predict_relations(net, points, temperatures=temperatures)
+    return pred.decided, pred.confidence, violations(pred.raw_ab, pred.raw_ba)
+
+
+def relate_views(views: Sequence[PairView], models: RelationModels,
+                 methods: Sequence[str] = METHODS) -> list[dict[str, Any]]:
+    """``relations_pairs`` rows of pair views: every method on every input they carry."""
+    rows: list[dict[str, Any]] = []
+    for name in INPUTS:
+        having = [v for v in views if name in v.points]
+        if not having:
+            continue
+        points = np.stack([v.observer_points(name) for v in having])
+        mm = np.array([1.0 / v.scale_m_per_mm for v in having])
+        keys = [((v.scene, v.part_a, v.view), (v.scene, v.part_b, v.view)) for v in having]
+        for method in methods:
+            decided = decide(points, mm, method, models.models.get((method, name)), keys)
+            if decided is not None:
+                rows += _rows(having, name, method, *decided)
+    return rows
+
+
+def _rows(views: Sequence[PairView], name: str, method: str, decided: npt.NDArray[np.bool_],
+          confidence: npt.NDArray[np.float64], broken: npt.NDArray[np.bool_]
+          ) -> list[dict[str, Any]]:
+    return [{"scene": v.scene, "view": v.view, "part_a": v.part_a, "part_b": v.part_b,
+             "category": v.category, "input": name, "method": method, "relation": rel,
+             "truth": bool(v.labels[k]), "predicted": bool(decided[i, k]),
+             "confidence": float(confidence[i, k]), "near_boundary": v.near_boundary,
+             "violation": bool(broken[i, k])}
+            for i, v in enumerate(views) for k, rel in enumerate(RELATIONS)]
+
+
+def relate_captures(captures: Sequence[Path], ws: Workspace, categories: Mapping[str, str],
+                    models: RelationModels, completion: Model | None,
+                    cfg: PairConfig = DEFAULT_PAIRS) -> tuple[list[dict[str, Any]], list[str]]:
+    """Rows of every capture's pair views, and one line per capture that failed (the others
+    go on)."""
+    rows: list[dict[str, Any]] = []
+    failed = []
+    for path in captures:
+        try:
+            views = capture_pairs(path, ws, categories, cfg, _completions(path, ws, completion))
+        except (OSError, ValueError, KeyError, CaptureError) as exc:
+            failed.append(f"{path.name}: {type(exc).__name__}: {exc}")
+            continue
+        rows += relate_views(views, models)
+    return rows, failed
+
+
+def _completions(path: Path, ws: Workspace, completion: Model | None
+                 ) -> dict[tuple[str, int], FloatArray]:
+    folder = ws.root / "inputs" / path.stem
+    parts = [p.name for p in folder.iterdir() if p.is_dir()] if folder.is_dir() else []
+    return capture_completions(path.stem, parts, ws, completion)
+
+
+@dataclass(frozen=True)
+class RelateBatch:
+    """What ``relate_batch`` wrote: the rows' parquet, its pair views and failures."""
+
+    path: str
+    captures: int
+    pair_views: int
+    rows: int
+    failed: tuple[str, ...]
+
+
+def relate_batch(captures: Sequence[Path], ws: Workspace, relations_dir: Path,
+                 completion_dir: Path, out: Path, cfg: PairConfig = DEFAULT_PAIRS) -> RelateBatch:
+    """The relation stage for a batch of captures: rows of every method on every input,
+    written to ``out`` (parquet); pairs with a part any network trained on are left out."""
+    from cadio.catalog import read_catalog
+    from models.evaluate import load_models
+    from reports.relations import pairs_frame
+
+    catalog = read_catalog(ws.catalog)
+    categories = dict(zip(catalog["part_id"].astype(str), catalog["category"].astype(str),
+                          strict=True))
+    models = load_relation_models(relations_dir)
+    completion = load_models(completion_dir).models.get(("gan_lstm", OBSERVED))
+    rows, failed = relate_captures(captures, ws, categories, models, completion, cfg)
+    seen = models.trained_on()
+    frame = pairs_frame(r for r in rows if r["part_a"] not in seen and r["part_b"] not in seen)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    frame.to_parquet(out, index=False)
+    views = frame[["scene", "view", "part_a", "part_b"]].drop_duplicates()
+    return RelateBatch(str(out), len(captures), len(views), len(frame), tuple(failed))

@@ -1,0 +1,102 @@
+"""The relation stage's harness: every method on every input of real captures, in one table."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import pytest
+import torch
+
+from cadio.cad.ingest import IngestConfig, ingest
+from cadio.cad.step import write_step
+from cadio.capture.scan import ScanConfig, capture_scenes
+from cadio.catalog import read_catalog
+from cadio.sandbox import Limits
+from cadio.truth.scenes import SceneConfig, generate_scenes, read_scene_parts
+from cadio.workspace import Workspace
+from models.evaluate import SHIPPED
+from models.relate import METHODS, relate_batch
+from models.relations import RelationConfig
+from models.relations_train import save_relation_checkpoint, train_relations
+from models.synthetic import relation_pairs
+from reports.relations import PAIR_COLUMNS
+
+# The shipped completion network reads 32^3 views: the captures make single observed views.
+CFG = ScanConfig(views_per_scene=2, lengths=(), protocols=("observed",))
+
+
+@pytest.fixture(scope="module")
+def ws(tmp_path_factory: pytest.TempPathFactory) -> Workspace:
+    import build123d as bd
+
+    lib = tmp_path_factory.mktemp("lib")
+    (lib / "parts").mkdir()
+    write_step(bd.Box(30, 20, 10), lib / "parts" / "block.step")
+    write_step(bd.Cylinder(6, 30), lib / "parts" / "pin.step")
+    space = Workspace(tmp_path_factory.mktemp("ws"))
+    ingest(lib, space.root, IngestConfig(voxel_sizes=(32,), limits=Limits(workers=1)))
+    parts = read_scene_parts(read_catalog(space.catalog), space.root)
+    scenes = generate_scenes(parts, SceneConfig(pairs_per_relation=1, val_fraction=0.0,
+                                                test_fraction=0.0))
+    captured = capture_scenes(scenes.head(2), read_catalog(space.catalog), space, CFG)
+    from cadio.capture.scan import with_inputs
+
+    assert all(not with_inputs(c, space, CFG).error for c in captured)
+    return space
+
+
+def _checkpoints(folder: Path, train_parts: list[str]) -> Path:
+    """Tiny ltn and mlp networks for every input (trained a few steps on synthetic pairs)."""
+    torch.set_num_threads(1)
+    data = relation_pairs(32, n_points=64, seed=3)
+    for method in ("ltn", "mlp"):
+        cfg = RelationConfig(method=method, steps=4, batch_size=8, eval_every=4,
+                             train_points=32, widths=(8, 8, 8, 8), embed=8, ntn_k=2)
+        for name in ("truth", "partial", "completed"):
+            res = train_relations(cfg, data, data, data_info={"input": name,
+                                                               "train_parts": train_parts})
+            save_relation_checkpoint(folder / f"{method}-{name}.pt", res.checkpoint)
+    return folder
+
+
+def test_every_method_decides_every_input_of_every_pair_view(ws: Workspace,
+                                                             tmp_path: Path) -> None:
+    models = _checkpoints(tmp_path / "models", [])
+    captures = sorted(ws.root.glob("captures/*.mcap"))
+    batch = relate_batch(captures, ws, models, SHIPPED, tmp_path / "rows.parquet")
+    assert batch.failed == () and batch.captures == 2
+    rows = pd.read_parquet(batch.path)
+    assert tuple(rows.columns[:len(PAIR_COLUMNS)]) == PAIR_COLUMNS
+    assert set(rows["method"]) == set(METHODS)
+    assert set(rows["input"]) == {"truth", "partial", "completed"}
+    per_view = rows.groupby(["scene", "view", "input", "method"]).size()
+    assert (per_view == 10).all() and batch.pair_views == 4  # 2 scenes x 2 views
+    # the truth of a pair view does not depend on the input or the method that is scored
+    truth = rows.pivot_table(index=["scene", "view", "relation"], columns=["input", "method"],
+                             values="truth")
+    assert (truth.nunique(axis=1) == 1).all()
+    learned = rows[rows["method"] != "geometric"]
+    assert learned["confidence"].between(0, 1).all()
+    assert rows.loc[rows["method"] == "geometric", "confidence"].isna().all()
+
+
+def test_pairs_of_parts_a_network_trained_on_are_left_out(ws: Workspace, tmp_path: Path) -> None:
+    captures = sorted(ws.root.glob("captures/*.mcap"))
+    seen = [str(p) for p in read_catalog(ws.catalog)["part_id"]]
+    models = _checkpoints(tmp_path / "models", seen)
+    batch = relate_batch(captures, ws, models, SHIPPED, tmp_path / "rows.parquet")
+    assert batch.rows == 0 and len(pd.read_parquet(batch.path)) == 0
+
+
+def test_a_broken_capture_is_reported_and_the_others_go_on(ws: Workspace,
+                                                           tmp_path: Path) -> None:
+    broken = tmp_path / "broken.mcap"
+    broken.write_bytes(b"\x89MCAP0\r\n not really")
+    captures = [broken, *sorted(ws.root.glob("captures/*.mcap"))]
+    batch = relate_batch(captures, ws, tmp_path / "none", SHIPPED, tmp_path / "rows.parquet",
+                         )
+    assert len(batch.failed) == 1 and "broken.mcap" in batch.failed[0]
+    rows = pd.read_parquet(batch.path)
+    assert set(rows["method"]) == {"geometric"} and np.all(rows["view"] >= 0)
