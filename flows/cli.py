@@ -83,6 +83,10 @@ def _parser() -> argparse.ArgumentParser:
     p.add_argument("--noise", action="store_true", help="switch the depth noise model on")
     p.add_argument("--captures", type=Path, default=None,
                    help="folder of MCAP captures to read instead of rendering (real logs)")
+    p.add_argument("--completion-models", type=Path, default=None,
+                   help="folder of completion checkpoints (default: the shipped ones)")
+    p.add_argument("--relation-models", type=Path, default=None,
+                   help="folder of relation checkpoints (default: the shipped ones)")
     p.add_argument("--stop-server", action="store_true",
                    help="stop the local Prefect server this command started when done")
     p.set_defaults(func=_cmd_nightly)
@@ -392,6 +396,8 @@ def _run_nightly(args: argparse.Namespace) -> int:
         views_per_scene=args.views_per_scene,
         noise=args.noise,
         captures=str(args.captures) if args.captures else None,
+        completion_models=str(args.completion_models) if args.completion_models else None,
+        relation_models=str(args.relation_models) if args.relation_models else None,
         workers=args.workers or 1,
         file_timeout_s=args.timeout,
         file_memory_mb=args.memory_mb,
@@ -405,6 +411,7 @@ def _run_nightly(args: argparse.Namespace) -> int:
     print(Path(summary.ingest_report).read_text())
     print(Path(summary.stages_report).read_text())
     print(Path(summary.completion_report).read_text())
+    print(Path(summary.relations_report).read_text())
     print(json.dumps(asdict(summary), indent=1))
     return 0
 

@@ -210,7 +210,8 @@ def relations_report_task(run: Run, batches: list[RelateBatch]) -> str:
              f"{sum(b.captures for b in batches)} captures; {len(failed)} captures failed."]
     notes += [f"- {f}" for f in failed]
     pairs = combine_pairs([Path(b.path) for b in batches])
-    return str(write_relation_report(Path(run.run_dir), pairs, notes))
+    joints = combine_pairs([Path(b.joints_path) for b in batches if b.joints_path], joints=True)
+    return str(write_relation_report(Path(run.run_dir), pairs, notes, joints))
 
 
 @task(name="complete")

@@ -25,9 +25,11 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 import numpy.typing as npt
+import pandas as pd
 
 from cadio.capture.examples import OBSERVED, read_example
 from cadio.capture.pairs import DEFAULT_PAIRS, INPUTS, PairConfig, PairView, capture_pairs
+from cadio.capture.scan import ASSEMBLY_PREFIX
 from cadio.errors import CaptureError
 from cadio.records import Features, FloatArray, Relation
 from cadio.truth.relations import relate
@@ -216,6 +218,7 @@ class RelateBatch:
     pair_views: int
     rows: int
     failed: tuple[str, ...]
+    joints_path: str = ""
 
 
 def relate_batch(captures: Sequence[Path], ws: Workspace, relations_dir: Path,
@@ -237,4 +240,22 @@ def relate_batch(captures: Sequence[Path], ws: Workspace, relations_dir: Path,
     out.parent.mkdir(parents=True, exist_ok=True)
     frame.to_parquet(out, index=False)
     views = frame[["scene", "view", "part_a", "part_b"]].drop_duplicates()
-    return RelateBatch(str(out), len(captures), len(views), len(frame), tuple(failed))
+    joints = out.with_name(f"{out.stem}-joints.parquet")
+    cad_joints(captures, ws).to_parquet(joints, index=False)
+    return RelateBatch(str(out), len(captures), len(views), len(frame), tuple(failed),
+                       str(joints))
+
+
+def cad_joints(captures: Sequence[Path], ws: Workspace) -> pd.DataFrame:
+    """The CAD's joints (scene, part_a, part_b, kinematic) of the assembly captures."""
+    frames = []
+    for path in captures:
+        if not path.stem.startswith(ASSEMBLY_PREFIX):
+            continue
+        mates = ws.mates(path.stem[len(ASSEMBLY_PREFIX):])
+        if mates.exists():
+            table = pd.read_parquet(mates, columns=["part_a", "part_b", "level", "kinematic"])
+            joint = table[table["level"] == "joint"].drop(columns="level")
+            frames.append(joint.assign(scene=path.stem))
+    columns = ["scene", "part_a", "part_b", "kinematic"]
+    return pd.concat(frames)[columns] if frames else pd.DataFrame(columns=columns)

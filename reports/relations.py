@@ -31,6 +31,7 @@ PAIR_COLUMNS = ("scene", "view", "part_a", "part_b", "category", "input", "metho
 SUMMARY_COLUMNS = ("input", "method", "relation", "category", "n", "accuracy", "precision",
                    "recall", "f1", "violation_rate")
 ASSEMBLY_COLUMNS = ("assembly", "relation", "n_cad", "n_pred", "precision", "recall", "f1")
+JOINT_COLUMNS = ("assembly", "view", "part_a", "part_b", "cad_joint", "predicted_joint", "agree")
 RELATIONS = ("left", "right", "above", "below", "front", "behind", "parallel", "perpendicular",
              "concentric", "coincident")
 # The product's answer, which the assembly table and the exported notes use.
@@ -95,6 +96,38 @@ def assembly_frame(pairs: pd.DataFrame, product: tuple[str, str] = PRODUCT) -> p
     return pd.DataFrame(rows, columns=list(ASSEMBLY_COLUMNS))
 
 
+def predicted_joint(concentric: bool, coincident: bool) -> str:
+    """The joint two relations imply: a shaft in a bore that also rests on a face turns
+    (revolute), one that does not also slides (cylindrical), a face on a face is planar."""
+    if concentric:
+        return "revolute" if coincident else "cylindrical"
+    return "planar" if coincident else "none"
+
+
+def joint_frame(pairs: pd.DataFrame, joints: pd.DataFrame,
+                product: tuple[str, str] = PRODUCT) -> pd.DataFrame:
+    """Joint-type agreement: for every view of an assembly pair whose CAD mates make a joint
+    (``joints``: scene, part_a, part_b, kinematic), the joint the product's concentric and
+    coincident answers imply beside the CAD's kinematic joint (``JOINT_COLUMNS``)."""
+    inp, method = product
+    mine = pairs[(pairs["input"] == inp) & (pairs["method"] == method)
+                 & pairs["relation"].isin(["concentric", "coincident"])]
+    wide = mine.pivot_table(index=["scene", "view", "part_a", "part_b"], columns="relation",
+                            values="predicted", aggfunc="first").reset_index()
+    if wide.empty or joints.empty:
+        return pd.DataFrame(columns=list(JOINT_COLUMNS))
+    both = pd.concat([joints, joints.rename(columns={"part_a": "part_b", "part_b": "part_a"})])
+    merged = wide.merge(both, on=["scene", "part_a", "part_b"])
+    out = pd.DataFrame({
+        "assembly": merged["scene"], "view": merged["view"], "part_a": merged["part_a"],
+        "part_b": merged["part_b"], "cad_joint": merged["kinematic"],
+        "predicted_joint": [predicted_joint(bool(c), bool(k)) for c, k in
+                            zip(merged.get("concentric", False), merged.get("coincident", False),
+                                strict=True)]})
+    out["agree"] = out["cad_joint"] == out["predicted_joint"]
+    return out[list(JOINT_COLUMNS)]
+
+
 def accuracy_table(summary: pd.DataFrame) -> pd.DataFrame:
     """Accuracy (%) per relation (rows) and input/method (columns), category "all", with the
     paper's Table III beside it."""
@@ -117,7 +150,7 @@ def violation_table(summary: pd.DataFrame) -> pd.DataFrame:
 
 
 def relations_markdown(summary: pd.DataFrame, near: pd.DataFrame, assemblies: pd.DataFrame,
-                       notes: Sequence[str] = ()) -> str:
+                       notes: Sequence[str] = (), joints: pd.DataFrame | None = None) -> str:
     """The Markdown report: accuracy beside Table III, violations, near-boundary, assemblies."""
     out = ["# Relations", *notes, "",
            "## Accuracy per relation (%, clear pairs), beside the paper's Table III", ""]
@@ -130,6 +163,11 @@ def relations_markdown(summary: pd.DataFrame, near: pd.DataFrame, assemblies: pd
     out += [f"## Against the CAD mates of the assemblies ({PRODUCT[1]} on {PRODUCT[0]} inputs)",
             ""]
     out += [markdown_table(assemblies.round(3)) if len(assemblies) else "no assembly captured"]
+    if joints is not None and len(joints):
+        agree = joints.groupby(["assembly", "cad_joint"]).agg(
+            n=("agree", "size"), agreement=("agree", "mean")).reset_index()
+        out += ["", "## Joint types: the CAD's beside those the predicted relations imply", "",
+                markdown_table(agree.round(3))]
     return "\n".join(out) + "\n"
 
 
@@ -137,7 +175,8 @@ def _markdown(table: pd.DataFrame) -> str:
     return markdown_table(table.round(1).reset_index())
 
 
-def write_relation_report(out: Path, pairs: pd.DataFrame, notes: Sequence[str] = ()) -> Path:
+def write_relation_report(out: Path, pairs: pd.DataFrame, notes: Sequence[str] = (),
+                          joints: pd.DataFrame | None = None) -> Path:
     """Write the relation files of a run folder, each atomically; the Markdown report's path."""
     out.mkdir(parents=True, exist_ok=True)
     with atomic_path(out / "relations_pairs.parquet") as tmp:
@@ -145,18 +184,23 @@ def write_relation_report(out: Path, pairs: pd.DataFrame, notes: Sequence[str] =
     clear, near = pairs[~pairs["near_boundary"]], pairs[pairs["near_boundary"]]
     summary, near_summary = summary_frame(clear), summary_frame(near)
     assemblies = assembly_frame(pairs[pairs["scene"].astype(str).str.startswith("assembly-")])
+    agreement = joint_frame(pairs, joints if joints is not None else pd.DataFrame())
     for name, frame in (("relations_summary.csv", summary),
                         ("relations_near_boundary.csv", near_summary),
-                        ("assembly_mates.csv", assemblies)):
+                        ("assembly_mates.csv", assemblies), ("assembly_joints.csv", agreement)):
         with atomic_write(out / name, "w") as fh:
             frame.to_csv(fh, index=False)
     path = out / "relations.md"
     with atomic_write(path, "w") as fh:
-        fh.write(relations_markdown(summary, near_summary, assemblies, notes))
+        fh.write(relations_markdown(summary, near_summary, assemblies, notes, agreement))
     return path
 
 
-def combine_pairs(paths: Sequence[Path]) -> pd.DataFrame:
-    """The ``relations_pairs`` rows of several batch files, in one table."""
+def combine_pairs(paths: Sequence[Path], joints: bool = False) -> pd.DataFrame:
+    """The rows of several batch files in one table (``relations_pairs`` rows, or the CAD
+    joints of the batches with ``joints``)."""
     frames = [pd.read_parquet(p) for p in paths if Path(p).exists()]
-    return pairs_frame([]) if not frames else pd.concat(frames, ignore_index=True)
+    if frames:
+        return pd.concat(frames, ignore_index=True)
+    return pd.DataFrame(columns=["scene", "part_a", "part_b", "kinematic"]) if joints else \
+        pairs_frame([])

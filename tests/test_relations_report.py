@@ -63,3 +63,23 @@ def test_accuracy_table_sits_beside_the_paper() -> None:
                                                            [True, True]))))
     assert table.loc["left", "completed/mlp"] == 50.0
     assert table.loc["left", "paper"] == 99.7 and table.loc["left", "RANSEM"] == 86.8
+
+
+def test_joint_types_follow_the_predicted_concentric_and_coincident() -> None:
+    from reports.relations import joint_frame, predicted_joint
+
+    assert [predicted_joint(c, k) for c, k in [(True, True), (True, False), (False, True),
+                                               (False, False)]] == [
+        "revolute", "cylindrical", "planar", "none"]
+    rows = []
+    for rel, pred in (("concentric", True), ("coincident", True), ("left", False)):
+        for r in _rows("assembly-shaft", "ltn", [True], [pred]):
+            rows.append({**r, "relation": rel, "part_a": "shaft", "part_b": "bore"})
+    pairs = pairs_frame(rows)
+    cad = pd.DataFrame({"scene": ["assembly-shaft"], "part_a": ["bore"], "part_b": ["shaft"],
+                        "kinematic": ["revolute"]})  # stored the other way round
+    joints = joint_frame(pairs, cad)
+    assert joints[["cad_joint", "predicted_joint", "agree"]].values.tolist() == [
+        ["revolute", "revolute", True]]
+    cad["kinematic"] = "planar"
+    assert not joint_frame(pairs, cad)["agree"].any()
