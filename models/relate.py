@@ -34,6 +34,7 @@ from cadio.errors import CaptureError
 from cadio.records import Features, FloatArray, Relation
 from cadio.truth.relations import relate
 from cadio.workspace import Workspace
+from models.errors import CheckpointError
 from models.relations import RelationNet, violations
 from models.relations_train import load_relation_model, predict_relations
 from models.train import Model, predict
@@ -60,6 +61,7 @@ class RelationModels:
 
     models: dict[tuple[str, str], tuple[RelationNet, Any]]
     cards: dict[tuple[str, str], dict[str, Any]]
+    errors: tuple[str, ...] = ()  # checkpoints that could not be used, with the reason
 
     def trained_on(self) -> set[str]:
         """Part ids any network was trained on (never scored as held out)."""
@@ -71,14 +73,20 @@ class RelationModels:
 
 
 def load_relation_models(folder: Path = SHIPPED_RELATIONS) -> RelationModels:
-    """Every relation checkpoint (``<method>-<input>.pt``) of a folder; none when absent."""
-    models, cards = {}, {}
+    """Every relation checkpoint (``<method>-<input>.pt``) of a folder; none when absent. A
+    checkpoint that does not load is left out with its reason (the baseline still runs)."""
+    models, cards, errors = {}, {}, []
     for path in sorted(Path(folder).glob("*.pt")) if Path(folder).is_dir() else []:
-        model, temperatures, ckpt = load_relation_model(path)
+        try:
+            model, temperatures, ckpt = load_relation_model(path)
+        except CheckpointError as exc:
+            errors.append(f"{path.name}: {exc.reason.splitlines()[0]}")
+            log.error("relation checkpoint %s left out: %s", path, exc.reason.splitlines()[0])
+            continue
         key = (str(ckpt["method"]), str(ckpt["data"].get("input", "")))
         models[key] = (model, temperatures)
         cards[key] = {k: v for k, v in ckpt.items() if k != "state_dict"}
-    return RelationModels(models, cards)
+    return RelationModels(models, cards, tuple(errors))
 
 
 def completed_clouds(folder: Path, model: Model) -> dict[int, FloatArray]:
@@ -235,6 +243,7 @@ def relate_batch(captures: Sequence[Path], ws: Workspace, relations_dir: Path,
     models = load_relation_models(relations_dir)
     completion = load_models(completion_dir).models.get(("gan_lstm", OBSERVED))
     rows, failed = relate_captures(captures, ws, categories, models, completion, cfg)
+    failed = [*models.errors, *failed]
     seen = models.trained_on()
     frame = pairs_frame(r for r in rows if r["part_a"] not in seen and r["part_b"] not in seen)
     out.parent.mkdir(parents=True, exist_ok=True)

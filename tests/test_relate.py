@@ -100,3 +100,14 @@ def test_a_broken_capture_is_reported_and_the_others_go_on(ws: Workspace,
     assert len(batch.failed) == 1 and "broken.mcap" in batch.failed[0]
     rows = pd.read_parquet(batch.path)
     assert set(rows["method"]) == {"geometric"} and np.all(rows["view"] >= 0)
+
+
+def test_a_checkpoint_that_does_not_load_is_reported_and_the_baseline_runs(
+        ws: Workspace, tmp_path: Path) -> None:
+    folder = tmp_path / "models"
+    folder.mkdir()
+    (folder / "ltn-partial.pt").write_bytes(b"not a checkpoint")
+    captures = sorted(ws.root.glob("captures/*.mcap"))
+    batch = relate_batch(captures, ws, folder, SHIPPED, tmp_path / "rows.parquet")
+    assert len(batch.failed) == 1 and batch.failed[0].startswith("ltn-partial.pt: ")
+    assert set(pd.read_parquet(batch.path)["method"]) == {"geometric"}
