@@ -140,6 +140,33 @@ def accuracy_table(summary: pd.DataFrame) -> pd.DataFrame:
     return table
 
 
+def expected_calibration_error(confidence: np.ndarray, correct: np.ndarray,
+                               bins: int = 15) -> float:
+    """ECE: the gap between confidence and accuracy, averaged over equal-width confidence bins
+    weighted by their share of the answers (NaN without answers)."""
+    conf, hit = np.asarray(confidence, dtype=np.float64), np.asarray(correct, dtype=np.float64)
+    if len(conf) == 0:
+        return math.nan
+    which = np.minimum((conf * bins).astype(int), bins - 1)
+    gaps = [abs(conf[which == b].mean() - hit[which == b].mean()) * np.mean(which == b)
+            for b in range(bins) if np.any(which == b)]
+    return float(np.sum(gaps))
+
+
+def calibration_table(pairs: pd.DataFrame) -> pd.DataFrame:
+    """ECE (%) of each learned input/method's confidences over all its answers."""
+    rows = []
+    learned = pairs[pairs["confidence"].notna()]
+    for (inp, method), g in learned.groupby(["input", "method"], sort=True):
+        correct = (g["truth"] == g["predicted"]).to_numpy()
+        rows.append({"input": inp, "method": method, "answers": len(g),
+                     "mean_confidence": 100 * float(g["confidence"].mean()),
+                     "accuracy": 100 * float(correct.mean()),
+                     "ece": 100 * expected_calibration_error(g["confidence"].to_numpy(),
+                                                             correct)})
+    return pd.DataFrame(rows)
+
+
 def violation_table(summary: pd.DataFrame) -> pd.DataFrame:
     """Violation rate (%) per relation and input/method, category "all"."""
     alls = summary[summary["category"] == "all"]
@@ -150,13 +177,17 @@ def violation_table(summary: pd.DataFrame) -> pd.DataFrame:
 
 
 def relations_markdown(summary: pd.DataFrame, near: pd.DataFrame, assemblies: pd.DataFrame,
-                       notes: Sequence[str] = (), joints: pd.DataFrame | None = None) -> str:
+                       notes: Sequence[str] = (), joints: pd.DataFrame | None = None,
+                       calibration: pd.DataFrame | None = None) -> str:
     """The Markdown report: accuracy beside Table III, violations, near-boundary, assemblies."""
     out = ["# Relations", *notes, "",
            "## Accuracy per relation (%, clear pairs), beside the paper's Table III", ""]
     out += [_markdown(accuracy_table(summary)) if len(summary) else "no pair scored", ""]
     out += ["## Violation rate of the raw outputs (%)", ""]
     out += [_markdown(violation_table(summary)) if len(summary) else "no pair scored", ""]
+    if calibration is not None and len(calibration):
+        out += ["## Calibration of the confidences (%, clear pairs)", "",
+                markdown_table(calibration.round(2)), ""]
     out += ["## Near-boundary pairs: accuracy (%)", ""]
     out += [_markdown(accuracy_table(near).drop(columns=["paper", "RANSEM", "CPN"]))
             if len(near) else "no near-boundary pair", ""]
@@ -192,7 +223,8 @@ def write_relation_report(out: Path, pairs: pd.DataFrame, notes: Sequence[str] =
             frame.to_csv(fh, index=False)
     path = out / "relations.md"
     with atomic_write(path, "w") as fh:
-        fh.write(relations_markdown(summary, near_summary, assemblies, notes, agreement))
+        fh.write(relations_markdown(summary, near_summary, assemblies, notes, agreement,
+                                    calibration_table(clear)))
     return path
 
 

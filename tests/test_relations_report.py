@@ -83,3 +83,12 @@ def test_joint_types_follow_the_predicted_concentric_and_coincident() -> None:
         ["revolute", "revolute", True]]
     cad["kinematic"] = "planar"
     assert not joint_frame(pairs, cad)["agree"].any()
+
+
+def test_calibration_error_is_zero_when_confidence_matches_accuracy() -> None:
+    from reports.relations import expected_calibration_error
+
+    rng = np.random.default_rng(0)
+    conf = np.full(10_000, 0.8)
+    assert expected_calibration_error(conf, rng.random(10_000) < 0.8) < 0.02
+    assert abs(expected_calibration_error(conf, np.zeros(10_000, bool)) - 0.8) < 1e-9
