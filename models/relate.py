@@ -232,7 +232,8 @@ class RelateBatch:
 def relate_batch(captures: Sequence[Path], ws: Workspace, relations_dir: Path,
                  completion_dir: Path, out: Path, cfg: PairConfig = DEFAULT_PAIRS) -> RelateBatch:
     """The relation stage for a batch of captures: rows of every method on every input,
-    written to ``out`` (parquet); pairs with a part any network trained on are left out."""
+    written to ``out`` (parquet); pairs with a part that the relation or the completion
+    networks trained on are left out (their scores would not be held out)."""
     from cadio.catalog import read_catalog
     from models.evaluate import load_models
     from reports.relations import pairs_frame
@@ -241,10 +242,11 @@ def relate_batch(captures: Sequence[Path], ws: Workspace, relations_dir: Path,
     categories = dict(zip(catalog["part_id"].astype(str), catalog["category"].astype(str),
                           strict=True))
     models = load_relation_models(relations_dir)
-    completion = load_models(completion_dir).models.get(("gan_lstm", OBSERVED))
+    completions = load_models(completion_dir)
+    completion = completions.models.get(("gan_lstm", OBSERVED))
     rows, failed = relate_captures(captures, ws, categories, models, completion, cfg)
     failed = [*models.errors, *failed]
-    seen = models.trained_on()
+    seen = models.trained_on() | completions.trained_on()  # a part a network learned from
     frame = pairs_frame(r for r in rows if r["part_a"] not in seen and r["part_b"] not in seen)
     out.parent.mkdir(parents=True, exist_ok=True)
     frame.to_parquet(out, index=False)
