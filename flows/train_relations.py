@@ -124,7 +124,7 @@ def train_relation_model(ws: Workspace, method: str, name: str, steps: int, out_
     result = train_relations(cfg, train.data(name), val.data(name), data_info=info,
                              progress=None if on_step is None else lambda e: on_step())
     ckpt = result.checkpoint
-    path = save_relation_checkpoint(out_dir / f"{method}-{name}.pt", ckpt)
+    path = save_relation_checkpoint(out_dir / f"{method}-{name}.pt", ckpt, half=True)
     return TrainedRelations(str(path), method, name, int(ckpt["step"]),
                             float(ckpt["metrics"].get("val_accuracy", np.nan)),
                             time.perf_counter() - clock)

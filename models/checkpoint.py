@@ -143,6 +143,7 @@ def save_checkpoint(ckpt: Mapping[str, Any], path: Path | str) -> Path:
     fd, tmp = tempfile.mkstemp(dir=path.parent, suffix=".pt.tmp")
     with os.fdopen(fd, "wb") as f:
         torch.save(dict(ckpt), f)
+    os.chmod(tmp, 0o644)  # mkstemp makes it private; a shipped checkpoint is read by all
     os.replace(tmp, path)
     return path
 

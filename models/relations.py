@@ -55,7 +55,10 @@ class RelationConfig:
     n_points: int = 600  # points per part the data layer delivers (inference takes any count)
     train_points: int = 256  # random subset per part per training step (augmentation, speed)
     widths: tuple[int, ...] = (32, 64, 64, 128)  # hidden widths of the per-point MLP
-    embed: int = 64  # part embedding: the MLP's fifth layer, max-pooled
+    # Part embedding: the MLP's fifth layer, max- and mean-pooled (2 x 32). Each predicate's
+    # bilinear tensor grows with its square: 64 made 24 MB float32 checkpoints for 0.7 points
+    # of held-out mean accuracy on truth inputs (89.0% against 88.3%, 1,500 steps).
+    embed: int = 32
     pair_diff: bool = True  # pair vector [e_a, e_b, e_a - e_b] (False: [e_a, e_b])
     ntn_k: int = 4  # slices of each predicate's bilinear tensor
     descriptors: bool = False  # append centroid, PCA directions and extents to each embedding

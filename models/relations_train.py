@@ -270,9 +270,15 @@ def relation_model_from_checkpoint(ckpt: Mapping[str, Any], method: str | None =
     return model.eval(), temps
 
 
-def save_relation_checkpoint(path: Path | str, ckpt: Mapping[str, Any]) -> Path:
-    """Check that ``ckpt`` rebuilds, then write it atomically; returns the path."""
+def save_relation_checkpoint(path: Path | str, ckpt: Mapping[str, Any],
+                             half: bool = False) -> Path:
+    """Check that ``ckpt`` rebuilds, then write it atomically; returns the path. ``half``
+    stores the weights as float16 (halves a shipped file; loading converts them back)."""
     relation_model_from_checkpoint(ckpt)
+    if half:
+        state = {k: v.half() if v.is_floating_point() else v
+                 for k, v in ckpt["state_dict"].items()}
+        ckpt = {**ckpt, "state_dict": state, "precision": "float16"}
     return save_checkpoint(ckpt, path)
 
 
