@@ -67,7 +67,10 @@ class RelationConfig:
     mean_pool: bool = True
     p_forall: float = 2.0  # p of the p-mean-error Forall (LTN's default)
     p_sat: float = 2.0  # p of the aggregation of the axioms into the KB's satisfaction
-    rule_weight: float = 1.0  # weight of each rule axiom relative to one fact axiom
+    # Weight of each rule axiom relative to one fact axiom. At 1.0 the rules cost accuracy (held
+    # out on CAD surface points: mean 88.3% against the facts-only mlp's 89.6%); at 0.25 ltn
+    # beats mlp (89.9%) and still breaks fewer axioms (5.2% of raw answers against 7.2%).
+    rule_weight: float = 0.25
     lr: float = 1e-3  # Adam
     steps: int = 1500
     batch_size: int = 64
