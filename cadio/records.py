@@ -10,6 +10,7 @@ part's own coordinates unless a field says otherwise. Timestamps are integer nan
 from __future__ import annotations
 
 import enum
+from collections.abc import Sequence
 from dataclasses import dataclass, field, replace
 from typing import Any
 
@@ -58,6 +59,22 @@ CONVERSE = {
     Relation.FRONT: Relation.BEHIND, Relation.BEHIND: Relation.FRONT,
 }
 SYMMETRIC = (Relation.PARALLEL, Relation.PERPENDICULAR, Relation.CONCENTRIC, Relation.COINCIDENT)
+
+
+# A runner-up group carrying at least this fraction of the winner's area makes the principal
+# choice a tie (DESIGN.md: ties are flagged); the earliest group is then chosen, so the choice
+# does not flip with rounding noise when the part moves. One rule for B-rep and fitted features.
+TIE_FRACTION = 0.99
+
+
+def principal_choice(areas: Sequence[float]) -> tuple[int | None, bool]:
+    """Index of the principal group (the largest area; the earliest of a tie) and whether the
+    choice is a tie (a runner-up within ``TIE_FRACTION`` of it); (None, False) without groups."""
+    if not areas:
+        return None, False
+    best = max(areas)
+    near = [i for i, a in enumerate(areas) if a >= TIE_FRACTION * best]
+    return near[0], len(near) > 1
 
 
 def _vec(values: Any) -> FloatArray:

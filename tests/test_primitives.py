@@ -16,7 +16,6 @@ import pytest
 from cadio.cad import features as brep_features
 from cadio.cad.tessellate import tessellate
 from cadio.cad.voxels import voxelize
-from cadio.capture import primitives
 from cadio.capture.primitives import PrimitiveConfig, fit_features, relate_many, relate_points
 from cadio.records import Relation
 from cadio.tolerances import DEFAULT_TOLERANCES as TOL
@@ -143,7 +142,11 @@ def test_principal_plane_matches_the_brep() -> None:
 
 
 def test_tie_rule_is_the_brep_rule() -> None:
-    assert primitives.TIE_FRACTION == brep_features.TIE_FRACTION
+    from cadio.records import principal_choice
+
+    assert principal_choice([5.0, 10.0, 9.95]) == (1, True)  # within 1%: a tie, the first kept
+    assert principal_choice([5.0, 10.0, 9.8]) == (1, False)
+    assert principal_choice([]) == (None, False)
 
 
 # ---------------------------------------------------------------- partial and completed inputs

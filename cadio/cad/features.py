@@ -40,15 +40,18 @@ from cadio.cad.faces import (
 )
 from cadio.cad.tessellate import brep_mass
 from cadio.errors import GeometryError
-from cadio.records import AxisGroup, Features, FloatArray, PlaneGroup, canonical_direction
+from cadio.records import (
+    AxisGroup,
+    Features,
+    FloatArray,
+    PlaneGroup,
+    canonical_direction,
+    principal_choice,
+)
 from cadio.tolerances import DEFAULT_TOLERANCES, Tolerances
 
 log = logging.getLogger(__name__)
 
-# A runner-up group carrying at least this fraction of the winner's area makes the principal
-# choice a tie (DESIGN.md: ties are flagged); the earliest group by face id is then chosen, so
-# the choice does not flip with rounding noise when the part moves.
-TIE_FRACTION = 0.99
 # Angles computed from dot products carry ~1e-8 rad of rounding: keep values at a tolerance in.
 _ANGLE_SLACK = 1e-9
 # A costly face's box is skipped (see ``tight_bbox``) only when its hull lies this far inside
@@ -93,9 +96,9 @@ def extract_features(
     prims = recognise_faces(faces, tol, props)
     planes = group_planes([p for p in prims if p.kind == PLANE], tol.group_angle_deg)
     axes = group_axes([p for p in prims if p.kind != PLANE], tol.coaxial_deg, tol.coaxial_mm)
-    plane_pick, plane_tie = _principal([g.area for g in planes])
+    plane_pick, plane_tie = principal_choice([g.area for g in planes])
     cylinders = [a for a in axes if a.kind == CYLINDER]
-    axis_pick, axis_tie = _principal([a.area for a in cylinders])
+    axis_pick, axis_tie = principal_choice([a.area for a in cylinders])
     if axis_pick is not None:
         axes = _principal_first(axes, cylinders[axis_pick])
     bbox_min, bbox_max = tight_bbox(shape)
@@ -372,10 +375,3 @@ def _principal_first(axes: tuple[AxisGroup, ...], principal: AxisGroup) -> tuple
     return (principal, *(a for a in axes if a is not principal))
 
 
-def _principal(areas: Sequence[float]) -> tuple[int | None, bool]:
-    """Index of the principal group and whether the choice is a tie (see ``TIE_FRACTION``)."""
-    if not areas:
-        return None, False
-    best = max(areas)
-    near = [i for i, a in enumerate(areas) if a >= TIE_FRACTION * best]
-    return near[0], len(near) > 1

@@ -38,19 +38,22 @@ from cadio.capture.ransac import (
     build_cloud,
     extract,
 )
-from cadio.records import AxisGroup, Features, FloatArray, PlaneGroup, canonical_direction
+from cadio.records import (
+    AxisGroup,
+    Features,
+    FloatArray,
+    PlaneGroup,
+    canonical_direction,
+    principal_choice,
+)
 from cadio.tolerances import DEFAULT_TOLERANCES, Tolerances
 from cadio.truth.relations import RELATIONS, RelationResult, Vector3, relate
 
 __all__ = [
-    "DEFAULT_PRIMITIVES", "TIE_FRACTION", "PrimitiveConfig", "fit_features", "relate_many",
+    "DEFAULT_PRIMITIVES", "PrimitiveConfig", "fit_features", "relate_many",
     "relate_points",
 ]
 
-# A runner-up within 1% of the winner's area makes the principal choice a tie: the value of
-# ``cadio.cad.features.TIE_FRACTION`` (not imported: that module needs OpenCascade; a test
-# checks that the two agree).
-TIE_FRACTION = 0.99
 DEFAULT_PRIMITIVES = PrimitiveConfig()
 
 
@@ -79,8 +82,8 @@ def fit_features(points_mm: FloatArray, cfg: PrimitiveConfig = DEFAULT_PRIMITIVE
     planes = _group_planes([(i, p) for i, p in numbered if isinstance(p, Plane)], centroid, cfg)
     axes = _group_axes([(i, p) for i, p in numbered if isinstance(p, Cylinder)],
                        0.0 if cloud is None else cloud.eps, cfg)
-    plane_pick, plane_tie = _principal([g.area for g in planes])
-    axis_pick, axis_tie = _principal([a.area for a in axes])
+    plane_pick, plane_tie = principal_choice([g.area for g in planes])
+    axis_pick, axis_tie = principal_choice([a.area for a in axes])
     if axis_pick is not None:
         axes = (axes[axis_pick], *(a for i, a in enumerate(axes) if i != axis_pick))
     return Features(
@@ -189,15 +192,6 @@ def _hull_measures(pts: FloatArray) -> tuple[float, float, FloatArray]:
 
 
 # ---------------------------------------------------------------- grouping, as the B-rep's
-
-
-def _principal(areas: Sequence[float]) -> tuple[int | None, bool]:
-    """Index of the largest area and whether a runner-up is within ``TIE_FRACTION`` of it."""
-    if not areas:
-        return None, False
-    best = max(areas)
-    near = [i for i, a in enumerate(areas) if a >= TIE_FRACTION * best]
-    return near[0], len(near) > 1
 
 
 def _cluster(items: Sequence[tuple[int, Primitive]],
