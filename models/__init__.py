@@ -6,7 +6,7 @@ Completion: ``completion`` (the paper's generator and critic, the ``ae`` variant
 ``checkpoint`` (self-describing, weights-only checkpoints).
 
 Relations: ``relations`` (the Logic Tensor Network over the ten relations of a part pair, its
-fuzzy operators and knowledge base, consistent decisions, violations, calibration error) and
+fuzzy operators and knowledge base, consistent decisions, violations) and
 ``relations_train`` (``train_relations``, ``predict_relations``, relation checkpoints),
 ``relation_data`` (the pair-view dataset) and ``relate`` (every method on every input of the
 captures: the relation stage's harness).

@@ -381,19 +381,3 @@ def violations(raw_ab: FloatArray, raw_ba: FloatArray, threshold: float = 0.5) -
     clash = (a[:, PARALLEL] & a[:, PERPENDICULAR]) | (b[:, PARALLEL] & b[:, PERPENDICULAR])
     out[:, [PARALLEL, PERPENDICULAR]] |= clash[:, None]
     return out
-
-
-def expected_calibration_error(confidence: FloatArray, correct: npt.ArrayLike,
-                               bins: int = 15) -> float:
-    """ECE: sum over equal-width confidence bins of (share of items) |accuracy - mean confidence|.
-
-    Args:
-        confidence: any shape, in [0, 1]; correct: same shape, bool (or 0/1).
-    """
-    conf = np.asarray(confidence, dtype=np.float64).ravel()
-    hit = np.asarray(correct, dtype=np.float64).ravel()
-    if conf.shape != hit.shape or not conf.size:
-        raise ValueError("confidence and correct must be non-empty and of one shape")
-    which = np.minimum((conf * bins).astype(int), bins - 1)
-    gap = np.bincount(which, hit - conf, minlength=bins)  # per bin: sum(correct - confidence)
-    return float(np.abs(gap).sum() / conf.size)

@@ -42,12 +42,12 @@ from models.relations import (
     RelationNet,
     combine,
     decide,
-    expected_calibration_error,
     knowledge_base,
     swap_decision,
     violations,
 )
 from models.train import TrainEvent, seeded
+from reports.relations import expected_calibration_error
 
 logger = logging.getLogger(__name__)
 

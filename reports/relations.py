@@ -21,6 +21,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+import numpy.typing as npt
 import pandas as pd
 
 from cadio.workspace import atomic_path, atomic_write
@@ -140,17 +141,28 @@ def accuracy_table(summary: pd.DataFrame) -> pd.DataFrame:
     return table
 
 
-def expected_calibration_error(confidence: np.ndarray, correct: np.ndarray,
+def expected_calibration_error(confidence: npt.ArrayLike, correct: npt.ArrayLike,
                                bins: int = 15) -> float:
-    """ECE: the gap between confidence and accuracy, averaged over equal-width confidence bins
-    weighted by their share of the answers (NaN without answers)."""
-    conf, hit = np.asarray(confidence, dtype=np.float64), np.asarray(correct, dtype=np.float64)
-    if len(conf) == 0:
+    """ECE: sum over equal-width confidence bins of (share of items) |accuracy - mean confidence|.
+
+    Args:
+        confidence: any shape, in [0, 1]; correct: same shape, bool (or 0/1).
+
+    Returns:
+        The error in [0, 1]; NaN without items.
+
+    Raises:
+        ValueError: the two differ in shape.
+    """
+    conf = np.asarray(confidence, dtype=np.float64).ravel()
+    hit = np.asarray(correct, dtype=np.float64).ravel()
+    if conf.shape != hit.shape:
+        raise ValueError("confidence and correct must be of one shape")
+    if not conf.size:
         return math.nan
     which = np.minimum((conf * bins).astype(int), bins - 1)
-    gaps = [abs(conf[which == b].mean() - hit[which == b].mean()) * np.mean(which == b)
-            for b in range(bins) if np.any(which == b)]
-    return float(np.sum(gaps))
+    gap = np.bincount(which, hit - conf, minlength=bins)  # per bin: sum(correct - confidence)
+    return float(np.abs(gap).sum() / conf.size)
 
 
 def calibration_table(pairs: pd.DataFrame) -> pd.DataFrame:

@@ -24,7 +24,6 @@ from models.relations import (
     combine,
     decide,
     exists,
-    expected_calibration_error,
     forall,
     implies,
     knowledge_base,
@@ -43,6 +42,7 @@ from models.relations_train import (
     training_batch,
 )
 from models.synthetic import relation_pairs
+from reports.relations import expected_calibration_error
 
 TINY = {"n_points": 64, "train_points": 48, "widths": (8, 16, 16, 32), "embed": 16,
         "ntn_k": 2, "batch_size": 16, "eval_every": 10, "steps": 10, "lr": 3e-3}
