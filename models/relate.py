@@ -202,7 +202,7 @@ def relate_captures(captures: Sequence[Path], ws: Workspace, categories: Mapping
     failed = []
     for path in captures:
         try:
-            views = capture_pairs(path, ws, categories, cfg, _completions(path, ws, completion))
+            views = capture_pairs(path, ws, categories, cfg, completions_of(path, ws, completion))
         except (OSError, ValueError, KeyError, CaptureError) as exc:
             failed.append(f"{path.name}: {type(exc).__name__}: {exc}")
             continue
@@ -210,8 +210,9 @@ def relate_captures(captures: Sequence[Path], ws: Workspace, categories: Mapping
     return rows, failed
 
 
-def _completions(path: Path, ws: Workspace, completion: Model | None
-                 ) -> dict[tuple[str, int], FloatArray]:
+def completions_of(path: Path, ws: Workspace, completion: Model | None
+                   ) -> dict[tuple[str, int], FloatArray]:
+    """(part id, view) -> completed points of every part with inputs under a capture."""
     folder = ws.root / "inputs" / path.stem
     parts = [p.name for p in folder.iterdir() if p.is_dir()] if folder.is_dir() else []
     return capture_completions(path.stem, parts, ws, completion)

@@ -23,7 +23,7 @@ import pandas as pd
 from cadio.capture.pairs import DEFAULT_PAIRS, INPUTS, PairConfig, PairView, capture_pairs
 from cadio.errors import CaptureError
 from cadio.workspace import Workspace, atomic_write
-from models.relate import _completions
+from models.relate import completions_of
 from models.relations_train import RelationData
 from models.train import Model
 
@@ -59,7 +59,7 @@ def build_relation_dataset(captures: Sequence[Path], ws: Workspace,
     by_split: dict[str, list[PairView]] = {}
     for path in captures:
         try:
-            views = capture_pairs(path, ws, categories, cfg, _completions(path, ws, completion))
+            views = capture_pairs(path, ws, categories, cfg, completions_of(path, ws, completion))
         except (OSError, ValueError, KeyError, CaptureError) as exc:
             log.warning("%s: %s", path.name, exc)
             continue
