@@ -33,7 +33,7 @@ from cadio.capture.scan import ASSEMBLY_PREFIX
 from cadio.errors import CaptureError
 from cadio.records import Features, FloatArray, Relation
 from cadio.truth.relations import relate
-from cadio.workspace import Workspace
+from cadio.workspace import Workspace, atomic_path
 from models.errors import CheckpointError
 from models.relations import RelationNet, violations
 from models.relations_train import load_relation_model, predict_relations
@@ -249,11 +249,12 @@ def relate_batch(captures: Sequence[Path], ws: Workspace, relations_dir: Path,
     failed = [*models.errors, *failed]
     seen = models.trained_on() | completions.trained_on()  # a part a network learned from
     frame = pairs_frame(r for r in rows if r["part_a"] not in seen and r["part_b"] not in seen)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    frame.to_parquet(out, index=False)
-    views = frame[["scene", "view", "part_a", "part_b"]].drop_duplicates()
     joints = out.with_name(f"{out.stem}-joints.parquet")
-    cad_joints(captures, ws).to_parquet(joints, index=False)
+    with atomic_path(joints) as tmp:  # the joints first: the rows' file marks the batch done
+        cad_joints(captures, ws).to_parquet(tmp, index=False)
+    with atomic_path(out) as tmp:
+        frame.to_parquet(tmp, index=False)
+    views = frame[["scene", "view", "part_a", "part_b"]].drop_duplicates()
     return RelateBatch(str(out), len(captures), len(views), len(frame), tuple(failed),
                        str(joints))
 

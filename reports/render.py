@@ -15,7 +15,7 @@ from typing import Any
 import pandas as pd
 
 from cadio.contracts import CaptureSummary, MatesSummary
-from cadio.workspace import write_json
+from cadio.workspace import atomic_write, write_json
 from reports.tables import (
     captures_table,
     files_table,
@@ -90,7 +90,8 @@ def build_ingest_report(catalog: pd.DataFrame) -> IngestReport:
 def write_ingest_report(run_dir: Path, report: IngestReport) -> Path:
     """``ingest.md`` and ``ingest.json`` in ``run_dir``; returns the Markdown path."""
     run_dir.mkdir(parents=True, exist_ok=True)
-    (run_dir / "ingest.md").write_text(report.markdown())
+    with atomic_write(run_dir / "ingest.md", "w") as fh:
+        fh.write(report.markdown())
     write_json(run_dir / "ingest.json", {
         "totals": asdict(report.totals),
         "per_category": report.per_category.to_dict("records"),
@@ -157,7 +158,8 @@ def build_stage_report(mates: Sequence[MatesSummary], scenes: pd.DataFrame | Non
 def write_stage_report(run_dir: Path, report: StageReport) -> Path:
     """``stages.md`` and ``stages.json`` in ``run_dir``; returns the Markdown path."""
     run_dir.mkdir(parents=True, exist_ok=True)
-    (run_dir / "stages.md").write_text(report.markdown())
+    with atomic_write(run_dir / "stages.md", "w") as fh:
+        fh.write(report.markdown())
     data: dict[str, Any] = {k: t.to_dict("records") for k, t in report.tables.items()}
     data["failures"] = report.failures.to_dict("records")
     data["totals"] = asdict(report.totals)
