@@ -1,0 +1,100 @@
+"""Flows for single stages, deployed beside the nightly: ``ingest`` (library -> catalog and
+ground-truth mates) and ``capture`` (catalog -> scenes -> RGB-D captures and their inputs).
+
+They run the same tasks as the nightly, with the same content-hash caches, so an ``ingest``
+run followed by the nightly does the CAD work once.
+"""
+
+from __future__ import annotations
+
+from dataclasses import asdict
+from pathlib import Path
+from typing import Any
+
+from prefect import flow, get_run_logger
+from prefect.task_runners import ThreadPoolTaskRunner
+
+from cadio.capture.scan import ScanConfig
+from cadio.catalog import read_catalog
+from cadio.tolerances import DEFAULT_TOLERANCES, Tolerances
+from cadio.truth.scenes import SceneConfig
+from cadio.workspace import Workspace
+from flows.settings import Settings, ingest_config
+from flows.tasks import (
+    assembly_stage,
+    capture_stage,
+    generate_library_task,
+    ingest_stage,
+    mates_stage,
+    scenes_task,
+    start_run,
+)
+from reports.render import build_ingest_report, write_ingest_report
+
+
+@flow(name="ingest", task_runner=ThreadPoolTaskRunner(max_workers=2))  # type: ignore[arg-type]
+def ingest(library: str | None = None, workspace: str = "workspace",
+           categories: list[str] | None = None,
+           tolerances: Tolerances = DEFAULT_TOLERANCES, voxel_sizes: list[int] | None = None,
+           batch_size: int = 12) -> dict[str, Any]:
+    """Read the library's STEP files into the workspace catalog and extract the mates of its
+    assemblies; ``ingest.md`` goes into a run folder.
+
+    Args:
+        library: folder of STEP files (categories are its sub-folders); None = built-in samples.
+        workspace: the workspace folder.
+        categories: only these categories of the library (None: all).
+        tolerances: every geometric tolerance (written beside the results).
+        voxel_sizes: occupancy grid sizes to write (default 32 and 64).
+        batch_size: files per ingest task.
+
+    Returns:
+        The ingest totals, the number of assemblies and failed ones, and the run folder.
+    """
+    cfg = ingest_config(Settings(), voxel_sizes, tolerances)
+    run = start_run(workspace, tolerances)
+    lib = library or generate_library_task(run.workspace)
+    catalog = ingest_stage(lib, run, cfg, batch_size, categories)
+    mates = mates_stage(catalog, run, tolerances, cfg.limits)
+    report = build_ingest_report(read_catalog(Path(catalog)))
+    write_ingest_report(Path(run.run_dir), report)
+    get_run_logger().info("ingest: %d files, %d ok, %d assemblies (%d failed)",
+                          report.totals.files, report.totals.ok, len(mates),
+                          sum(not m.ok for m in mates))
+    return {"run_dir": run.run_dir, "ingest": asdict(report.totals), "assemblies": len(mates),
+            "assemblies_failed": sum(not m.ok for m in mates)}
+
+
+@flow(name="capture", task_runner=ThreadPoolTaskRunner(max_workers=2))  # type: ignore[arg-type]
+def capture(workspace: str = "workspace", tolerances: Tolerances = DEFAULT_TOLERANCES,
+            pairs_per_relation: int = 4, views_per_scene: int = 8, noise: bool = False,
+            seed: int = 0) -> dict[str, Any]:
+    """Generate the scenes of an ingested workspace and capture them and its assemblies.
+
+    Args:
+        workspace: a workspace the ``ingest`` flow (or the nightly) filled.
+        tolerances: every geometric tolerance (labels of the scenes).
+        pairs_per_relation: scenes per relation.
+        views_per_scene: rendered views per scene.
+        noise: switch the depth sensor noise model on.
+        seed: seed of the scene generator.
+
+    Returns:
+        Counts of scenes, captures, failed captures and frames.
+    """
+    run = start_run(workspace, tolerances)
+    ws = Workspace(Path(run.workspace))
+    if not ws.catalog.exists():
+        raise FileNotFoundError(f"{ws.catalog}: no catalog; run the ingest flow first")
+    scene_cfg = SceneConfig(seed=seed, pairs_per_relation=pairs_per_relation,
+                            tolerances=tolerances)
+    scenes = scenes_task(str(ws.catalog), run.workspace, scene_cfg)
+    scan_cfg = ScanConfig(views_per_scene=views_per_scene, noise=noise, tolerances=tolerances)
+    captured = capture_stage(scenes, run, scan_cfg, None)
+    mates = mates_stage(str(ws.catalog), run, tolerances,  # cached: the ingest's own results
+                        ingest_config(Settings(), None, tolerances).limits)
+    captured += assembly_stage(str(ws.catalog), mates, run, scan_cfg)
+    return {"scenes": scenes.scenes, "captures": len(captured),
+            "failed": sum(bool(c.error) for c in captured),
+            "frames": sum(c.frames for c in captured)}
+

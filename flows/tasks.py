@@ -1,0 +1,351 @@
+"""The tasks of mateqa's flows (one call each into the packages) and the stages that fan them
+out in coarse batches (SQLite-backed servers struggle with thousands of tiny task runs).
+
+Caching: every task that does real work is keyed on the content of what it reads (file
+hashes, the rows it works on, its configuration) plus the workspace's epoch, and persists its
+result. A second night over an unchanged library reuses every ingest, mates, capture,
+completion and relation batch and only writes the reports. A task killed halfway writes no
+cache record, and every file it writes is renamed into place only when complete, so a rerun
+after a kill redoes exactly the unfinished batches and never reads a half-written file.
+
+Retries: only transient failures are retried (the operating system ran out of something, a
+connection dropped); a bad input never raises out of a task, it becomes a row of the report.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+from collections.abc import Iterable
+from dataclasses import asdict, dataclass, is_dataclass
+from datetime import UTC, datetime
+from pathlib import Path
+from typing import Any
+
+from prefect import task
+from prefect.context import TaskRunContext
+
+from cadio.cad.ingest import (
+    Found,
+    IngestConfig,
+    discover,
+    file_sha256,
+    ingest_files,
+    mark_duplicates,
+)
+from cadio.capture.scan import (
+    ASSEMBLY_PREFIX,
+    ScanConfig,
+    capture_assembly,
+    capture_batch,
+    read_captures,
+)
+from cadio.catalog import CatalogRow, read_catalog, to_frame, write_catalog
+from cadio.contracts import CaptureSummary, MatesSummary, ScenesSummary
+from cadio.sandbox import Limits
+from cadio.tolerances import Tolerances, write_tolerances
+from cadio.truth.assemblies import (
+    MATES_VERSION,
+    AssemblyJob,
+    assembly_jobs,
+    extract_assembly_mates,
+)
+from cadio.truth.scenes import SceneConfig, build_scenes, read_scenes
+from cadio.workspace import Workspace
+from models.evaluate import Scores, complete_parts, part_inputs
+from models.relate import RelateBatch, relate_batch
+
+# Bump when a stage's code changes what it writes, so cached batches are redone.
+CAPTURE_VERSION = "capture-1"
+COMPLETION_VERSION = "completion-1"
+RELATE_VERSION = "relate-1"
+
+
+@dataclass(frozen=True)
+class Run:
+    """One night: its id, workspace, report folder, and the token of the workspace's life."""
+
+    run_id: str
+    workspace: str
+    run_dir: str
+    epoch: str
+
+
+def start_run(workspace: str, tolerances: Tolerances) -> Run:
+    """Create the run folder and write the tolerances the run uses beside its results."""
+    ws = Workspace(Path(workspace).resolve())
+    run_id = datetime.now(UTC).strftime("%Y%m%dT%H%M%S%fZ")
+    run_dir = ws.run_dir(run_id)
+    run_dir.mkdir(parents=True, exist_ok=True)
+    write_tolerances(run_dir / "tolerances.json", tolerances)
+    return Run(run_id, str(ws.root), str(run_dir), workspace_epoch(ws))
+
+
+def workspace_epoch(ws: Workspace) -> str:
+    """A token created with the workspace: a deleted workspace never reuses cached results."""
+    marker = ws.root / ".epoch"
+    if not marker.exists():
+        ws.root.mkdir(parents=True, exist_ok=True)
+        marker.write_text(datetime.now(UTC).isoformat())
+    return marker.read_text()
+
+
+# ---------------------------------------------------------------- cache keys
+
+
+def _plain(value: Any) -> Any:
+    """JSON form of cache-key values (dataclasses as dicts, arrays as lists, paths as text)."""
+    if is_dataclass(value) and not isinstance(value, type):
+        return asdict(value)
+    if hasattr(value, "tolist"):
+        return value.tolist()
+    return str(value)
+
+
+def content_digest(files: Iterable[Path | str], **values: Any) -> str:
+    """SHA-256 of the named files' bytes (a missing file counts as such) and of ``values``."""
+    digest = hashlib.sha256(json.dumps(values, sort_keys=True, default=_plain).encode())
+    for path in map(Path, files):
+        digest.update(f"{path}\0".encode())
+        digest.update(file_sha256(path).encode() if path.is_file() else b"not-a-file")
+    return digest.hexdigest()
+
+
+def _content_key(ctx: TaskRunContext, params: dict[str, Any]) -> str:
+    """Content hashes of ``params["files"]`` + every other parameter by value."""
+    others = {k: v for k, v in params.items() if k != "files"}
+    return f"{ctx.task.name}-{content_digest(params['files'], **others)}"
+
+
+def _given_key(ctx: TaskRunContext, params: dict[str, Any]) -> str:
+    """The digest the stage computed (``params["key"]``): inputs already hashed once."""
+    return f"{ctx.task.name}-{params['key']}"
+
+
+def _transient(task: Any, task_run: Any, state: Any) -> bool:
+    """Retry only what a second try can fix: resources or connections, not inputs."""
+    try:
+        state.result()
+    except (MemoryError, ConnectionError, TimeoutError, BrokenPipeError):
+        return True
+    except Exception:  # anything else is not transient: no retry
+        return False
+    return False
+
+
+_RETRY: dict[str, Any] = {"retries": 2, "retry_delay_seconds": 5,
+                          "retry_condition_fn": _transient}
+_CACHED: dict[str, Any] = {"cache_key_fn": _given_key, "persist_result": True, **_RETRY}
+
+
+def _files_in(folders: Iterable[Path]) -> list[Path]:
+    return sorted(p for f in folders if f.is_dir() for p in f.rglob("*") if p.is_file()
+                  and not p.name.startswith("."))
+
+
+def _models(folder: str) -> list[Path]:
+    return sorted(Path(folder).glob("*.pt"))
+
+
+def _categories_digest(ws: Workspace) -> str:
+    """Part id -> category of the catalog (the scoring stages label rows with it)."""
+    catalog = read_catalog(ws.catalog)
+    pairs = sorted(zip(catalog["part_id"].astype(str), catalog["category"].astype(str),
+                       strict=True))
+    return hashlib.sha256(json.dumps(pairs).encode()).hexdigest()
+
+
+# ---------------------------------------------------------------- tasks: one call each
+
+
+@task(name="generate-sample-library", **_RETRY)
+def generate_library_task(workspace: str) -> str:
+    """Write the built-in sample library into the workspace (once; reruns reuse it)."""
+    from cadio.samples.library import generate_library
+
+    out = Workspace(Path(workspace)).library
+    generate_library(out)
+    return str(out)
+
+
+@task(name="ingest-batch", cache_key_fn=_content_key, persist_result=True, **_RETRY)
+def ingest_batch_task(files: list[str], categories: list[str], workspace: str, epoch: str,
+                      cfg: IngestConfig, config_key: str) -> list[CatalogRow]:
+    """Catalog rows of a batch of files, each read in an isolated worker (``config_key``, the
+    ingest version and configuration, keys the cache)."""
+    found = [Found(Path(p), c) for p, c in zip(files, categories, strict=True)]
+    ws = Workspace(Path(workspace))
+    return ingest_files(found, ws.root, cfg, read_catalog(ws.catalog))
+
+
+@task(name="write-catalog")
+def write_catalog_task(batches: list[list[CatalogRow]], workspace: str) -> str:
+    """Write the catalog of every batch (duplicates across batches marked)."""
+    rows = mark_duplicates(row for batch in batches for row in batch)
+    path = Workspace(Path(workspace)).catalog
+    write_catalog(path, to_frame(rows))
+    return str(path)
+
+
+@task(name="mates", cache_key_fn=_content_key, persist_result=True, **_RETRY)
+def mates_task(files: list[str], jobs: list[AssemblyJob], epoch: str, limits: Limits,
+               version: str = MATES_VERSION) -> list[MatesSummary]:
+    """Mates of a batch of assemblies, each in an isolated worker; one summary each
+    (``version``, the mates code's, keys the cache)."""
+    return list(extract_assembly_mates(jobs, limits))
+
+
+@task(name="scenes", **_RETRY)
+def scenes_task(catalog: str, workspace: str, cfg: SceneConfig) -> ScenesSummary:
+    """Scenes of the catalog's single parts, written to the workspace."""
+    return build_scenes(read_catalog(Path(catalog)), Path(workspace), cfg)
+
+
+@task(name="capture", **_CACHED)
+def capture_task(scene_ids: list[str], workspace: str, cfg: ScanConfig,
+                 key: str) -> list[CaptureSummary]:
+    """Render a batch of scenes to MCAP and derive their learning inputs."""
+    return capture_batch(scene_ids, Workspace(Path(workspace)), cfg)
+
+
+@task(name="read-captures", **_RETRY)
+def read_captures_task(captures: str, workspace: str, cfg: ScanConfig) -> list[CaptureSummary]:
+    """Learning inputs of captures recorded elsewhere (real logs)."""
+    return read_captures(Path(captures), Workspace(Path(workspace)), cfg)
+
+
+@task(name="capture-assemblies", **_CACHED)
+def capture_assemblies_task(jobs: list[AssemblyJob], workspace: str, cfg: ScanConfig,
+                            key: str) -> list[CaptureSummary]:
+    """Render a batch of assemblies (their parts as placed) and derive their inputs."""
+    ws = Workspace(Path(workspace))
+    return [capture_assembly(j.assembly, j.category, list(j.part_ids.values()), ws, cfg)
+            for j in jobs]
+
+
+@task(name="complete", **_CACHED)
+def complete_task(folders: list[str], models_dir: str, workspace: str, key: str) -> Scores:
+    """Complete and score a batch of captured parts with every method."""
+    return complete_parts([Path(f) for f in folders], Path(models_dir), Workspace(Path(
+        workspace)))
+
+
+@task(name="relate", **_CACHED)
+def relate_task(captures: list[str], workspace: str, relations_models: str,
+                completion_models: str, out: str, key: str) -> RelateBatch:
+    """Relations of every pair view of a batch of captures, by every method and input."""
+    return relate_batch([Path(c) for c in captures], Workspace(Path(workspace)),
+                        Path(relations_models), Path(completion_models), Path(out))
+
+
+# ---------------------------------------------------------------- stages: fan-out only
+
+
+def batches(items: list[Any], size: int) -> list[list[Any]]:
+    """``items`` in consecutive lists of ``size``."""
+    return [items[i:i + size] for i in range(0, len(items), size)]
+
+
+def ingest_stage(library: str, run: Run, cfg: IngestConfig, batch_size: int,
+                 categories: list[str] | None = None) -> str:
+    """Every STEP file of the library (of ``categories`` only, when given) in batches of
+    ``batch_size``; the catalog's path."""
+    found = [f for f in discover(Path(library)) if not categories or f.category in categories]
+    futures = [ingest_batch_task.submit([str(f.path) for f in b], [f.category for f in b],
+                                        run.workspace, run.epoch, cfg, cfg.key())
+               for b in batches(found, batch_size)]
+    return write_catalog_task([f.result() for f in futures], run.workspace)
+
+
+def mates_stage(catalog: str, run: Run, tol: Tolerances, limits: Limits) -> list[MatesSummary]:
+    """Mates of every assembly of the catalog, four assemblies per task."""
+    jobs = assembly_jobs(read_catalog(Path(catalog)), Path(run.workspace), tol)
+    futures = [mates_task.submit([j.path for j in b], b, run.epoch, limits)
+               for b in batches(jobs, 4)]
+    return [m for f in futures for m in f.result()]
+
+
+def capture_stage(scenes: ScenesSummary, run: Run, cfg: ScanConfig,
+                  captures: str | None) -> list[CaptureSummary]:
+    """Render the scenes ten per task, or read the recordings of ``captures``."""
+    if captures:
+        return read_captures_task(captures, run.workspace, cfg)
+    ws = Workspace(Path(run.workspace))
+    table = read_scenes(Path(scenes.path))
+    colours = dict(zip(*(read_catalog(ws.catalog)[c].astype(str) for c in ("part_id", "colour")),
+                       strict=True))
+    futures = []
+    for rows in batches(table.to_dict("records"), 10):
+        ids = [str(r["scene_id"]) for r in rows]
+        parts = sorted({str(r[c]) for r in rows for c in ("part_a", "part_b")})
+        key = content_digest(
+            [ws.mesh(p) for p in parts], rows=rows, colours=[colours.get(p) for p in parts],
+            cfg=cfg, epoch=run.epoch, version=CAPTURE_VERSION)
+        futures.append(_refreshed(capture_task, _present(ws, ids)).submit(
+            ids, run.workspace, cfg, key))
+    return [c for f in futures for c in f.result()]
+
+
+def _present(ws: Workspace, scene_ids: list[str]) -> bool:
+    """Whether every capture of a batch and its inputs are on disk."""
+    return all(ws.capture(s).is_file() and (ws.root / "inputs" / s).is_dir() for s in scene_ids)
+
+
+def _refreshed(cached: Any, present: bool) -> Any:
+    """The task as is when its outputs are on disk; otherwise one that recomputes and
+    replaces its cache record (a cached batch whose files were deleted is redone)."""
+    return cached if present else cached.with_options(refresh_cache=True)
+
+
+def assembly_stage(catalog: str, mates: list[MatesSummary], run: Run,
+                   cfg: ScanConfig) -> list[CaptureSummary]:
+    """Capture every assembly whose mates were extracted, two per task."""
+    ok = {m.assembly for m in mates if m.ok}
+    ws = Workspace(Path(run.workspace))
+    jobs = [j for j in assembly_jobs(read_catalog(Path(catalog)), ws.root) if j.assembly in ok]
+    futures = []
+    for b in batches(jobs, 2):
+        files = [ws.mates(j.assembly) for j in b] + [ws.mesh(p) for j in b
+                                                     for p in j.part_ids.values()]
+        key = content_digest(files, jobs=b, cfg=cfg, epoch=run.epoch, version=CAPTURE_VERSION)
+        present = _present(ws, [ASSEMBLY_PREFIX + j.assembly for j in b])
+        futures.append(_refreshed(capture_assemblies_task, present).submit(
+            b, run.workspace, cfg, key))
+    return [c for f in futures for c in f.result()]
+
+
+def complete_stage(captured: list[CaptureSummary], run: Run, models_dir: str) -> list[Scores]:
+    """Every captured part completed and scored (in the first capture that shows it), twenty
+    parts per task."""
+    ws = Workspace(Path(run.workspace))
+    folders = part_inputs([ws.root / "inputs" / Path(c.path).stem for c in captured
+                           if not c.error])
+    labels = _categories_digest(ws)
+    futures = []
+    for b in batches(folders, 20):
+        key = content_digest([*_files_in(b), *_models(models_dir)], folders=b, labels=labels,
+                             epoch=run.epoch, version=COMPLETION_VERSION)
+        futures.append(complete_task.submit([str(f) for f in b], models_dir, run.workspace, key))
+    return [f.result() for f in futures]
+
+
+def relate_stage(captured: list[CaptureSummary], run: Run, relations_models: str,
+                 completion_models: str) -> list[RelateBatch]:
+    """Every capture's pair views related by every method, ten captures per task; each
+    batch's rows are written once under ``relations/<key>.parquet`` of the workspace."""
+    ws = Workspace(Path(run.workspace))
+    paths = [Path(c.path) for c in captured if not c.error and c.path]
+    labels = _categories_digest(ws)
+    futures = []
+    for b in batches(paths, 10):
+        inputs = _files_in([ws.root / "inputs" / p.stem for p in b])
+        mates = [ws.mates(p.stem[len(ASSEMBLY_PREFIX):]) for p in b
+                 if p.stem.startswith(ASSEMBLY_PREFIX)]
+        files = [*b, *inputs, *mates, *_models(relations_models), *_models(completion_models)]
+        name = content_digest(files, labels=labels, epoch=run.epoch, version=RELATE_VERSION)
+        out = ws.root / "relations" / f"{name[:32]}.parquet"
+        present = out.is_file() and out.with_name(f"{out.stem}-joints.parquet").is_file()
+        futures.append(_refreshed(relate_task, present).submit(
+            [str(p) for p in b], run.workspace, relations_models, completion_models, str(out),
+            name))
+    return [f.result() for f in futures]
