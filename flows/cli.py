@@ -91,6 +91,18 @@ def _parser() -> argparse.ArgumentParser:
                    help="stop the local Prefect server this command started when done")
     p.set_defaults(func=_cmd_nightly)
 
+    p = sub.add_parser("serve", help="a local Prefect server, work pool, worker and deployments",
+                       description="Start a local Prefect server on SQLite (with its UI), a "
+                       "process work pool with a worker, and apply the deployments of "
+                       "prefect.yaml; then `prefect deployment run 'nightly/nightly' --watch` "
+                       "works. Runs until interrupted (Ctrl-C or SIGTERM), then stops "
+                       "everything it started.")
+    p.add_argument("--port", type=int, default=settings.server_port,
+                   help=f"server port (default {settings.server_port})")
+    p.add_argument("--home", type=Path, default=settings.prefect_home,
+                   help=f"Prefect home: database, logs (default {settings.prefect_home})")
+    p.set_defaults(func=_cmd_serve, tol=[], tolerances_file=None)
+
     p = sub.add_parser("mates", help="face mates, relations and joints of a STEP assembly",
                        description="Extract the ground-truth mates of one STEP assembly into "
                        "WS/mates/<assembly>.parquet and print a summary.")
@@ -382,6 +394,53 @@ def _cmd_nightly(args: argparse.Namespace) -> int:
     finally:
         if args.stop_server:
             stop_server(proc)
+
+
+def _cmd_serve(args: argparse.Namespace) -> int:
+    import signal
+    import threading
+
+    from flows.server import (
+        api_url,
+        apply_deployments,
+        project_root,
+        server_env,
+        start_server,
+        start_worker,
+        stop_process,
+    )
+
+    root, home = project_root(), args.home.resolve()
+    env = server_env(home, args.port, ui=True)
+    env.update({k: env.get(k, v) for k, v in _PREFECT_QUIET.items()})
+    stop = threading.Event()
+    for sig in (signal.SIGINT, signal.SIGTERM):
+        signal.signal(sig, lambda *_: stop.set())
+    server = worker = None
+    try:
+        print(f"starting a local Prefect server on SQLite in {home} ...", flush=True)
+        server = start_server(home, args.port, ui=True)
+        apply_deployments(env, root, home / "deploy.log")
+        worker = start_worker(env, root, home / "worker.log")
+        print(f"Prefect UI:  http://127.0.0.1:{args.port}\nPrefect API: {api_url(args.port)}\n"
+              f"work pool 'mateqa' with a process worker (log: {home / 'worker.log'})\n"
+              f"deployments of {root / 'prefect.yaml'} applied; run the nightly with\n"
+              f"  PREFECT_API_URL={api_url(args.port)} prefect deployment run 'nightly/nightly'"
+              f" --param library=DIR --watch\nCtrl-C stops the worker and the server.",
+              flush=True)
+        while not stop.wait(1.0):
+            if worker.poll() is not None:
+                print(f"mateqa serve: the worker stopped (exit {worker.returncode}); see "
+                      f"{home / 'worker.log'}", file=sys.stderr)
+                return 1
+        return 0
+    except RuntimeError as exc:
+        print(f"mateqa serve: {exc}", file=sys.stderr)
+        return 1
+    finally:
+        stop_process(worker)
+        stop_process(server)
+        print("mateqa serve: stopped", flush=True)
 
 
 def _run_nightly(args: argparse.Namespace) -> int:
