@@ -141,7 +141,8 @@ def nightly(
     parts, relate the pairs, and report against the CAD, the paper and the previous nights.
 
     Args:
-        library: folder of STEP files (categories are its sub-folders); None = built-in samples.
+        library: folder of STEP files (categories are its sub-folders) or a CSV listing them
+            (columns path, category); None = the built-in samples.
         workspace: the workspace folder.
         categories: only these categories of the library (None: all).
         tolerances: every geometric tolerance of the run (written to ``tolerances.json``).

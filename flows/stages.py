@@ -41,7 +41,8 @@ def ingest(library: str | None = None, workspace: str = "workspace",
     assemblies; ``ingest.md`` goes into a run folder.
 
     Args:
-        library: folder of STEP files (categories are its sub-folders); None = built-in samples.
+        library: folder of STEP files (categories are its sub-folders) or a CSV listing them
+            (columns path, category); None = the built-in samples.
         workspace: the workspace folder.
         categories: only these categories of the library (None: all).
         tolerances: every geometric tolerance (written beside the results).

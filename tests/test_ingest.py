@@ -16,6 +16,7 @@ from sandbox_targets import process_or_crash
 
 from cadio.cad.ingest import IngestConfig, discover, ingest, largest_first
 from cadio.catalog import read_catalog
+from cadio.errors import InputFileError
 from cadio.sandbox import Job, Limits
 from cadio.workspace import Workspace, read_features, read_mesh, read_voxels
 
@@ -183,3 +184,15 @@ def test_the_supervisor_and_fresh_workers_load_no_heavy_library() -> None:
     out = subprocess.run([sys.executable, "-c", probe], capture_output=True, text=True,
                          check=True, cwd=root, env={**os.environ, "PYTHONPATH": str(root)})
     assert out.stdout.strip() == "[]"
+
+
+def test_a_library_csv_names_files_and_categories(box_step: Path, tmp_path: Path) -> None:
+    listing = tmp_path / "library.csv"
+    listing.write_text(f"path,category\n{box_step},plates\nmissing.step,fasteners\n")
+    found = discover(listing)
+    assert [(f.path, f.category) for f in found] == [
+        (box_step, "plates"), (tmp_path / "missing.step", "fasteners")]
+    bad = tmp_path / "bad.csv"
+    bad.write_text("file,kind\nx.step,a\n")
+    with pytest.raises(InputFileError, match=r"bad\.csv.*path and category"):
+        discover(bad)

@@ -88,16 +88,19 @@ class Found:
 
 
 def discover(root: Path) -> list[Found]:
-    """Every path under ``root`` named ``*.step``/``*.stp`` (any case), files or not.
+    """Every path under ``root`` named ``*.step``/``*.stp`` (any case), files or not; or, when
+    ``root`` is a ``.csv`` file, the files it lists (see ``read_library_csv``).
 
     Directories and broken links with such names are returned too, so that they are reported
     rather than silently ignored. The category is the first folder below ``root``; files lying
     directly in ``root`` take its own name (so pointing at one category folder works).
 
     Raises:
-        InputFileError: ``root`` is not a folder.
+        InputFileError: ``root`` is neither a folder nor a readable library CSV.
     """
     root = Path(root)
+    if root.suffix.lower() == ".csv" and root.is_file():
+        return read_library_csv(root)
     if not root.is_dir():
         raise InputFileError(root, "library folder does not exist or is not a folder")
     found = []
@@ -106,6 +109,28 @@ def discover(root: Path) -> list[Found]:
             rel = path.relative_to(root).parts
             found.append(Found(path, rel[0] if len(rel) > 1 else root.resolve().name))
     return found
+
+
+def read_library_csv(path: Path) -> list[Found]:
+    """The files a library CSV lists: columns ``path`` (relative to the CSV's folder, or
+    absolute) and ``category``, one row per STEP file; listed files that are missing are
+    returned too, so that the report accounts for them.
+
+    Raises:
+        InputFileError: the CSV cannot be read or lacks a column.
+    """
+    import csv
+
+    try:
+        with path.open(newline="", encoding="utf-8") as fh:
+            reader = csv.DictReader(fh)
+            rows = list(reader)
+    except (OSError, UnicodeDecodeError, csv.Error) as exc:
+        raise InputFileError(path, f"library CSV cannot be read: {exc}") from exc
+    if not {"path", "category"} <= set(reader.fieldnames or ()):
+        raise InputFileError(path, "library CSV needs the columns path and category")
+    return [Found(path.parent / r["path"], r["category"].strip()) for r in rows
+            if (r.get("path") or "").strip()]
 
 
 def file_sha256(path: Path) -> str:
