@@ -1,0 +1,190 @@
+"""The report of one night, from the files its stages wrote into ``runs/<run_id>/``.
+
+``write_run_report`` adds ``parts.parquet`` (one row per part, method, protocol and views:
+the completion scores with the part's source file and status), ``pairs.parquet`` (every
+relation decision), ``categories.csv`` (each metric per category against its threshold, the
+previous run and the last runs), ``junit.xml`` (one test case per category and metric),
+``report.md`` (the checks in Markdown) and ``report.html`` (everything, self-contained).
+"""
+
+from __future__ import annotations
+
+import json
+from collections.abc import Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import pandas as pd
+
+from cadio.workspace import atomic_path, atomic_write
+from reports.completion import read_completion_parts
+from reports.html import (
+    Page,
+    assemblies_section,
+    checks_section,
+    completion_section,
+    header,
+    relations_section,
+    trends_section,
+)
+from reports.tables import markdown_table
+from reports.trends import (
+    Thresholds,
+    check_metrics,
+    failed_checks,
+    run_metrics,
+    write_categories,
+    write_junit,
+)
+
+SUMMARY = "summary.json"  # written last by a run that completed
+
+
+@dataclass(frozen=True)
+class RunReport:
+    """What ``write_run_report`` wrote, and the checks that failed or regressed."""
+
+    run_dir: str
+    html: str
+    markdown_path: str
+    categories: str
+    junit: str
+    parts: str
+    pairs: str
+    failed: tuple[str, ...]
+    markdown: str
+    checks: tuple[dict[str, Any], ...]
+
+    @property
+    def passed(self) -> bool:
+        return not self.failed
+
+    def table_rows(self) -> list[dict[str, Any]]:
+        """The checks as plain rows (for a table artifact): NaN as None."""
+        return [{k: (None if isinstance(v, float) and v != v else v) for k, v in row.items()}
+                for row in self.checks]
+
+
+def previous_runs(runs_root: Path, run_id: str, n: int) -> list[Path]:
+    """The last ``n`` runs before ``run_id`` that completed (they have a ``summary.json``),
+    oldest first."""
+    runs = sorted(p for p in Path(runs_root).iterdir()
+                  if p.is_dir() and not p.is_symlink() and p.name < run_id
+                  and (p / SUMMARY).is_file()) if Path(runs_root).is_dir() else []
+    return runs[-n:] if n > 0 else []
+
+
+def write_run_report(run_dir: Path, history: Sequence[Path], thresholds: Thresholds,
+                     catalog: Path | None = None, facts: dict[str, Any] | None = None
+                     ) -> RunReport:
+    """Every report file of a run (see the module docstring).
+
+    Args:
+        run_dir: the run folder, holding what the stages wrote.
+        history: earlier run folders, oldest first (``previous_runs``).
+        thresholds: the per-category limits (``reports.trends.read_thresholds``).
+        catalog: the workspace catalog, for each part's source file and status.
+        facts: extra lines for the report's header (library, stage seconds, ...).
+
+    Returns:
+        The paths written and the failed checks.
+    """
+    run_dir = Path(run_dir)
+    earlier = [(p.name, run_metrics(p)) for p in history]
+    current = run_metrics(run_dir)
+    checks = check_metrics(current, [t for _, t in earlier], thresholds)
+    write_categories(run_dir / "categories.csv", checks)
+    write_junit(run_dir / "junit.xml", checks, suite=f"nightly {run_dir.name}")
+    parts = _parts(run_dir, catalog)
+    pairs = _read_parquet(run_dir / "relations_pairs.parquet")
+    for name, frame in (("parts.parquet", parts), ("pairs.parquet", pairs)):
+        with atomic_path(run_dir / name) as tmp:
+            frame.to_parquet(tmp, index=False)
+    failed = failed_checks(checks)
+    markdown = _markdown(run_dir.name, checks, failed)
+    with atomic_write(run_dir / "report.md", "w") as fh:
+        fh.write(markdown)
+    page = _page(run_dir, checks, parts, pairs, catalog, facts or {},
+                 [*earlier, (run_dir.name, current)])
+    with atomic_write(run_dir / "report.html", "w") as fh:
+        fh.write(page)
+    return RunReport(str(run_dir), str(run_dir / "report.html"), str(run_dir / "report.md"),
+                     str(run_dir / "categories.csv"), str(run_dir / "junit.xml"),
+                     str(run_dir / "parts.parquet"), str(run_dir / "pairs.parquet"),
+                     tuple(failed), markdown, tuple(checks.to_dict("records")))
+
+
+def _read_parquet(path: Path) -> pd.DataFrame:
+    return pd.read_parquet(path) if path.is_file() else pd.DataFrame()
+
+
+def _read_csv(path: Path) -> pd.DataFrame:
+    return pd.read_csv(path) if path.is_file() and path.stat().st_size else pd.DataFrame()
+
+
+def _parts(run_dir: Path, catalog: Path | None) -> pd.DataFrame:
+    """Completion scores with each part's source file, name and ingest status."""
+    parts = read_completion_parts(run_dir) if (run_dir / "completion_parts.parquet").is_file() \
+        else pd.DataFrame(columns=["part_id"])
+    if catalog is None or not Path(catalog).is_file():
+        return parts
+    cols = ["part_id", "source", "name", "status", "error"]
+    table = pd.read_parquet(catalog)
+    table = table[[c for c in cols if c in table.columns]].drop_duplicates("part_id")
+    return parts.merge(table, on="part_id", how="left")
+
+
+def _problems(run_dir: Path, catalog: Path | None) -> pd.DataFrame:
+    """Every input that failed or was skipped, and why (ingest), plus the run's other
+    failures that the stage reports list."""
+    rows = []
+    if catalog is not None and Path(catalog).is_file():
+        table = pd.read_parquet(catalog)
+        bad = table[table["status"] != "ok"]
+        rows += [{"stage": "ingest", "item": str(r.source), "status": str(r.status),
+                  "reason": str(r.error)} for r in bad.itertuples()]
+    stages = run_dir / "stages.json"
+    if stages.is_file():
+        for problem in json.loads(stages.read_text()).get("failures", []):
+            rows.append({"stage": str(problem.get("stage", "")),
+                         "item": str(problem.get("item", "")),
+                         "status": "failed", "reason": str(problem.get("error", ""))})
+    return pd.DataFrame(rows, columns=["stage", "item", "status", "reason"])
+
+
+def _page(run_dir: Path, checks: pd.DataFrame, parts: pd.DataFrame, pairs: pd.DataFrame,
+          catalog: Path | None, facts: dict[str, Any],
+          history: Sequence[tuple[str, pd.DataFrame]]) -> str:
+    page = Page(f"mateqa nightly {run_dir.name}")
+    totals = _totals(run_dir)
+    header(page, {"run": run_dir.name, **facts, **totals}, checks, _problems(run_dir, catalog))
+    checks_section(page, checks)
+    completion_section(page, parts)
+    relations_section(page, _read_csv(run_dir / "relations_summary.csv"), pairs)
+    assemblies_section(page, _read_csv(run_dir / "assembly_mates.csv"),
+                       _read_csv(run_dir / "assembly_joints.csv"))
+    trends_section(page, history)
+    return page.render()
+
+
+def _totals(run_dir: Path) -> dict[str, Any]:
+    """The stage counts the ingest and stage reports wrote."""
+    out: dict[str, Any] = {}
+    for name in ("ingest.json", "stages.json"):
+        path = run_dir / name
+        if path.is_file():
+            totals = json.loads(path.read_text()).get("totals", {})
+            out.update({f"{name.split('.')[0]} {k}": v for k, v in totals.items()})
+    return out
+
+
+def _markdown(run_id: str, checks: pd.DataFrame, failed: list[str]) -> str:
+    verdict = f"{len(failed)} checks failed" if failed else "every check passed"
+    shown = checks[checks["status"] != "too-few"].copy()
+    for col in ("value", "previous", "threshold", "mean_last_n"):
+        shown[col] = shown[col].map(lambda v: "-" if v != v else f"{v:.4g}")
+    lines = [f"# Nightly {run_id}: {verdict}", "", *[f"- {f}" for f in failed], "",
+             markdown_table(shown[["category", "metric", "value", "previous", "threshold",
+                                   "status", "mean_last_n", "n"]]), ""]
+    return "\n".join(lines)

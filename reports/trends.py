@@ -1,0 +1,282 @@
+"""The nightly's headline metrics per category, checked against thresholds and earlier runs.
+
+``run_metrics`` reads one run folder into a long table (category, metric, value, n);
+``check_metrics`` puts the previous run's value, the mean of the last runs, the threshold and a
+status beside each value (``categories.csv``); ``write_junit`` turns the checks into JUnit XML
+so that any CI system shows them. Pure pandas and the standard library: no CAD, no torch.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import tomllib
+import xml.etree.ElementTree as ET
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import pandas as pd
+
+from cadio.workspace import atomic_write
+
+DEFAULT_THRESHOLDS = Path(__file__).with_name("thresholds.toml")
+CATEGORIES_COLUMNS = ("category", "metric", "value", "previous", "threshold", "status",
+                      "direction", "max_drop", "mean_last_n", "n")
+STATUSES = ("pass", "fail", "regressed", "no-threshold", "no-data", "too-few")
+ALL = "all"
+OURS = ("gan_lstm", "observed")  # the completion method and protocol the checks follow
+RELATED = ("completed", "ltn")  # the relation input and method the checks follow
+
+
+@dataclass(frozen=True)
+class Limit:
+    """One metric's threshold: ``floor`` (worst acceptable value) and ``max_drop`` (largest
+    allowed worsening against the previous run); None where not set."""
+
+    floor: float | None = None
+    max_drop: float | None = None
+
+
+@dataclass(frozen=True)
+class Thresholds:
+    """Per metric a default ``Limit`` and per-category overrides."""
+
+    limits: Mapping[str, Limit] = field(default_factory=dict)
+    categories: Mapping[str, Mapping[str, Limit]] = field(default_factory=dict)
+    source: str = ""
+    # Fewer parts, pairs or files than this and a value is reported but not checked
+    # ("too-few"): a mean over a handful says little about a category.
+    min_n: int = 10
+
+    def limit(self, metric: str, category: str) -> Limit:
+        base = self.limits.get(metric, Limit())
+        over = self.categories.get(metric, {}).get(category)
+        if over is None:
+            return base
+        return Limit(base.floor if over.floor is None else over.floor,
+                     base.max_drop if over.max_drop is None else over.max_drop)
+
+
+class ThresholdsError(ValueError):
+    """A thresholds file that cannot be used; the message names the file and the reason."""
+
+    def __init__(self, path: Path, reason: str) -> None:
+        super().__init__(f"{path}: {reason}")
+
+
+def read_thresholds(path: Path) -> Thresholds:
+    """The thresholds of a TOML file (see ``reports/thresholds.toml`` for the format).
+
+    Raises:
+        ThresholdsError: unreadable TOML, an unknown metric, or a non-numeric limit.
+    """
+    try:
+        data = tomllib.loads(Path(path).read_text(encoding="utf-8"))
+    except (OSError, UnicodeDecodeError, tomllib.TOMLDecodeError) as exc:
+        raise ThresholdsError(path, f"cannot read thresholds: {exc}") from exc
+    limits, categories = {}, {}
+    min_n = data.pop("min_n", Thresholds.min_n)
+    if isinstance(min_n, bool) or not isinstance(min_n, int) or min_n < 0:
+        raise ThresholdsError(path, f"min_n must be a count, got {min_n!r}")
+    for metric, table in data.items():
+        if metric not in METRICS:
+            raise ThresholdsError(path, f"unknown metric {metric!r} (known: {sorted(METRICS)})")
+        if not isinstance(table, dict):
+            raise ThresholdsError(path, f"[{metric}] must be a table")
+        limits[metric] = _limit(path, metric, table)
+        over = table.get("categories", {})
+        categories[metric] = {c: _limit(path, f"{metric}.categories.{c}", t)
+                              for c, t in over.items()}
+    return Thresholds(limits, categories, str(path), min_n)
+
+
+def _limit(path: Path, where: str, table: Mapping[str, object]) -> Limit:
+    values = {}
+    for key in ("floor", "max_drop"):
+        value = table.get(key)
+        if value is not None and (isinstance(value, bool) or not isinstance(value, int | float)):
+            raise ThresholdsError(path, f"{where}.{key} must be a number, got {value!r}")
+        values[key] = None if value is None else float(value)
+    return Limit(**values)
+
+
+# ---------------------------------------------------------------- metrics of one run
+
+
+def _read_csv(path: Path) -> pd.DataFrame:
+    return pd.read_csv(path) if path.is_file() and path.stat().st_size else pd.DataFrame()
+
+
+def _ingest_ok(run: Path) -> pd.DataFrame:
+    path = run / "ingest.json"
+    if not path.is_file():
+        return pd.DataFrame()
+    data = json.loads(path.read_text())
+    rows = [*data.get("per_category", []), {**data.get("totals", {}), "category": ALL}]
+    return pd.DataFrame([{"category": r["category"], "value": r["ok"] / r["files"],
+                          "n": r["files"]} for r in rows if r.get("files")])
+
+
+def _completion(metric: str) -> Callable[[Path], pd.DataFrame]:
+    def read(run: Path) -> pd.DataFrame:
+        table = _read_csv(run / "completion_categories.csv")
+        if table.empty:
+            return table
+        rows = table[(table["method"] == OURS[0]) & (table["protocol"] == OURS[1])]
+        return rows.rename(columns={metric: "value", "n_parts": "n"})[["category", "value", "n"]]
+    return read
+
+
+def _relation_accuracy(run: Path) -> pd.DataFrame:
+    table = _read_csv(run / "relations_summary.csv")
+    if table.empty:
+        return table
+    rows = table[(table["input"] == RELATED[0]) & (table["method"] == RELATED[1])]
+    return rows.groupby("category", as_index=False).agg(value=("accuracy", "mean"),
+                                                        n=("n", "max"))
+
+
+def _mates_f1(run: Path) -> pd.DataFrame:
+    table = _read_csv(run / "assembly_mates.csv")
+    if table.empty:
+        return table
+    rows = table[table["assembly"] == ALL]
+    return pd.DataFrame([{"category": ALL, "value": rows["f1"].mean(), "n": rows["n_cad"].sum()}])
+
+
+def _joint_agreement(run: Path) -> pd.DataFrame:
+    table = _read_csv(run / "assembly_joints.csv")
+    if table.empty:
+        return table
+    return pd.DataFrame([{"category": ALL, "value": table["agree"].mean(), "n": len(table)}])
+
+
+# metric -> (reader of a run folder, higher is better)
+METRICS: dict[str, tuple[Callable[[Path], pd.DataFrame], bool]] = {
+    "ingest_ok_fraction": (_ingest_ok, True),
+    "completion_iou": (_completion("iou"), True),
+    "completion_overlap_xy": (_completion("overlap_xy"), True),
+    "completion_overlap_yz": (_completion("overlap_yz"), True),
+    "completion_overlap_zx": (_completion("overlap_zx"), True),
+    "completion_chamfer_l1": (_completion("chamfer_l1"), False),
+    "completion_fscore": (_completion("fscore"), True),
+    "relation_accuracy": (_relation_accuracy, True),
+    "mates_f1": (_mates_f1, True),
+    "joint_agreement": (_joint_agreement, True),
+}
+
+
+def run_metrics(run: Path) -> pd.DataFrame:
+    """Every metric of a run folder: columns category, metric, value, n (absent: no row)."""
+    frames = [reader(run).assign(metric=name) for name, (reader, _) in METRICS.items()]
+    frames = [f for f in frames if len(f)]
+    if not frames:
+        return pd.DataFrame(columns=["category", "metric", "value", "n"])
+    table = pd.concat(frames, ignore_index=True)[["category", "metric", "value", "n"]]
+    return table.astype({"category": "str", "metric": "str", "value": "float64"})
+
+
+# ---------------------------------------------------------------- checks and trends
+
+
+def check_metrics(current: pd.DataFrame, history: Sequence[pd.DataFrame],
+                  thresholds: Thresholds) -> pd.DataFrame:
+    """``categories.csv``: each metric of ``current`` with the previous run's value (the last
+    of ``history``, oldest first), the mean over ``history``, the threshold and the status.
+
+    A metric a category had in the previous run but lacks now gets a row with status
+    ``no-data`` (so a vanished category shows up).
+    """
+    previous = _by_key(history[-1]) if history else {}
+    means = _means(history)
+    keys = list(dict.fromkeys([*_by_key(current), *previous]))
+    values = _by_key(current)
+    counts = {(r.category, r.metric): int(r.n) for r in current.itertuples()}
+    rows = []
+    for category, metric in keys:
+        limit = thresholds.limit(metric, category)
+        value, before = values.get((category, metric), math.nan), previous.get((category, metric),
+                                                                              math.nan)
+        higher = METRICS[metric][1]
+        rows.append({"category": category, "metric": metric, "value": value,
+                     "previous": before, "threshold": _nan(limit.floor),
+                     "status": _status(value, before, limit, higher,
+                                       counts.get((category, metric), 0) >= thresholds.min_n),
+                     "direction": "higher" if higher else "lower",
+                     "max_drop": _nan(limit.max_drop),
+                     "mean_last_n": means.get((category, metric), math.nan),
+                     "n": counts.get((category, metric), 0)})
+    frame = pd.DataFrame(rows, columns=list(CATEGORIES_COLUMNS))
+    order = {m: i for i, m in enumerate(METRICS)}
+    frame = frame.assign(_c=frame["category"] == ALL, _m=frame["metric"].map(order))
+    return frame.sort_values(["_m", "_c", "category"]).drop(columns=["_c", "_m"]).reset_index(
+        drop=True)
+
+
+def _by_key(table: pd.DataFrame) -> dict[tuple[str, str], float]:
+    return {(r.category, r.metric): float(r.value) for r in table.itertuples()}
+
+
+def _means(history: Sequence[pd.DataFrame]) -> dict[tuple[str, str], float]:
+    if not history:
+        return {}
+    stacked = pd.concat(history, ignore_index=True)
+    return {(c, m): float(v) for (c, m), v in stacked.groupby(["category", "metric"])["value"]
+            .mean().items()}
+
+
+def _nan(value: float | None) -> float:
+    return math.nan if value is None else value
+
+
+def _status(value: float, previous: float, limit: Limit, higher: bool, enough: bool) -> str:
+    if math.isnan(value):
+        return "no-data"
+    if not enough:
+        return "too-few"
+    if limit.floor is None and limit.max_drop is None:
+        return "no-threshold"
+    sign = 1.0 if higher else -1.0
+    if limit.floor is not None and sign * (value - limit.floor) < 0:
+        return "fail"
+    if limit.max_drop is not None and not math.isnan(previous) and \
+            sign * (previous - value) > limit.max_drop:
+        return "regressed"
+    return "pass"
+
+
+def failed_checks(checks: pd.DataFrame) -> list[str]:
+    """One line per failed or regressed check: category, metric, value, threshold, previous."""
+    bad = checks[checks["status"].isin(["fail", "regressed"])]
+    return [f"{r.category} {r.metric} {r.status}: {r.value:.4g} (threshold {r.threshold:.4g}, "
+            f"previous {r.previous:.4g})" for r in bad.itertuples()]
+
+
+def write_categories(path: Path, checks: pd.DataFrame) -> Path:
+    """``categories.csv``, atomically."""
+    with atomic_write(path, "w") as fh:
+        checks.to_csv(fh, index=False)
+    return path
+
+
+def write_junit(path: Path, checks: pd.DataFrame, suite: str) -> Path:
+    """JUnit XML: one test case per category (class) and metric (name); ``fail`` and
+    ``regressed`` are failures, ``no-data``, ``no-threshold`` and ``too-few`` are skipped."""
+    failures = int(checks["status"].isin(["fail", "regressed"]).sum())
+    skipped = int(checks["status"].isin(["no-data", "no-threshold", "too-few"]).sum())
+    root = ET.Element("testsuites", name="mateqa", tests=str(len(checks)),
+                      failures=str(failures), skipped=str(skipped))
+    node = ET.SubElement(root, "testsuite", name=suite, tests=str(len(checks)),
+                         failures=str(failures), errors="0", skipped=str(skipped))
+    for r in checks.itertuples():
+        case = ET.SubElement(node, "testcase", classname=str(r.category), name=str(r.metric))
+        message = (f"{r.metric} = {r.value:.4g} ({r.direction} is better), threshold "
+                   f"{r.threshold:.4g}, max drop {r.max_drop:.4g}, previous {r.previous:.4g}")
+        if r.status in ("fail", "regressed"):
+            ET.SubElement(case, "failure", type=str(r.status), message=message).text = message
+        elif r.status in ("no-data", "no-threshold", "too-few"):
+            ET.SubElement(case, "skipped", message=f"{r.status}: {message}")
+    with atomic_write(path, "wb") as fh:
+        ET.ElementTree(root).write(fh, encoding="utf-8", xml_declaration=True)
+    return path
