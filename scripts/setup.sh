@@ -1,13 +1,17 @@
 #!/usr/bin/env bash
 # Set up mateqa from nothing, idempotently: Debian libraries open3d needs, a virtualenv with
 # every pin from constraints.txt, and the independent MCAP reader used by the tests.
+# --test adds what only the tests need: Debian's chromium and its driver (the HTML report is
+# opened in a headless browser).
 set -euo pipefail
 cd "$(dirname "$0")/.."
+debs=(libusb-1.0-0 libgl1 libgomp1)
+[ "${1:-}" = "--test" ] && debs+=(chromium chromium-driver)
 
 sudo_if_needed() { if [ "$(id -u)" -eq 0 ]; then "$@"; else sudo "$@"; fi; }
 
 missing=()
-for pkg in libusb-1.0-0 libgl1 libgomp1; do
+for pkg in "${debs[@]}"; do
   dpkg -s "$pkg" >/dev/null 2>&1 || missing+=("$pkg")
 done
 if [ ${#missing[@]} -gt 0 ]; then
