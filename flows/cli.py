@@ -5,7 +5,9 @@
 local Prefect server on SQLite that it starts (and leaves running for the UI and later runs
 unless ``--stop-server``). Every command takes the same tolerance options (``--tol NAME=VALUE``,
 ``--tolerances FILE.json``), which map onto the one ``Tolerances`` object of the run.
-Exit code 0 means the run completed, even when some inputs were bad (they are in the report).
+Exit code 0 means the run completed, even when some inputs were bad (they are in the report);
+``nightly`` exits 3 when the run completed but a per-category threshold failed or a metric
+regressed (its report says which), 1 when the run itself failed, 2 on bad arguments.
 """
 
 from __future__ import annotations
@@ -74,8 +76,19 @@ def _parser() -> argparse.ArgumentParser:
                        description="Run the nightly Prefect flow on a library (default: the "
                        "built-in sample library) against a local Prefect server on SQLite.")
     p.add_argument("--library", type=Path, default=None,
-                   help="folder of STEP files (default: generate the built-in sample library)")
+                   help="folder of STEP files, categories from its sub-folders, or a CSV with "
+                   "columns path,category (default: generate the built-in sample library)")
     _common(p, settings)
+    p.add_argument("--categories", nargs="+", default=None,
+                   help="only these categories of the library")
+    p.add_argument("--thresholds", type=Path, default=None,
+                   help="per-category thresholds (TOML; default: reports/thresholds.toml)")
+    p.add_argument("--history", type=int, default=7,
+                   help="earlier runs the trends compare with (default 7)")
+    p.add_argument("--no-fail-on-threshold", dest="fail_on_threshold", action="store_false",
+                   help="exit 0 even when a threshold fails (the report still says so)")
+    p.add_argument("--dask-address", default=None,
+                   help="run the tasks on this Dask scheduler (tcp://host:8786)")
     p.add_argument("--pairs-per-relation", type=int, default=4,
                    help="scenes generated per relation (default 4)")
     p.add_argument("--views-per-scene", type=int, default=8,
@@ -378,6 +391,13 @@ def _cmd_capture(args: argparse.Namespace) -> int:
 def _cmd_nightly(args: argparse.Namespace) -> int:
     from flows.server import server_env, start_server, stop_server
     from flows.settings import Settings
+    from reports.trends import DEFAULT_THRESHOLDS, ThresholdsError, read_thresholds
+
+    try:  # a bad thresholds file is a bad argument: say so before any work
+        read_thresholds(args.thresholds or DEFAULT_THRESHOLDS)
+    except ThresholdsError as exc:
+        print(f"mateqa nightly: {exc}", file=sys.stderr)
+        return 2
 
     settings = Settings()
     proc = None
@@ -444,7 +464,7 @@ def _cmd_serve(args: argparse.Namespace) -> int:
 
 
 def _run_nightly(args: argparse.Namespace) -> int:
-    from flows.nightly import nightly
+    from flows.nightly import ThresholdFailure, nightly
 
     state = nightly(
         library=str(args.library) if args.library else None,
@@ -457,6 +477,11 @@ def _run_nightly(args: argparse.Namespace) -> int:
         captures=str(args.captures) if args.captures else None,
         completion_models=str(args.completion_models) if args.completion_models else None,
         relation_models=str(args.relation_models) if args.relation_models else None,
+        categories=args.categories,
+        thresholds=str(args.thresholds) if args.thresholds else None,
+        history=args.history,
+        fail_on_threshold=args.fail_on_threshold,
+        dask_address=args.dask_address,
         workers=args.workers or 1,
         file_timeout_s=args.timeout,
         file_memory_mb=args.memory_mb,
@@ -464,6 +489,11 @@ def _run_nightly(args: argparse.Namespace) -> int:
         return_state=True,
     )
     if not state.is_completed():
+        failure = state.result(raise_on_failure=False)
+        if isinstance(failure, ThresholdFailure):
+            print(Path(failure.run_dir, "report.md").read_text())
+            print(f"mateqa nightly: {failure}", file=sys.stderr)
+            return 3
         print(f"mateqa nightly: the run failed: {state.message}", file=sys.stderr)
         return 1
     summary = state.result()

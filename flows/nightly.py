@@ -12,9 +12,14 @@ from __future__ import annotations
 import time
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
+from typing import Any
 
 from prefect import flow, get_run_logger, task
-from prefect.artifacts import create_markdown_artifact
+from prefect.artifacts import (
+    create_link_artifact,
+    create_markdown_artifact,
+    create_table_artifact,
+)
 from prefect.task_runners import ThreadPoolTaskRunner
 
 from cadio.capture.scan import ScanConfig
@@ -47,6 +52,17 @@ from reports.render import (
     write_ingest_report,
     write_stage_report,
 )
+from reports.run_report import RunReport, previous_runs, write_run_report
+from reports.trends import DEFAULT_THRESHOLDS, read_thresholds
+
+
+class ThresholdFailure(RuntimeError):
+    """A night completed, but its report failed a per-category threshold or regressed."""
+
+    def __init__(self, run_dir: str, failed: list[str]) -> None:
+        self.run_dir, self.failed = run_dir, failed
+        super().__init__(f"{len(failed)} threshold checks failed (report in {run_dir}): "
+                         + "; ".join(failed[:5]) + (" ..." if len(failed) > 5 else ""))
 
 
 @dataclass(frozen=True)
@@ -63,6 +79,8 @@ class NightlySummary:
     relations_report: str
     ingest: IngestTotals
     stages: StageTotals
+    run_report: str = ""
+    failed_checks: list[str] = field(default_factory=list)
     stage_seconds: dict[str, float] = field(default_factory=dict)
 
 
@@ -100,6 +118,28 @@ def report_task(run: Run, catalog: str, mates: list[MatesSummary], scenes: str |
     return ingest.totals, stages.totals
 
 
+@task(name="run-report")
+def run_report_task(run: Run, thresholds: str | None, history: int,
+                    facts: dict[str, Any]) -> RunReport:
+    """report.html, categories.csv (against thresholds and earlier runs), junit.xml,
+    parts.parquet and pairs.parquet of the run."""
+    ws = Workspace(Path(run.workspace))
+    limits = read_thresholds(Path(thresholds) if thresholds else DEFAULT_THRESHOLDS)
+    earlier = previous_runs(ws.root / "runs", run.run_id, history)
+    return write_run_report(Path(run.run_dir), earlier, limits, ws.catalog, facts)
+
+
+def publish(report: RunReport) -> None:
+    """The run's Prefect artifacts: the threshold table, the report in Markdown, a link to
+    report.html."""
+    create_table_artifact(key="nightly-categories", table=report.table_rows(),
+                          description="Per-category metrics against thresholds and the last run")
+    create_markdown_artifact(key="nightly-report", markdown=report.markdown,
+                             description="Nightly report")
+    create_link_artifact(key="nightly-report-html", link=Path(report.html).resolve().as_uri(),
+                         link_text="report.html", description="The full report (self-contained)")
+
+
 class _Stopwatch:
     """Seconds of each stage, for its log line and the run's summary."""
 
@@ -131,6 +171,7 @@ def nightly(
     thresholds: str | None = None,
     history: int = 7,
     fail_on_threshold: bool = True,
+    dask_address: str | None = None,
     seed: int = 0,
     workers: int | None = None,
     file_timeout_s: float | None = None,
@@ -158,6 +199,8 @@ def nightly(
         thresholds: per-category thresholds file (TOML; default: the shipped one).
         history: earlier runs the trends compare with.
         fail_on_threshold: end in a Failed state when a threshold fails or a metric regressed.
+        dask_address: a Dask scheduler (``tcp://host:8786``) to run the tasks on, through
+            prefect-dask (None: the ``MATEQA_DASK_ADDRESS`` setting; empty: this machine).
         seed: seed of the scene generator.
         workers, file_timeout_s, file_memory_mb, max_file_mb: CAD worker processes per task
             and per-file limits (None: the ``MATEQA_*`` settings).
@@ -169,21 +212,37 @@ def nightly(
         ThresholdFailure: a threshold failed (with ``fail_on_threshold``); the run's report
             and ``summary.json`` are complete, and the flow run ends Failed.
     """
-    summary = run_stages(library, workspace, categories, tolerances, voxel_sizes, batch_size,
+    read_thresholds(Path(thresholds) if thresholds else DEFAULT_THRESHOLDS)  # a bad file fails now
+    address = Settings().dask_address if dask_address is None else dask_address
+    stages = run_stages if not address else run_stages.with_options(
+        task_runner=_dask_runner(address))
+    summary = stages(library, workspace, categories, tolerances, voxel_sizes, batch_size,
                          pairs_per_relation, views_per_scene, noise, captures,
                          completion_models, relation_models, seed, workers, file_timeout_s,
-                         file_memory_mb, max_file_mb)
+                         file_memory_mb, max_file_mb, thresholds, history)
+    if fail_on_threshold and summary.failed_checks:
+        raise ThresholdFailure(summary.run_dir, summary.failed_checks)
     return summary
 
 
+def _dask_runner(address: str) -> Any:
+    """Prefect's Dask task runner on an existing cluster."""
+    from prefect_dask import DaskTaskRunner
+
+    return DaskTaskRunner(address=address)
+
+
+@flow(name="nightly-stages", task_runner=ThreadPoolTaskRunner(max_workers=2))  # type: ignore[arg-type]
 def run_stages(library: str | None, workspace: str, categories: list[str] | None,
                tolerances: Tolerances, voxel_sizes: list[int] | None, batch_size: int,
                pairs_per_relation: int, views_per_scene: int, noise: bool,
                captures: str | None, completion_models: str | None,
                relation_models: str | None, seed: int, workers: int | None,
                file_timeout_s: float | None, file_memory_mb: int | None,
-               max_file_mb: float | None) -> NightlySummary:
-    """Every stage of the nightly in order, inside the running flow (one log line each)."""
+               max_file_mb: float | None, thresholds: str | None = None,
+               history: int = 7) -> NightlySummary:
+    """Every stage of the nightly in order (one log line each): a subflow, so that its task
+    runner can be a Dask cluster's while the code stays the same."""
     log, clock = get_run_logger(), _Stopwatch()
     env = Settings()
     settings = env.model_copy(update={
@@ -227,12 +286,18 @@ def run_stages(library: str | None, workspace: str, categories: list[str] | None
              sum(b.pair_views for b in batches), sum(b.rows for b in batches),
              sum(len(b.failed) for b in batches), clock.lap("relations"))
     ingest, stages = report_task(run, catalog, mates, scenes.path, captured)
-    log.info("report: %s (%.1f s)", run.run_dir, clock.lap("report"))
+    facts = {"library": str(lib), "thresholds": thresholds or str(DEFAULT_THRESHOLDS),
+             **{f"{k} seconds": v for k, v in clock.seconds.items()}}
+    report = run_report_task(run, thresholds, history, facts)
+    publish(report)
+    log.info("report: %s, %d threshold checks failed (%.1f s)", report.html,
+             len(report.failed), clock.lap("report"))
     summary = NightlySummary(
         run_id=run.run_id, library=str(lib), workspace=run.workspace, run_dir=run.run_dir,
         ingest_report=str(Path(run.run_dir) / "ingest.md"),
         stages_report=str(Path(run.run_dir) / "stages.md"), completion_report=completion,
         relations_report=relations, ingest=ingest, stages=stages,
+        run_report=str(report.html), failed_checks=list(report.failed),
         stage_seconds=clock.seconds)
     write_json(Path(run.run_dir) / "summary.json", asdict(summary))
     Workspace(Path(run.workspace)).mark_latest(run.run_id)

@@ -31,6 +31,8 @@ class Settings(BaseSettings):
     # Local Prefect server used when PREFECT_API_URL is not set.
     server_port: int = 4200
     prefect_home: Path = Path(".prefect")
+    # A Dask scheduler the nightly's tasks run on (prefect-dask); empty: this machine.
+    dask_address: str = ""
 
     def limits(self, default_workers: int = 1) -> Limits:
         """Worker limits of these settings (``workers`` 0 means ``default_workers``)."""

@@ -107,3 +107,45 @@ def box_step(tmp_path_factory: pytest.TempPathFactory) -> Path:
     part.label = "box"
     write_step(part, path)
     return path
+
+
+# Three small real parts in two categories and one small real assembly: enough for every stage
+# of the nightly (scenes need two categories of single parts; the assembly gives CAD mates).
+SMALL_LIBRARY = {
+    "fasteners": ["fasteners/kcl_washer.step", "fasteners/kcl_hex-nut.step"],
+    "couplings": ["brakes-clutches-couplings/spot_Shaft_Coupling.step"],
+    "assemblies": ["assemblies/abc_00009776_handwheel.step"],
+}
+
+
+@pytest.fixture(scope="session")
+def small_library(shared_step_dir: Path, tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """A library folder of real STEP files (copied from ../shared), by category."""
+    import shutil
+
+    root = tmp_path_factory.mktemp("small-library")
+    for category, files in SMALL_LIBRARY.items():
+        (root / category).mkdir()
+        for name in files:
+            shutil.copy(shared_step_dir / name, root / category / Path(name).name)
+    return root
+
+
+def free_port() -> int:
+    """A TCP port nobody listens on now (loopback)."""
+    import socket
+
+    with socket.socket() as sock:
+        sock.bind(("127.0.0.1", 0))
+        return int(sock.getsockname()[1])
+
+
+@pytest.fixture(scope="session")
+def prefect_api(tmp_path_factory: pytest.TempPathFactory):  # type: ignore[no-untyped-def]
+    """A real Prefect server on SQLite on a free loopback port; yields its environment."""
+    from flows.server import server_env, start_server, stop_server
+
+    home, port = tmp_path_factory.mktemp("prefect-home"), free_port()
+    proc = start_server(home, port, timeout_s=180)
+    yield server_env(home, port)
+    stop_server(proc)
