@@ -1,0 +1,80 @@
+"""The nightly on a real Dask cluster (a scheduler and two workers on loopback, through
+prefect-dask) writes the same report as on this machine's thread pool."""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+import time
+from collections.abc import Iterator
+from pathlib import Path
+
+import pandas as pd
+import pytest
+from conftest import free_port
+
+pytestmark = pytest.mark.server
+
+ROOT = Path(__file__).resolve().parents[1]
+# The CAD stages read each file in a child process with its own limits: a Dask worker process
+# must not be daemonic to have children (docker/compose.yaml sets the same).
+WORKER_ENV = {**os.environ, "DASK_DISTRIBUTED__WORKER__DAEMON": "False", "OMP_NUM_THREADS": "1"}
+COMPARED = ["completion_categories.csv", "relations_summary.csv", "assembly_mates.csv"]
+
+
+@pytest.fixture(scope="module")
+def dask_cluster(tmp_path_factory: pytest.TempPathFactory) -> Iterator[str]:
+    """``dask scheduler`` and two ``dask worker`` processes; yields the scheduler address."""
+    port, log = free_port(), tmp_path_factory.mktemp("dask") / "dask.log"
+    address = f"tcp://127.0.0.1:{port}"
+    dask = str(Path(sys.executable).with_name("dask"))
+    with log.open("wb") as out:
+        procs = [subprocess.Popen([dask, "scheduler", "--host", "127.0.0.1", "--port", str(port),
+                                   "--no-dashboard"], stdout=out, stderr=subprocess.STDOUT)]
+        procs += [subprocess.Popen([dask, "worker", address, "--nthreads", "1",
+                                    "--no-dashboard", "--name", f"w{i}"], cwd=ROOT, env=WORKER_ENV,
+                                   stdout=out, stderr=subprocess.STDOUT) for i in range(2)]
+    from distributed import Client
+
+    deadline = time.monotonic() + 120
+    while True:
+        try:
+            with Client(address, timeout=5) as client:
+                if len(client.scheduler_info()["workers"]) == 2:
+                    break
+        except OSError:
+            pass
+        assert time.monotonic() < deadline, log.read_text()
+        time.sleep(1)
+    yield address
+    for proc in procs[::-1]:
+        proc.terminate()
+        proc.wait(30)
+
+
+def _night(library: Path, workspace: Path, env: dict[str, str], address: str) -> Path:
+    code = (f"from flows.nightly import nightly; nightly(library={str(library)!r}, "
+            f"workspace={str(workspace)!r}, views_per_scene=2, pairs_per_relation=1, "
+            f"fail_on_threshold=False, dask_address={address!r})")
+    done = subprocess.run([sys.executable, "-c", code], cwd=ROOT, env=env, capture_output=True,
+                          text=True, timeout=900)
+    assert done.returncode == 0, done.stderr[-4000:]
+    return (workspace / "runs" / "latest").resolve()
+
+
+def test_the_nightly_on_dask_reports_what_the_local_runner_does(
+        small_library: Path, prefect_api: dict[str, str], dask_cluster: str,
+        tmp_path: Path) -> None:
+    env = {**prefect_api, "OMP_NUM_THREADS": "1"}
+    local = _night(small_library, tmp_path / "local", env, "")
+    dask = _night(small_library, tmp_path / "dask", env, dask_cluster)
+    from distributed import Client
+
+    with Client(dask_cluster, timeout=10) as client:  # both workers did some of the work
+        done = client.run(lambda dask_worker: dask_worker.state.transition_counter)
+    assert len(done) == 2 and all(n > 0 for n in done.values()), done
+    for name in COMPARED:
+        table = pd.read_csv(local / name)
+        assert len(table) > 0, name
+        pd.testing.assert_frame_equal(pd.read_csv(dask / name), table, obj=name)
