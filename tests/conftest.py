@@ -149,3 +149,35 @@ def prefect_api(tmp_path_factory: pytest.TempPathFactory):  # type: ignore[no-un
     proc = start_server(home, port, timeout_s=180)
     yield server_env(home, port)
     stop_server(proc)
+
+
+def start_night(library: Path, workspace: Path, env: dict[str, str], **params: object):  # type: ignore[no-untyped-def]
+    """The nightly flow on ``library`` in a child process (its own session, so that it and its
+    CAD workers can be killed together), with the small test settings and ``params``."""
+    import subprocess
+    import sys
+
+    args = {"library": str(library), "workspace": str(workspace), "views_per_scene": 2,
+            "pairs_per_relation": 1, "fail_on_threshold": False, **params}
+    code = f"from flows.nightly import nightly; nightly(**{args!r})"
+    log = Path(workspace).with_name(f"{Path(workspace).name}.log")
+    with log.open("ab") as out:  # a file, not a pipe: nobody reads while the night runs
+        proc = subprocess.Popen([sys.executable, "-c", code], cwd=Path(__file__).parents[1],
+                                env={**env, "OMP_NUM_THREADS": "1"}, stdout=out,
+                                stderr=subprocess.STDOUT, start_new_session=True)
+    proc.log = log
+    return proc
+
+
+def finish_night(proc) -> None:  # type: ignore[no-untyped-def]
+    """Wait for a night started by ``start_night``; its output when it failed."""
+    assert proc.wait(900) == 0, proc.log.read_text()[-4000:]
+
+
+@pytest.fixture(scope="session")
+def local_night(small_library: Path, prefect_api: dict[str, str],
+                tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """The folder of an uninterrupted night on ``small_library`` (this machine's runner)."""
+    workspace = tmp_path_factory.mktemp("local-night")
+    finish_night(start_night(small_library, workspace, prefect_api))
+    return (workspace / "runs" / "latest").resolve()

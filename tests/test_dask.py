@@ -12,7 +12,7 @@ from pathlib import Path
 
 import pandas as pd
 import pytest
-from conftest import free_port
+from conftest import finish_night, free_port, start_night
 
 pytestmark = pytest.mark.server
 
@@ -53,22 +53,12 @@ def dask_cluster(tmp_path_factory: pytest.TempPathFactory) -> Iterator[str]:
         proc.wait(30)
 
 
-def _night(library: Path, workspace: Path, env: dict[str, str], address: str) -> Path:
-    code = (f"from flows.nightly import nightly; nightly(library={str(library)!r}, "
-            f"workspace={str(workspace)!r}, views_per_scene=2, pairs_per_relation=1, "
-            f"fail_on_threshold=False, dask_address={address!r})")
-    done = subprocess.run([sys.executable, "-c", code], cwd=ROOT, env=env, capture_output=True,
-                          text=True, timeout=900)
-    assert done.returncode == 0, done.stderr[-4000:]
-    return (workspace / "runs" / "latest").resolve()
-
-
 def test_the_nightly_on_dask_reports_what_the_local_runner_does(
-        small_library: Path, prefect_api: dict[str, str], dask_cluster: str,
-        tmp_path: Path) -> None:
-    env = {**prefect_api, "OMP_NUM_THREADS": "1"}
-    local = _night(small_library, tmp_path / "local", env, "")
-    dask = _night(small_library, tmp_path / "dask", env, dask_cluster)
+        small_library: Path, prefect_api: dict[str, str], local_night: Path,
+        dask_cluster: str, tmp_path: Path) -> None:
+    ws = tmp_path / "ws"
+    finish_night(start_night(small_library, ws, prefect_api, dask_address=dask_cluster))
+    local, dask = local_night, (ws / "runs" / "latest").resolve()
     from distributed import Client
 
     with Client(dask_cluster, timeout=10) as client:  # both workers did some of the work

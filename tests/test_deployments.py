@@ -1,0 +1,143 @@
+"""End to end, as a QA engineer types it: `mateqa serve` (a real local Prefect server, a
+process work pool and worker, the deployments of prefect.yaml), then
+`prefect deployment run 'nightly/nightly' --param library=... --watch`, on real STEP files."""
+
+from __future__ import annotations
+
+import asyncio
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+from collections.abc import Iterator
+from pathlib import Path
+from typing import Any
+
+import pandas as pd
+import pytest
+from conftest import free_port
+
+pytestmark = pytest.mark.server
+
+ROOT = Path(__file__).resolve().parents[1]
+RUN_FILES = ["report.html", "categories.csv", "junit.xml", "parts.parquet", "pairs.parquet",
+             "completion_parts.parquet", "relations_summary.csv", "assembly_mates.csv",
+             "tolerances.json", "summary.json"]
+
+
+@pytest.fixture(scope="module")
+def served(tmp_path_factory: pytest.TempPathFactory) -> Iterator[dict[str, str]]:
+    """`mateqa serve` running; yields the environment of a client of its server."""
+    home, port = tmp_path_factory.mktemp("serve-home"), free_port()
+    log = home / "serve.out"
+    with log.open("wb") as out:
+        proc = subprocess.Popen([sys.executable, "-m", "flows.cli", "serve", "--port",
+                                 str(port), "--home", str(home)], cwd=ROOT, stdout=out,
+                                stderr=subprocess.STDOUT, start_new_session=True)
+    deadline = time.monotonic() + 300
+    while "Ctrl-C stops" not in log.read_text() and time.monotonic() < deadline:
+        assert proc.poll() is None, log.read_text()
+        time.sleep(0.5)
+    env = {**os.environ, "PREFECT_API_URL": f"http://127.0.0.1:{port}/api"}
+    yield env
+    proc.send_signal(signal.SIGTERM)
+    assert proc.wait(60) == 0, log.read_text()  # stops cleanly, worker and server with it
+    assert "mateqa serve: stopped" in log.read_text()
+
+
+def _client_call(env: dict[str, str], fn: Any) -> Any:
+    """Run ``fn(client)`` against the served API (settings read from ``env``)."""
+    from prefect.settings import PREFECT_API_URL, temporary_settings
+
+    async def call() -> Any:
+        from prefect.client.orchestration import get_client
+
+        async with get_client() as client:
+            return await fn(client)
+
+    with temporary_settings({PREFECT_API_URL: env["PREFECT_API_URL"]}):
+        return asyncio.run(call())
+
+
+def _run_nightly(env: dict[str, str], library: Path, workspace: Path) -> str:
+    cmd = ["prefect", "deployment", "run", "nightly/nightly", "--param", f"library={library}",
+           "--param", f"workspace={workspace}", "--param", "views_per_scene=2",
+           "--param", "pairs_per_relation=1", "--param", "fail_on_threshold=false", "--watch"]
+    done = subprocess.run([str(Path(sys.executable).with_name("prefect")), *cmd[1:]], env=env,
+                          cwd=ROOT, capture_output=True, text=True, timeout=900)
+    assert done.returncode == 0, done.stdout[-4000:] + done.stderr[-4000:]
+    return done.stdout
+
+
+def test_the_deployments_are_applied_with_a_schedule_and_a_limit(
+        served: dict[str, str]) -> None:
+    async def read(client: Any) -> Any:
+        deployments = await client.read_deployments()
+        nightly = next(d for d in deployments if d.name == "nightly")
+        runs = await client.read_flow_runs()
+        return deployments, nightly, [r for r in runs if r.deployment_id == nightly.id]
+
+    deadline = time.monotonic() + 120
+    while True:  # the scheduler service inserts the cron's next runs shortly after deploying
+        deployments, nightly, scheduled = _client_call(served, read)
+        if scheduled or time.monotonic() > deadline:
+            break
+        time.sleep(2)
+    assert {d.name for d in deployments} >= {"nightly", "ingest", "capture", "train"}
+    assert nightly.global_concurrency_limit and nightly.global_concurrency_limit.limit == 1
+    assert [s.schedule.cron for s in nightly.schedules] == ["0 2 * * *"]
+    assert scheduled and all(r.state.name == "Scheduled" for r in scheduled)
+    schema = nightly.parameter_openapi_schema["properties"]
+    assert {"library", "workspace", "categories", "tolerances", "completion_models",
+            "relation_models", "thresholds"} <= set(schema)
+
+
+def test_a_deployment_run_writes_the_report_and_a_second_night_only_reports(
+        served: dict[str, str], small_library: Path, tmp_path: Path) -> None:
+    ws = tmp_path / "ws"
+    out = _run_nightly(served, small_library, ws)
+    assert "Completed" in out
+    run = (ws / "runs" / "latest").resolve()
+    for name in RUN_FILES:
+        assert (run / name).is_file() and (run / name).stat().st_size > 0, name
+    summary = json.loads((run / "summary.json").read_text())
+    assert summary["ingest"]["files"] == 4 and summary["ingest"]["failed"] == 0
+    categories = pd.read_csv(run / "categories.csv")
+    assert {"fasteners", "couplings", "all"} <= set(categories["category"])
+    assert set(pd.read_parquet(run / "pairs.parquet")["method"]) == {"ltn", "mlp", "geometric"}
+
+    async def artifacts(client: Any) -> dict[str, tuple[str, str]]:
+        return {a.key: (a.type, str(a.data)) for a in await client.read_artifacts() if a.key}
+
+    made = _client_call(served, artifacts)
+    assert made["nightly-categories"][0] == "table"
+    assert made["nightly-report"][0] == "markdown"  # Prefect shows a link as Markdown
+    assert (run / "report.html").as_uri() in made["nightly-report-html"][1]
+
+    _run_nightly(served, small_library, ws)
+
+    async def last_tasks(client: Any) -> dict[str, str]:
+        from prefect.client.schemas.filters import (
+            FlowFilter,
+            FlowFilterName,
+            FlowRunFilter,
+            FlowRunFilterId,
+        )
+
+        stages = await client.read_flow_runs(flow_filter=FlowFilter(
+            name=FlowFilterName(any_=["nightly-stages"])))  # the stages run in this subflow
+        flow_run = max((r for r in stages if r.start_time), key=lambda r: r.start_time)
+        runs = await client.read_task_runs(flow_run_filter=FlowRunFilter(
+            id=FlowRunFilterId(any_=[flow_run.id])))
+        return {t.name: t.state.name for t in runs}
+
+    states = _client_call(served, last_tasks)
+    heavy = {n: s for n, s in states.items() if n.split("-")[0] in {
+        "ingest", "mates", "capture", "complete", "relate"} and not n.startswith("relations")}
+    assert heavy and set(heavy.values()) == {"Cached"}, states
+    second = (ws / "runs" / "latest").resolve()
+    assert second != run
+    pd.testing.assert_frame_equal(pd.read_csv(second / "relations_summary.csv"),
+                                  pd.read_csv(run / "relations_summary.csv"))
