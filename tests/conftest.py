@@ -157,7 +157,7 @@ def start_night(library: Path, workspace: Path, env: dict[str, str], **params: o
     import subprocess
     import sys
 
-    args = {"library": str(library), "workspace": str(workspace), "views_per_scene": 2,
+    args = {"library": str(library), "workspace": str(workspace), "views_per_scene": 1,
             "pairs_per_relation": 1, "fail_on_threshold": False, **params}
     code = f"from flows.nightly import nightly; nightly(**{args!r})"
     log = Path(workspace).with_name(f"{Path(workspace).name}.log")

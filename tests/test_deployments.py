@@ -35,7 +35,8 @@ def served(tmp_path_factory: pytest.TempPathFactory) -> Iterator[dict[str, str]]
     with log.open("wb") as out:
         proc = subprocess.Popen([sys.executable, "-m", "flows.cli", "serve", "--port",
                                  str(port), "--home", str(home)], cwd=ROOT, stdout=out,
-                                stderr=subprocess.STDOUT, start_new_session=True)
+                                stderr=subprocess.STDOUT, start_new_session=True,
+                                env={**os.environ, "PREFECT_WORKER_QUERY_SECONDS": "2"})
     deadline = time.monotonic() + 300
     while "Ctrl-C stops" not in log.read_text() and time.monotonic() < deadline:
         assert proc.poll() is None, log.read_text()
@@ -63,7 +64,7 @@ def _client_call(env: dict[str, str], fn: Any) -> Any:
 
 def _run_nightly(env: dict[str, str], library: Path, workspace: Path) -> str:
     cmd = ["prefect", "deployment", "run", "nightly/nightly", "--param", f"library={library}",
-           "--param", f"workspace={workspace}", "--param", "views_per_scene=2",
+           "--param", f"workspace={workspace}", "--param", "views_per_scene=1",
            "--param", "pairs_per_relation=1", "--param", "fail_on_threshold=false", "--watch"]
     done = subprocess.run([str(Path(sys.executable).with_name("prefect")), *cmd[1:]], env=env,
                           cwd=ROOT, capture_output=True, text=True, timeout=900)
