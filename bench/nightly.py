@@ -10,20 +10,31 @@ Peak memory is the largest resident set of the run's process and of its CAD work
 
 Usage: ``.venv/bin/python bench/nightly.py [--library DIR] [--views 8] [--pairs 4]``
 (default library: the built-in sample library; about 25 minutes on two cores).
+
+Scaling (``--scale 1 3 10 [--categories C ...]``): the library (the chosen categories of it)
+copied k times, each copy with new bytes and a new file name so that every copy is new work,
+and the scenes per relation multiplied by k, so k x the library is k x the work; each size runs
+through the flow on this machine's thread pool and on a Dask cluster (a scheduler and two
+workers on loopback, started here for each run) on fresh workspaces. Reported: wall time, time
+per unit of work against 1x (goal: 10x the work in at most 10.5x the time) and peak memory
+(the flow's process, its CAD workers, and each Dask worker).
 """
 
 from __future__ import annotations
 
 import argparse
+import contextlib
 import inspect
 import json
 import logging
 import os
+import re
 import resource
 import subprocess
 import sys
 import tempfile
 import time
+from collections.abc import Iterator
 from concurrent.futures import Future, ThreadPoolExecutor
 from pathlib import Path
 from typing import Any
@@ -98,11 +109,125 @@ def measure(mode: str, params: dict[str, Any], env: dict[str, str]) -> dict[str,
     return json.loads(done.stdout.strip().splitlines()[-1])
 
 
+_FILE_NAME = re.compile(rb"(FILE_NAME\s*\(\s*)'[^']*'")
+
+
+def scaled_library(base: Path, k: int, out: Path, categories: list[str] | None) -> Path:
+    """k copies of every STEP file under ``base`` (of ``categories`` only, when given), in the
+    same category folders, copy i named ``<stem>__c<i>`` with that name in its header."""
+    for path in sorted(base.rglob("*.st*p")):
+        category = path.relative_to(base).parts[0]
+        if categories and category not in categories:
+            continue
+        data = path.read_bytes()
+        for i in range(k):
+            name = f"{path.stem}__c{i}"
+            target = out / category / f"{name}{path.suffix}"
+            target.parent.mkdir(parents=True, exist_ok=True)
+            target.write_bytes(_FILE_NAME.sub(lambda m, n=name: m.group(1) + f"'{n}'".encode(),
+                                              data, count=1))
+    return out
+
+
+@contextlib.contextmanager
+def dask_cluster(log: Path, workers: int = 2) -> Iterator[str]:
+    """A Dask scheduler and ``workers`` one-thread workers on loopback; yields the address."""
+    from distributed import Client
+
+    port = 8790
+    address = f"tcp://127.0.0.1:{port}"
+    dask = str(Path(sys.executable).with_name("dask"))
+    env = {**os.environ, "DASK_DISTRIBUTED__WORKER__DAEMON": "False", "OMP_NUM_THREADS": "1"}
+    with log.open("ab") as out:
+        procs = [subprocess.Popen([dask, "scheduler", "--host", "127.0.0.1", "--port",
+                                   str(port), "--no-dashboard"], stdout=out,
+                                  stderr=subprocess.STDOUT)]
+        procs += [subprocess.Popen([dask, "worker", address, "--nthreads", "1",
+                                    "--no-dashboard", "--name", f"w{i}"], cwd=ROOT, env=env,
+                                   stdout=out, stderr=subprocess.STDOUT)
+                  for i in range(workers)]
+    try:
+        deadline = time.monotonic() + 120
+        while True:
+            try:
+                with Client(address, timeout=5) as client:
+                    if len(client.scheduler_info()["workers"]) == workers:
+                        break
+            except OSError:
+                pass
+            if time.monotonic() > deadline:
+                raise SystemExit(f"the Dask cluster did not start: {log}")
+            time.sleep(1)
+        yield address
+    finally:
+        for proc in procs[::-1]:
+            proc.terminate()
+            proc.wait(60)
+
+
+def _dask_peak_mb(address: str) -> int:
+    """The largest peak resident set of the cluster's worker processes and their children."""
+    from distributed import Client
+
+    def peak() -> int:
+        own = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
+        kids = resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss
+        return int(max(own, kids) / 1024)
+
+    with Client(address, timeout=10) as client:
+        return max(client.run(peak).values())
+
+
+def scaling(args: argparse.Namespace, root: Path, base: dict[str, Any],
+            env: dict[str, str]) -> None:
+    """The flow on k x the library, local and on Dask; a table."""
+    from cadio.samples.library import generate_library
+
+    source = args.library.resolve() if args.library else root / "samples"
+    if not args.library:
+        generate_library(source)
+    rows = []
+    for k in args.scale:
+        library = scaled_library(source, k, root / f"library-x{k}", args.categories)
+        params = {**base, "library": str(library), "pairs_per_relation": args.pairs * k,
+                  "categories": None}
+        for runner in args.runners:
+            ws = root / f"ws-{runner}-x{k}"
+            if runner == "dask":
+                with dask_cluster(root / "dask.log") as address:
+                    run = measure("flow", {**params, "workspace": str(ws),
+                                           "dask_address": address}, env)
+                    run["peak_dask_worker_mb"] = _dask_peak_mb(address)
+            else:
+                run = measure("flow", {**params, "workspace": str(ws), "dask_address": ""},
+                              env)
+            run.update(scale=k, runner=runner)
+            rows.append(run)
+            print(json.dumps(run), flush=True)
+    print(f"library: {args.library or 'built-in samples'} "
+          f"({', '.join(args.categories or ['all categories'])}); views {args.views}, "
+          f"pairs/relation {args.pairs} x k")
+    print(f"{'runner':<8}{'k':>4}{'wall s':>9}{'x 1x':>8}{'/ k':>7}{'peak MB':>9}"
+          f"{'CAD MB':>8}{'Dask MB':>9}")
+    for r in rows:
+        one = next(x for x in rows if x["runner"] == r["runner"] and x["scale"] == args.scale[0])
+        ratio = r["wall_s"] / one["wall_s"]
+        print(f"{r['runner']:<8}{r['scale']:>4}{r['wall_s']:>9.1f}{ratio:>8.2f}"
+              f"{ratio / (r['scale'] / args.scale[0]):>7.2f}{r['peak_rss_mb']:>9}"
+              f"{r['peak_worker_rss_mb']:>8}{r.get('peak_dask_worker_mb', '-'):>9}")
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--library", type=Path, default=None)
     parser.add_argument("--views", type=int, default=8)
     parser.add_argument("--pairs", type=int, default=4)
+    parser.add_argument("--scale", type=int, nargs="+", default=None,
+                        help="library multiples to time (e.g. 1 3 10): the scaling run")
+    parser.add_argument("--categories", nargs="+", default=None,
+                        help="scaling: only these categories of the library")
+    parser.add_argument("--runners", nargs="+", default=["local", "dask"],
+                        choices=["local", "dask"], help="scaling: the task runners to time")
     parser.add_argument("--child", default=None, help=argparse.SUPPRESS)
     parser.add_argument("--params", default="{}", help=argparse.SUPPRESS)
     args = parser.parse_args()
@@ -122,6 +247,12 @@ def main() -> None:
                 views_per_scene=args.views, pairs_per_relation=args.pairs,
                 fail_on_threshold=False)
     base.pop("tolerances")  # the default object; JSON carries plain values only
+    if args.scale:
+        try:
+            scaling(args, root, base, env)
+        finally:
+            stop_server(server)
+        return
     try:
         flow = measure("flow", {**base, "workspace": str(root / "flow")}, env)
         direct = measure("direct", {**base, "workspace": str(root / "direct")}, env)

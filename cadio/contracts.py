@@ -77,3 +77,32 @@ class CaptureSummary:
 
     def to_dict(self) -> dict[str, Any]:
         return asdict(self)
+
+
+@dataclass(frozen=True)
+class ExportSummary:
+    """The export stage's outcome for one assembly.
+
+    status: the sidecar's ("ok", "partial", "no-predictions") or "failed" (``reason`` says
+    why; the sidecar is still written, with that status). The paths are those written, empty
+    when not. pairs / predicted_pairs: pairs exported and those with a prediction;
+    constraints: the mates the CadQuery script constrains (holds not counted).
+    """
+
+    assembly: str
+    category: str
+    status: str
+    reason: str = ""
+    sidecar: str = ""
+    xbf: str = ""
+    script: str = ""
+    notes: int = 0
+    pairs: int = 0
+    predicted_pairs: int = 0
+    constraints: int = 0
+    relation_accuracy: float = math.nan
+    joint_agreement: float = math.nan
+    seconds: float = 0.0
+
+    def to_dict(self) -> dict[str, Any]:
+        return asdict(self)

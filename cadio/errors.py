@@ -37,3 +37,8 @@ class GeometryError(CadioError):
 
 class CaptureError(InputFileError):
     """A capture (MCAP) file is truncated, corrupt, or has the wrong schema or topics."""
+
+
+class ExportError(InputFileError):
+    """An assembly's predicted mates could not be exported (its inputs are missing or changed,
+    or a file could not be written)."""

@@ -172,6 +172,26 @@ def _parser() -> argparse.ArgumentParser:
                    help="torch threads (one is fastest on a busy 2-core machine)")
     p.set_defaults(func=_cmd_train, tol=[], tolerances_file=None)
 
+    p = sub.add_parser("export", help="write a run's predicted mates back into CAD files "
+                       "(no Prefect)",
+                       description="For every assembly of a run: an XBF document with XDE "
+                       "notes, a sidecar JSON (schema: cadio/export/mates.schema.json) and a "
+                       "CadQuery constraint script, under RUN/exports/ASSEMBLY/ (or --out), "
+                       "with exports/index.csv listing each assembly's status.")
+    p.add_argument("--workspace", type=Path, default=settings.workspace,
+                   help=f"workspace folder (default {settings.workspace})")
+    p.add_argument("--run", default="latest",
+                   help="the run whose predictions to export: a run id or 'latest'")
+    p.add_argument("--out", type=Path, default=None,
+                   help="folder for the exports (default RUN/exports)")
+    p.add_argument("--relation-models", type=Path, default=None,
+                   help="relation checkpoints the run used (default: the shipped ones)")
+    p.add_argument("--completion-models", type=Path, default=None,
+                   help="completion checkpoints the run used (default: the shipped ones)")
+    p.add_argument("--workers", type=int, default=settings.workers,
+                   help="parallel CAD worker processes (0 = one per core)")
+    p.set_defaults(func=_cmd_export, tol=[], tolerances_file=None)
+
     p = sub.add_parser("samples", help="generate the built-in sample library",
                        description="Write the built-in sample STEP library into OUT.")
     p.add_argument("out", type=Path, metavar="OUT", help="output folder")
@@ -345,6 +365,40 @@ def _cmd_train_relations(args: argparse.Namespace) -> int:
                                 "pairs_per_relation": args.pairs_per_relation})
     print(report.read_text())
     print(f"model card: {card}")
+    return 0
+
+
+def _cmd_export(args: argparse.Namespace) -> int:
+    from collections import Counter
+
+    from cadio.export.job import export_assemblies, model_digests, run_jobs, write_index
+    from cadio.sandbox import Limits
+    from cadio.workspace import Workspace
+    from models.evaluate import SHIPPED
+    from models.relate import SHIPPED_RELATIONS
+
+    run_dir = Workspace(args.workspace).run_dir(args.run)
+    models = model_digests({"relations": args.relation_models or SHIPPED_RELATIONS,
+                            "completion": args.completion_models or SHIPPED})
+    try:
+        jobs = run_jobs(args.workspace, run_dir, models, args.out)
+    except InputFileError as exc:
+        print(f"mateqa export: {exc}", file=sys.stderr)
+        return 2
+    workers = args.workers or os.cpu_count() or 1
+    with _progress("export", len(jobs)) as advance:
+        summaries = []
+        for summary in export_assemblies(jobs, Limits(workers=workers)):
+            summaries.append(summary)
+            advance(summary.assembly)
+    index = write_index(args.out or run_dir.resolve() / "exports", summaries)
+    for s in sorted(summaries, key=lambda s: s.assembly):
+        print(f"{s.assembly}: {s.status}" + (f" ({s.reason})" if s.reason else "")
+              + (f", {s.predicted_pairs}/{s.pairs} pairs predicted, {s.constraints} "
+                 "constraints" if s.sidecar and s.status != "failed" else ""))
+    counts = Counter(s.status for s in summaries)
+    print(f"{len(summaries)} assemblies ({', '.join(f'{n} {k}' for k, n in sorted(counts.items()))}"
+          f"): {index}")
     return 0
 
 

@@ -10,6 +10,7 @@ hashes: a rerun over unchanged files does no CAD work again.
 from __future__ import annotations
 
 import time
+from collections import Counter
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
@@ -25,6 +26,7 @@ from prefect.task_runners import ThreadPoolTaskRunner
 from cadio.capture.scan import ScanConfig
 from cadio.catalog import read_catalog
 from cadio.contracts import CaptureSummary, MatesSummary
+from cadio.export.job import model_digests
 from cadio.tolerances import DEFAULT_TOLERANCES, Tolerances
 from cadio.truth.scenes import SceneConfig, read_scenes
 from cadio.workspace import Workspace, write_json
@@ -34,6 +36,7 @@ from flows.tasks import (
     assembly_stage,
     capture_stage,
     complete_stage,
+    export_stage,
     generate_library_task,
     ingest_stage,
     mates_stage,
@@ -82,6 +85,8 @@ class NightlySummary:
     run_report: str = ""
     failed_checks: list[str] = field(default_factory=list)
     stage_seconds: dict[str, float] = field(default_factory=dict)
+    exports: str = ""
+    export_status: dict[str, int] = field(default_factory=dict)
 
 
 @task(name="relations-report")
@@ -292,13 +297,20 @@ def run_stages(library: str | None, workspace: str, categories: list[str] | None
     publish(report)
     log.info("report: %s, %d threshold checks failed (%.1f s)", report.html,
              len(report.failed), clock.lap("report"))
+    models = model_digests({"relations": Path(relation_models or SHIPPED_RELATIONS),
+                            "completion": Path(completion_dir)})
+    exports, exported = export_stage(run, models, cfg.limits)
+    status = dict(Counter(e.status for e in exported))
+    log.info("export: %d assemblies (%s) (%.1f s)", len(exported),
+             ", ".join(f"{n} {k}" for k, n in sorted(status.items())) or "none",
+             clock.lap("export"))
     summary = NightlySummary(
         run_id=run.run_id, library=str(lib), workspace=run.workspace, run_dir=run.run_dir,
         ingest_report=str(Path(run.run_dir) / "ingest.md"),
         stages_report=str(Path(run.run_dir) / "stages.md"), completion_report=completion,
         relations_report=relations, ingest=ingest, stages=stages,
         run_report=str(report.html), failed_checks=list(report.failed),
-        stage_seconds=clock.seconds)
+        stage_seconds=clock.seconds, exports=exports, export_status=status)
     write_json(Path(run.run_dir) / "summary.json", asdict(summary))
     Workspace(Path(run.workspace)).mark_latest(run.run_id)
     return summary

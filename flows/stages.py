@@ -1,5 +1,6 @@
 """Flows for single stages, deployed beside the nightly: ``ingest`` (library -> catalog and
-ground-truth mates) and ``capture`` (catalog -> scenes -> RGB-D captures and their inputs).
+ground-truth mates), ``capture`` (catalog -> scenes -> RGB-D captures and their inputs) and
+``export`` (a run's predicted mates -> XBF notes, sidecar JSON, CadQuery script).
 
 They run the same tasks as the nightly, with the same content-hash caches, so an ``ingest``
 run followed by the nightly does the CAD work once.
@@ -16,19 +17,25 @@ from prefect.task_runners import ThreadPoolTaskRunner
 
 from cadio.capture.scan import ScanConfig
 from cadio.catalog import read_catalog
+from cadio.export.job import model_digests
 from cadio.tolerances import DEFAULT_TOLERANCES, Tolerances
 from cadio.truth.scenes import SceneConfig
 from cadio.workspace import Workspace
 from flows.settings import Settings, ingest_config
 from flows.tasks import (
+    Run,
     assembly_stage,
     capture_stage,
+    export_stage,
     generate_library_task,
     ingest_stage,
     mates_stage,
     scenes_task,
     start_run,
+    workspace_epoch,
 )
+from models.evaluate import SHIPPED
+from models.relate import SHIPPED_RELATIONS
 from reports.render import build_ingest_report, write_ingest_report
 
 
@@ -99,3 +106,35 @@ def capture(workspace: str = "workspace", tolerances: Tolerances = DEFAULT_TOLER
             "failed": sum(bool(c.error) for c in captured),
             "frames": sum(c.frames for c in captured)}
 
+
+
+@flow(name="export", task_runner=ThreadPoolTaskRunner(max_workers=2))  # type: ignore[arg-type]
+def export(workspace: str = "workspace", run: str = "latest", out: str | None = None,
+           relation_models: str | None = None,
+           completion_models: str | None = None) -> dict[str, Any]:
+    """Export the predicted mates of a finished run: per assembly an XBF document with XDE
+    notes, a sidecar JSON and a CadQuery constraint script (the nightly's last stage, again).
+
+    Args:
+        workspace: the workspace of the run.
+        run: the run id, or "latest".
+        out: folder for the exports (default: the run's ``exports/``).
+        relation_models, completion_models: the checkpoints the run used (default: the
+            shipped ones), named in the exports.
+
+    Returns:
+        The path of ``index.csv`` and the number of assemblies per status.
+    """
+    ws = Workspace(Path(workspace).resolve())
+    run_dir = ws.run_dir(run).resolve()
+    source = Run(run_id=run_dir.name, workspace=str(ws.root), run_dir=str(run_dir),
+                 epoch=workspace_epoch(ws))
+    models = model_digests({"relations": Path(relation_models or SHIPPED_RELATIONS),
+                            "completion": Path(completion_models or SHIPPED)})
+    limits = ingest_config(Settings(), None, DEFAULT_TOLERANCES).limits
+    index, summaries = export_stage(source, models, limits, out)
+    status: dict[str, int] = {}
+    for s in summaries:
+        status[s.status] = status.get(s.status, 0) + 1
+    get_run_logger().info("export: %d assemblies %s: %s", len(summaries), status, index)
+    return {"index": index, "assemblies": len(summaries), "status": status}

@@ -41,7 +41,8 @@ from cadio.capture.scan import (
     read_captures,
 )
 from cadio.catalog import CatalogRow, read_catalog, to_frame, write_catalog
-from cadio.contracts import CaptureSummary, MatesSummary, ScenesSummary
+from cadio.contracts import CaptureSummary, ExportSummary, MatesSummary, ScenesSummary
+from cadio.export.job import ExportJob, export_assemblies, run_jobs, write_index
 from cadio.sandbox import Limits
 from cadio.tolerances import Tolerances, write_tolerances
 from cadio.truth.assemblies import (
@@ -238,6 +239,13 @@ def relate_task(captures: list[str], workspace: str, relations_models: str,
                         Path(relations_models), Path(completion_models), Path(out))
 
 
+@task(name="export", **_RETRY)
+def export_task(jobs: list[ExportJob], limits: Limits) -> list[ExportSummary]:
+    """Sidecar JSON, XBF with notes and CadQuery script of a batch of assemblies, each in an
+    isolated worker (not cached: each run writes its own exports)."""
+    return list(export_assemblies(jobs, limits))
+
+
 # ---------------------------------------------------------------- stages: fan-out only
 
 
@@ -349,3 +357,16 @@ def relate_stage(captured: list[CaptureSummary], run: Run, relations_models: str
             [str(p) for p in b], run.workspace, relations_models, completion_models, str(out),
             name))
     return [f.result() for f in futures]
+
+
+
+def export_stage(run: Run, models: dict[str, str], limits: Limits, out: str | None = None,
+                 source_run: str | None = None) -> tuple[str, list[ExportSummary]]:
+    """Every assembly's predicted mates of a run (``source_run``'s folder, default this run's)
+    exported under its ``exports/<assembly>/`` (or ``out``), four assemblies per task; the path
+    of ``index.csv`` and the summaries."""
+    run_dir = Path(source_run or run.run_dir)
+    jobs = run_jobs(Path(run.workspace), run_dir, models, Path(out) if out else None)
+    futures = [export_task.submit(b, limits) for b in batches(jobs, 4)]
+    summaries = [s for f in futures for s in f.result()]
+    return str(write_index(Path(out) if out else run_dir / "exports", summaries)), summaries

@@ -24,6 +24,7 @@ import numpy as np
 import numpy.typing as npt
 import pandas as pd
 
+from cadio.truth.joints import predicted_joint
 from cadio.workspace import atomic_path, atomic_write
 from reports.tables import markdown_table
 
@@ -95,14 +96,6 @@ def assembly_frame(pairs: pd.DataFrame, product: tuple[str, str] = PRODUCT) -> p
                          "n_pred": int(g["predicted"].sum()), "precision": s["precision"],
                          "recall": s["recall"], "f1": s["f1"]})
     return pd.DataFrame(rows, columns=list(ASSEMBLY_COLUMNS))
-
-
-def predicted_joint(concentric: bool, coincident: bool) -> str:
-    """The joint two relations imply: a shaft in a bore that also rests on a face turns
-    (revolute), one that does not also slides (cylindrical), a face on a face is planar."""
-    if concentric:
-        return "revolute" if coincident else "cylindrical"
-    return "planar" if coincident else "none"
 
 
 def joint_frame(pairs: pd.DataFrame, joints: pd.DataFrame,

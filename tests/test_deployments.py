@@ -23,6 +23,7 @@ pytestmark = pytest.mark.server
 
 ROOT = Path(__file__).resolve().parents[1]
 RUN_FILES = ["report.html", "categories.csv", "junit.xml", "parts.parquet", "pairs.parquet",
+             "exports/index.csv",
              "completion_parts.parquet", "relations_summary.csv", "assembly_mates.csv",
              "tolerances.json", "summary.json"]
 
@@ -86,7 +87,7 @@ def test_the_deployments_are_applied_with_a_schedule_and_a_limit(
         if scheduled or time.monotonic() > deadline:
             break
         time.sleep(2)
-    assert {d.name for d in deployments} >= {"nightly", "ingest", "capture", "train"}
+    assert {d.name for d in deployments} >= {"nightly", "ingest", "capture", "export", "train"}
     assert nightly.global_concurrency_limit and nightly.global_concurrency_limit.limit == 1
     assert [s.schedule.cron for s in nightly.schedules] == ["0 2 * * *"]
     assert scheduled and all(r.state.name == "Scheduled" for r in scheduled)

@@ -66,7 +66,8 @@ def test_accuracy_table_sits_beside_the_paper() -> None:
 
 
 def test_joint_types_follow_the_predicted_concentric_and_coincident() -> None:
-    from reports.relations import joint_frame, predicted_joint
+    from cadio.truth.joints import predicted_joint
+    from reports.relations import joint_frame
 
     assert [predicted_joint(c, k) for c, k in [(True, True), (True, False), (False, True),
                                                (False, False)]] == [

@@ -24,9 +24,9 @@ import numpy as np
 from OCP.IFSelect import IFSelect_RetDone
 from OCP.Quantity import Quantity_Color, Quantity_TypeOfColor
 from OCP.STEPCAFControl import STEPCAFControl_Reader
-from OCP.TCollection import TCollection_ExtendedString
+from OCP.TCollection import TCollection_AsciiString, TCollection_ExtendedString
 from OCP.TDataStd import TDataStd_Name
-from OCP.TDF import TDF_Label, TDF_LabelSequence
+from OCP.TDF import TDF_Label, TDF_LabelSequence, TDF_Tool
 from OCP.TDocStd import TDocStd_Document
 from OCP.TopAbs import TopAbs_SOLID
 from OCP.TopExp import TopExp_Explorer
@@ -60,10 +60,17 @@ _OCCURRENCE_ID = re.compile(r"(NEXT_ASSEMBLY_USAGE_OCCURRENCE\(\s*)'\d+'")
 
 @dataclass(frozen=True)
 class StepSolid:
-    """One solid of a STEP file: its description and the OCP solid, located in the file frame."""
+    """One solid of a STEP file: its description and the OCP solid, located in the file frame.
+
+    item: the XDE assembly item holding it, as label entries from its root through each
+    component ("0:1:1:1", "0:1:1:1:2", ...); subshape: its 1-based index among the solids of
+    that item's shape when the shape holds several, else 0. Notes attach there.
+    """
 
     info: SolidInfo
     shape: TopoDS_Solid
+    item: tuple[str, ...] = ()
+    subshape: int = 0
 
 
 def sniff_step(path: Path) -> None:
@@ -100,21 +107,35 @@ def read_step(path: Path) -> list[StepSolid]:
     """
     path = Path(path)
     sniff_step(path)
-    doc = _transfer(path)
+    return step_solids(path, transfer_step(path))
+
+
+def step_solids(path: Path, doc: TDocStd_Document) -> list[StepSolid]:
+    """The solids of a document a STEP file was transferred into, in ``read_step`` order.
+
+    Raises:
+        StepReadError: the document holds no solid.
+    """
     shape_tool = XCAFDoc_DocumentTool.ShapeTool_s(doc.Main())
     colour_tool = XCAFDoc_DocumentTool.ColorTool_s(doc.Main())
     roots = TDF_LabelSequence()
     shape_tool.GetFreeShapes(roots)
     walker = _Walker(shape_tool, colour_tool)
     for i in range(1, roots.Length() + 1):
-        walker.walk(roots.Value(i), TopLoc_Location(), "")
+        walker.walk(roots.Value(i), TopLoc_Location(), "", item=(_entry(roots.Value(i)),))
     if not walker.solids:
         raise StepReadError(path, "the file holds no solid (only surfaces, curves or nothing)")
     return walker.solids
 
 
-def _transfer(path: Path) -> TDocStd_Document:
-    doc = TDocStd_Document(TCollection_ExtendedString("XmlOcaf"))
+def transfer_step(path: Path, doc: TDocStd_Document | None = None) -> TDocStd_Document:
+    """Transfer the STEP file into ``doc`` (a new plain document by default): names, colours,
+    assembly tree.
+
+    Raises:
+        StepReadError: OpenCascade cannot parse or transfer the file.
+    """
+    doc = doc if doc is not None else TDocStd_Document(TCollection_ExtendedString("XmlOcaf"))
     reader = STEPCAFControl_Reader()
     reader.SetColorMode(True)
     reader.SetNameMode(True)
@@ -134,7 +155,8 @@ class _Walker:
         self.colour_tool = colour_tool
         self.solids: list[StepSolid] = []
 
-    def walk(self, label: TDF_Label, loc: TopLoc_Location, path: str, colour: str = "") -> None:
+    def walk(self, label: TDF_Label, loc: TopLoc_Location, path: str, colour: str = "",
+             item: tuple[str, ...] = ()) -> None:
         name = _name(label)
         colour = _label_colour(label) or colour
         here = f"{path}/{name}" if path else name
@@ -147,14 +169,14 @@ class _Walker:
                 XCAFDoc_ShapeTool.GetReferredShape_s(comp, ref)
                 comp_loc = loc.Multiplied(XCAFDoc_ShapeTool.GetLocation_s(comp))
                 comp_colour = _label_colour(comp) or colour
-                self.walk(ref, comp_loc, f"{here}/{_name(comp)}", comp_colour)
+                self.walk(ref, comp_loc, f"{here}/{_name(comp)}", comp_colour,
+                          (*item, _entry(comp)))
             return
         shape = XCAFDoc_ShapeTool.GetShape_s(label)
-        self._add_solids(shape, loc, name, here, colour)
+        self._add_solids(shape, loc, name, here, colour, item)
 
-    def _add_solids(
-        self, shape: TopoDS_Shape, loc: TopLoc_Location, name: str, path: str, colour: str
-    ) -> None:
+    def _add_solids(self, shape: TopoDS_Shape, loc: TopLoc_Location, name: str, path: str,
+                    colour: str, item: tuple[str, ...]) -> None:
         explorer = TopExp_Explorer(shape, TopAbs_SOLID)
         solids = []
         while explorer.More():
@@ -168,7 +190,8 @@ class _Walker:
                 index=len(self.solids), name=label or f"solid{len(self.solids)}", colour=own,
                 placement=_matrix(loc), path_in_assembly=path,
             )
-            self.solids.append(StepSolid(info=info, shape=located))
+            self.solids.append(StepSolid(info=info, shape=located, item=item,
+                                         subshape=k + 1 if len(solids) > 1 else 0))
 
     def _shape_colour(self, shape: TopoDS_Shape) -> str:
         colour = Quantity_Color()
@@ -176,6 +199,12 @@ class _Walker:
             if self.colour_tool.GetColor(shape, kind, colour):
                 return _hex(colour)
         return ""
+
+
+def _entry(label: TDF_Label) -> str:
+    text = TCollection_AsciiString()
+    TDF_Tool.Entry_s(label, text)
+    return str(text.ToCString())
 
 
 def _name(label: TDF_Label) -> str:

@@ -73,6 +73,16 @@ CAD_NAMES: dict[str, dict[str, str]] = {
 }
 # Names of parts that CAD users fasten whatever the geometry allows (threads are not modelled).
 FASTENER_NAME = re.compile(r"bolt|screw|nut|washer|rivet|stud", re.IGNORECASE)
+NONE = "none"
+
+
+def predicted_joint(concentric: bool, coincident: bool) -> str:
+    """The joint two predicted relations imply: a shaft in a bore that also rests on a face
+    turns (revolute), one that does not also slides (cylindrical), a face on a face is planar.
+    The report scores it against the CAD's kinematic joint; the export writes it back."""
+    if concentric:
+        return REVOLUTE if coincident else CYLINDRICAL
+    return PLANAR if coincident else NONE
 
 
 @dataclass(frozen=True)
@@ -154,15 +164,23 @@ def classify_motion(
     Lengths are scaled by the spread of the contact points so that rotations (rad) and
     translations (mm) weigh alike in the SVD; the result is covariant under rigid motions.
     """
-    points = np.array([c.point for c in constraints], dtype=np.float64)
-    centre = points.mean(axis=0)
-    scale = max(1.0, float(np.max(np.linalg.norm(points - centre, axis=1))))
-    rows = np.vstack([_rows(c, centre, scale) for c in constraints])
+    rows, centre, scale = motion_equations(constraints)
     eps = math.sin(math.radians(tol.parallel_deg))
     _, s, vt = np.linalg.svd(rows)
     rank = int(np.sum(s > eps))
     null = vt[rank:].T  # (6, dof): columns (w * scale, v)
     return _name_motion(null, centre, scale, eps)
+
+
+def motion_equations(constraints: Sequence[Constraint]) -> tuple[FloatArray, FloatArray, float]:
+    """(rows, centre, scale): the linear equations the constraints set on a twist x = (w *
+    scale, v at ``centre``), one unit-scale row (6,) each; ``centre`` is the mean constraint
+    point and ``scale`` (mm, at least 1) their spread. The null space of ``rows`` is the
+    allowed motion."""
+    points = np.array([c.point for c in constraints], dtype=np.float64)
+    centre = points.mean(axis=0)
+    scale = max(1.0, float(np.max(np.linalg.norm(points - centre, axis=1))))
+    return np.vstack([_rows(c, centre, scale) for c in constraints]), centre, scale
 
 
 def _rows(c: Constraint, centre: FloatArray, scale: float) -> FloatArray:
