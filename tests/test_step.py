@@ -64,3 +64,23 @@ def test_an_assembly_written_twice_in_one_process_has_the_same_bytes(tmp_path: P
     write_step(assembly(), tmp_path / "second.step")
     assert (tmp_path / "first.step").read_bytes() == (tmp_path / "second.step").read_bytes()
     assert [s.info.name for s in read_step(tmp_path / "second.step")] == ["base", "pin"]
+
+
+def test_occurrence_ids_of_any_width_give_the_same_bytes(tmp_path: Path) -> None:
+    """A wider id from the process-wide counter moves OCCT's line break (near 80 columns);
+    the renumbered occurrence is written the same whatever the counter said."""
+    import re
+
+    import build123d as bd
+
+    from cadio.cad.step import _canonical_occurrences, write_step
+
+    a, b = bd.Box(10, 10, 2), bd.Pos(0, 0, 2) * bd.Cylinder(3, 6)
+    a.label, b.label = "base-plate-with-a-long-name", "pin"
+    write_step(bd.Compound(children=[a, b], label="pair"), tmp_path / "pair.step")
+    text = (tmp_path / "pair.step").read_text("latin-1")
+    assert len(re.findall(r"NEXT_ASSEMBLY_USAGE_OCCURRENCE\('\d'", text)) == 2
+    wide = re.sub(r"(NEXT_ASSEMBLY_USAGE_OCCURRENCE\()'(\d)'(.*?),\$\);",
+                  r"\1'12345678\2'\3,$\n  );", text)
+    assert wide != text
+    assert _canonical_occurrences(wide) == text

@@ -55,7 +55,7 @@ _STYLE_BLOCK = re.compile(r"^#(\d+) = MECHANICAL_DESIGN_GEOMETRIC_PRESENTATION_R
                           re.MULTILINE)
 _ENTITY = re.compile(r"#(\d+) = (.*?);\n", re.DOTALL)
 _REF = re.compile(r"#(\d+)")
-_OCCURRENCE_ID = re.compile(r"(NEXT_ASSEMBLY_USAGE_OCCURRENCE\(\s*)'\d+'")
+_OCCURRENCE = re.compile(r"NEXT_ASSEMBLY_USAGE_OCCURRENCE\(\s*'\d+'(.*?\);\n)", re.DOTALL)
 
 
 @dataclass(frozen=True)
@@ -306,7 +306,16 @@ def _canonical_occurrences(step: str) -> str:
     to them.
     """
     counter = iter(range(1, 1 << 30))
-    return _OCCURRENCE_ID.sub(lambda m: f"{m.group(1)}'{next(counter)}'", step)
+
+    def renumbered(m: re.Match[str]) -> str:
+        # OCCT wraps a line near 80 characters, so the old id's width moved the break: the
+        # entity is written on one line, the same whatever the counter said.
+        parts = m.group(1)[:-1].split("'")  # even items lie outside the quoted names
+        rest = "'".join(re.sub(r"\n\s*", "", p) if i % 2 == 0 else p
+                        for i, p in enumerate(parts)) + "\n"
+        return f"NEXT_ASSEMBLY_USAGE_OCCURRENCE('{next(counter)}'{rest}"
+
+    return _OCCURRENCE.sub(renumbered, step)
 
 
 def _style_blocks(tail: str) -> list[list[tuple[int, str]]] | None:
