@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import time
 from collections.abc import Iterator, Mapping, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from datetime import UTC, datetime
 from pathlib import Path
 
@@ -23,7 +23,13 @@ from cadio.catalog import read_catalog
 from cadio.contracts import ExportSummary
 from cadio.errors import ExportError
 from cadio.export.notes import write_xbf
-from cadio.export.predictions import FAILED, PREDICTED, AssemblyMates, assembly_mates
+from cadio.export.predictions import (
+    FAILED,
+    NO_PREDICTIONS,
+    PREDICTED,
+    AssemblyMates,
+    assembly_mates,
+)
 from cadio.export.script import mass_properties, write_script
 from cadio.export.sidecar import write_sidecar
 from cadio.sandbox import Job, Limits, run_isolated
@@ -58,6 +64,7 @@ class ExportJob:
     models: Mapping[str, str] = field(default_factory=dict)
     tolerances: Tolerances = DEFAULT_TOLERANCES
     reason: str = ""
+    captured: bool = True
 
 
 def file_names(assembly: str) -> dict[str, str]:
@@ -76,6 +83,7 @@ def export_jobs(catalog: pd.DataFrame, catalog_path: Path, mates_dir: Path,
     for source, rows in ok.groupby("source", sort=True):
         name = Path(str(source)).stem
         mates = mates_dir / f"{name}.parquet"
+        capture = mates_dir.parent / "captures" / f"{SCENE_PREFIX}{name}.mcap"
         jobs.append(ExportJob(
             assembly=name, category=str(rows["category"].iloc[0]), step=str(source),
             sha256=str(rows["source_sha256"].iloc[0]), catalog=str(catalog_path),
@@ -83,7 +91,8 @@ def export_jobs(catalog: pd.DataFrame, catalog_path: Path, mates_dir: Path,
             predictions=str(predictions) if predictions and predictions.is_file() else "",
             out=str(out / name), run_id=run_id, timestamp=timestamp, models=dict(models),
             tolerances=tol,
-            reason="" if mates.is_file() else "no CAD mates (the mates stage failed for it)"))
+            reason="" if mates.is_file() else "no CAD mates (the mates stage failed for it)",
+            captured=capture.is_file()))
     return jobs
 
 
@@ -143,10 +152,17 @@ def read_inputs(job: ExportJob) -> AssemblyMates:
         raise ExportError(job.step, "the run's catalog has no readable solid of this assembly")
     mates = (pd.read_parquet(job.mates) if job.mates else
              pd.DataFrame(columns=list(MATES_COLUMNS)))
-    reason = job.reason or ("" if job.predictions else "the run has no relation predictions")
-    return assembly_mates(job.assembly, job.category, job.step, job.sha256, rows, mates,
-                          _predictions(job), run_id=job.run_id, models=dict(job.models),
-                          tolerances=job.tolerances.as_dict(), reason=reason)
+    record = assembly_mates(job.assembly, job.category, job.step, job.sha256, rows, mates,
+                            _predictions(job), run_id=job.run_id, models=dict(job.models),
+                            tolerances=job.tolerances.as_dict(), reason=job.reason)
+    if record.status == NO_PREDICTIONS and not job.reason:
+        why = ("the run has no relation predictions" if not job.predictions else
+               "the assembly was not captured (see the run's stages report)"
+               if not job.captured else
+               "captured, but no view shows both parts of a labelled pair well enough to "
+               "relate them (occluded or too few points)")
+        record = replace(record, reason=why)
+    return record
 
 
 def export_assembly(job: ExportJob) -> ExportSummary:
