@@ -36,9 +36,9 @@ from cadio.cad.faces import (
     FacePrimitive,
     indexed_faces,
     recognise_faces,
-    surface_props,
 )
-from cadio.cad.tessellate import brep_mass
+from cadio.cad.integrate import PartIntegrals, part_integrals
+from cadio.cad.tessellate import MASS_PROPS_REL_EPS
 from cadio.errors import GeometryError
 from cadio.records import (
     AxisGroup,
@@ -67,7 +67,7 @@ _UV_WIDEN = 1e-6
 def extract_features(
     shape: TopoDS_Shape,
     tol: Tolerances = DEFAULT_TOLERANCES,
-    mass: tuple[float, FloatArray] | None = None,
+    integrals: PartIntegrals | None = None,
 ) -> Features:
     """Compute the geometric features of one part from its exact B-rep.
 
@@ -75,7 +75,8 @@ def extract_features(
         shape: a solid (or compound of solids), mm.
         tol: ``group_angle_deg`` groups planes, ``coaxial_deg``/``coaxial_mm`` group axes and
             ``freeform_fit_mm`` bounds the fit of freeform faces.
-        mass: ``brep_mass(shape)`` when the caller has it already (it is the costliest part).
+        integrals: ``part_integrals(shape, indexed_faces(shape), MASS_PROPS_REL_EPS)`` when
+            the caller has them already (they are the costliest part).
 
     Returns:
         Features: volume centroid and volume, total area, tight axis-aligned box, plane groups
@@ -89,10 +90,12 @@ def extract_features(
     faces = indexed_faces(shape)
     if not faces:
         raise GeometryError("features", "shape has no faces")
-    volume, centroid = mass if mass is not None else brep_mass(shape)
+    if integrals is None:
+        integrals = part_integrals(shape, faces, MASS_PROPS_REL_EPS)
+    volume, centroid = integrals.volume, integrals.centroid
     if volume == 0.0:
         raise GeometryError("features", "shape encloses no volume")
-    props = [surface_props(f) for f in faces]
+    props = list(integrals.face_props)
     prims = recognise_faces(faces, tol, props)
     planes = group_planes([p for p in prims if p.kind == PLANE], tol.group_angle_deg)
     axes = group_axes([p for p in prims if p.kind != PLANE], tol.coaxial_deg, tol.coaxial_mm)

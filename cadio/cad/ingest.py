@@ -31,7 +31,9 @@ from cadio.workspace import Workspace, write_features, write_mesh, write_voxels
 
 if TYPE_CHECKING:
     import pandas as pd
+    from OCP.TopoDS import TopoDS_Shape
 
+    from cadio.cad.integrate import PartIntegrals
     from cadio.cad.step import StepSolid
 
 log = logging.getLogger(__name__)
@@ -300,42 +302,47 @@ def process_file(job: IngestJob) -> list[CatalogRow]:
     Raises:
         StepReadError: the file cannot be read into solids.
     """
+    from cadio.cad.integrate import InstanceIntegrals
     from cadio.cad.step import read_step
+    from cadio.cad.tessellate import MASS_PROPS_REL_EPS
 
     path = Path(job.path)
     solids = read_step(path)
     base = CatalogRow(category=job.category, source=str(path), source_sha256=job.sha256,
                       n_solids=len(solids), config_key=job.config_key)
-    return [_process_solid(solid, base, job) for solid in solids]
+    integrals = InstanceIntegrals(MASS_PROPS_REL_EPS)
+    return [_process_solid(solid, base, job, integrals) for solid in solids]
 
 
-def _process_solid(solid: StepSolid, base: CatalogRow, job: IngestJob) -> CatalogRow:
+def _process_solid(solid: StepSolid, base: CatalogRow, job: IngestJob,
+                   integrate: Callable[[TopoDS_Shape], PartIntegrals]) -> CatalogRow:
     start = time.perf_counter()
     info = solid.info
     row = replace(base, part_id=part_id(job.sha256, info.index), solid_index=info.index,
                   name=info.name, colour=info.colour, path_in_assembly=info.path_in_assembly,
                   placement=tuple(info.placement.ravel().tolist()))
     try:
-        row = _geometry(solid, row, job)
+        row = _geometry(solid, row, job, integrate)
     except Exception as exc:  # an OCCT failure on one solid must not lose the file's others
         row = replace(row, error=f"solid {info.index} ({info.name}): {type(exc).__name__}: {exc}")
     return replace(row, seconds=time.perf_counter() - start)
 
 
-def _geometry(solid: StepSolid, row: CatalogRow, job: IngestJob) -> CatalogRow:
+def _geometry(solid: StepSolid, row: CatalogRow, job: IngestJob,
+              integrate: Callable[[TopoDS_Shape], PartIntegrals]) -> CatalogRow:
     """Mesh, features and voxels of one solid written to the workspace; the row, ok."""
     from cadio.cad.features import extract_features
-    from cadio.cad.tessellate import brep_mass, mesh_volume, tessellate
+    from cadio.cad.tessellate import mesh_volume, tessellate
     from cadio.cad.voxels import voxelize_sizes
 
     tol, ws, pid = job.tolerances, Workspace(Path(job.workspace)), row.part_id
-    mass = brep_mass(solid.shape)
-    volume = mass[0]
+    integrals = integrate(solid.shape)
+    volume = integrals.volume
     if volume <= 0:
         reason = f"non-positive B-rep volume {volume:.3g} mm^3 (open or inverted shell)"
         raise GeometryError("solid", reason)
     mesh = tessellate(solid.shape, tol)
-    features = extract_features(solid.shape, tol, mass)
+    features = extract_features(solid.shape, tol, integrals)
     write_mesh(ws.mesh(pid), mesh)
     write_features(ws.features(pid), features)
     grids = voxelize_sizes(mesh, job.voxel_sizes, margin=tol.grid_margin)

@@ -188,7 +188,7 @@ class _Walker:
             located = TopoDS.Solid_s(solid.Moved(loc))
             info = SolidInfo(
                 index=len(self.solids), name=label or f"solid{len(self.solids)}", colour=own,
-                placement=_matrix(loc), path_in_assembly=path,
+                placement=location_matrix(loc), path_in_assembly=path,
             )
             self.solids.append(StepSolid(info=info, shape=located, item=item,
                                          subshape=k + 1 if len(solids) > 1 else 0))
@@ -227,7 +227,8 @@ def _hex(colour: Quantity_Color) -> str:
     return "#" + "".join(f"{round(min(max(c, 0.0), 1.0) * 255):02x}" for c in (r, g, b))
 
 
-def _matrix(loc: TopLoc_Location) -> np.ndarray:
+def location_matrix(loc: TopLoc_Location) -> np.ndarray:
+    """The 4 x 4 matrix of a location (its rotation may carry a scale factor)."""
     trsf = loc.Transformation()
     m = np.eye(4)
     for i in range(3):
