@@ -10,7 +10,9 @@ the same exact geometry in one pass, with NumPy:
   derivatives, vectorised over all quadrature points);
 * the trimmed parameter domain is handled with Green's theorem, as OpenCascade does: the
   double integral of g over the domain is the boundary integral of G dv, G(u, v) being the
-  integral of g from the first u parameter to u. The outer integral runs along every edge's
+  integral of g from the first u parameter to u (inner along u, as OpenCascade's: where a
+  curve on the face strays from its 3D edge within tolerance, both see the same domain; the
+  other way round a real face differed by 9e-6). The outer integral runs along every edge's
   curve on the face, split at its knots and where it crosses a v knot; the inner one is split
   at the u knots; each piece takes a Gauss-Legendre rule;
 * the result is accepted when a pass with every piece halved agrees with the one before
@@ -98,9 +100,6 @@ class _Nurbs:
         self.tv = _array(s.VKnotSequence())
         self.u_knots, self.v_knots = np.unique(u_knots), np.unique(v_knots)
         self.u_period, self.v_period, self.u_lo, self.v_lo = u_period, v_period, u0, v0
-        # The inner integral runs along u, as OpenCascade's does: where a curve on the face
-        # strays from the 3D edge within its tolerance, both then see the same domain.
-        self.swapped = False
         self.hom = hom
 
     def breaks(self, inner: bool, lo: float, hi: float) -> FloatArray:
@@ -197,13 +196,13 @@ def _boundary(face: TopoDS_Face, nurbs: _Nurbs, pieces: int
         a, b = curve.FirstParameter(), curve.LastParameter()
         if not (np.isfinite(a) and np.isfinite(b)) or b <= a:
             return None
-        breaks = _edge_breaks(curve, a, b, nurbs, nurbs.swapped)
+        breaks = _edge_breaks(curve, a, b, nurbs)
         ts, tw = _pieces(breaks, pieces)
         pts = np.empty((len(ts), 3))
         p, d = gp_Pnt2d(), gp_Vec2d()
         for k, t in enumerate(ts):
             curve.D1(float(t), p, d)
-            pts[k] = (p.Y(), p.X(), d.X()) if nurbs.swapped else (p.X(), p.Y(), d.Y())
+            pts[k] = (p.X(), p.Y(), d.Y())
         direction = -1.0 if edge.Orientation() == TopAbs_REVERSED else 1.0
         us.append(pts[:, 0])
         vs.append(pts[:, 1])
@@ -214,7 +213,7 @@ def _boundary(face: TopoDS_Face, nurbs: _Nurbs, pieces: int
 
 
 def _edge_breaks(curve: BRepAdaptor_Curve2d, a: float, b: float, nurbs: _Nurbs,
-                 swapped: bool) -> FloatArray:
+                 ) -> FloatArray:
     """Where the outer integrand may lose smoothness: the curve's knots and its v-knot
     crossings (found on a sampling, refined by bisection)."""
     breaks = [a, b]
@@ -223,7 +222,7 @@ def _edge_breaks(curve: BRepAdaptor_Curve2d, a: float, b: float, nurbs: _Nurbs,
         breaks += [k for k in knots if a < k < b]
     def outer(t: float) -> float:
         point = curve.Value(t)
-        return float(point.X() if swapped else point.Y())
+        return float(point.Y())
 
     ts = np.linspace(a, b, 33)
     vv = np.array([outer(float(t)) for t in ts])
@@ -362,8 +361,7 @@ def face_integrals(face: TopoDS_Face, origin: FloatArray | None = None) -> Float
     if adaptor.GetType() != GeomAbs_BSplineSurface:
         return None
     nurbs = _Nurbs(adaptor.BSpline(), np.zeros(3) if origin is None else np.asarray(origin))
-    sign = (-1.0 if face.Orientation() == TopAbs_REVERSED else 1.0) * (
-        -1.0 if nurbs.swapped else 1.0)
+    sign = -1.0 if face.Orientation() == TopAbs_REVERSED else 1.0
     pieces = _PIECES
     previous = _once(face, nurbs, sign, pieces)
     for _ in range(_LEVELS):
