@@ -3,11 +3,18 @@
 The completion models and the IoU metric of the paper work on n^3 occupancy grids (64^3 in,
 256^3 out). A part's truth grid is a cube centred on its bounding box and never stretched (see
 ``VoxelGrid``); partial views of the same part are binned onto that same grid with
-``points_to_grid`` so the two compare voxel for voxel. Occupancy is decided by ray parity with
-open3d's ``RaycastingScene.compute_occupancy`` (fast, and tolerant of tiny mesh holes), in
-slabs so a 256^3 grid never holds all 16.7 M query points at once. Most of a cube around a
-part is empty: voxels whose ray provably passes beside the mesh's box are not asked (see
-``_rays_may_hit_box``), and all sizes of one mesh share one scene, so its BVH is built once.
+``points_to_grid`` so the two compare voxel for voxel.
+
+Occupancy is decided by ray parity. A grid's voxel centres lie on n^2 lines along each grid
+axis, so one ray per line (open3d's ``list_intersections``) decides a whole column: a centre
+is inside when an odd number of the line's crossings lie before it. Each voxel is decided from
+the lines of two axes; where they disagree, or a line is not clean (an odd count of crossings,
+a crossing on a triangle's edge or grazing it, a centre on the surface), the voxel is asked of
+open3d's ``RaycastingScene.compute_occupancy`` at its own centre, as every voxel once was.
+On a closed mesh the answer is the same, at about a twentieth of the cost; on a mesh with holes
+it errs less than one ray per voxel does (a line through a hole is unsure, or outvoted).
+Voxels whose ray provably passes beside the mesh's box are outside (see ``_rays_may_hit_box``),
+and all sizes of one mesh share one scene, so its BVH is built once.
 """
 
 from __future__ import annotations
@@ -37,6 +44,12 @@ OCCUPANCY_RAYS = 1
 # mesh's box for every direction in this wider range crosses no triangle: it is outside.
 # tests/test_voxels.py checks the shortcut against asking open3d for every voxel.
 _RAY_DIRECTION_RANGE = (0.998, 1.002)
+# A line's crossing this close to a triangle's edge (barycentric), or at this cosine or less
+# between the line and the triangle's normal, makes the line's parity unsure; so does a
+# crossing this close (in voxels) to a voxel's centre for that voxel.
+_EDGE_EPS = 1e-4
+_GRAZING_COS = 1e-4
+_ON_SURFACE_EPS = 1e-3
 # The mesh's box is padded by this fraction of its size (plus float32 rounding) for that test.
 _RAY_BOX_PAD = 1e-3
 
@@ -166,6 +179,8 @@ class _MeshScene:
         if len(mesh.triangles) == 0:
             raise GeometryError("voxelize", "mesh has no triangles")
         self.lo, self.hi = mesh.vertices.min(axis=0), mesh.vertices.max(axis=0)
+        # float64 corners of each triangle: the grazing test of the lines' crossings
+        self.triangles = np.asarray(mesh.vertices, dtype=np.float64)[mesh.triangles]
         self.scene = o3d.t.geometry.RaycastingScene()
         self.scene.add_triangles(
             o3d.core.Tensor.from_numpy(np.ascontiguousarray(mesh.vertices, dtype=np.float32)),
@@ -173,58 +188,106 @@ class _MeshScene:
         )
 
     def occupancy(self, grid_to_part: FloatArray, n: int) -> BoolArray:
-        """(n, n, n) occupancy of the voxel centres, asked slab by slab, skipping sure misses."""
-        occupancy = np.zeros((n, n, n), dtype=bool)
-        slab = max(1, CHUNK_POINTS // (n * n))
-        for start in range(0, n, slab):
-            stop = min(n, start + slab)
-            i, j, k = np.nonzero(_rays_may_hit_box(grid_to_part, n, (start, stop),
-                                                   self.lo, self.hi))
-            if len(i) == 0:
-                continue
-            points = _centres(grid_to_part, i + start, j, k)  # only the voxels asked
+        """(n, n, n) occupancy of the voxel centres: by the parity along the lines of two grid
+        axes where both are sure and agree, by open3d at the centre elsewhere (see the module
+        doc); sure misses of the box are not asked."""
+        inside_i, sure_i = self._line_parity(grid_to_part, n, 0)
+        inside_j, sure_j = self._line_parity(grid_to_part, n, 1)
+        sure = sure_i & sure_j & (inside_i == inside_j)
+        occupancy: BoolArray = np.ascontiguousarray(inside_i & sure)
+        del inside_j, sure_i, sure_j
+        i, j, k = np.nonzero(~sure)
+        ask = _rays_may_hit_box(grid_to_part, (i, j, k), self.lo, self.hi)
+        i, j, k = i[ask], j[ask], k[ask]
+        for start in range(0, len(i), CHUNK_POINTS):
+            at = slice(start, start + CHUNK_POINTS)
+            points = _centres(grid_to_part, i[at], j[at], k[at])  # only the voxels asked
             inside = self.scene.compute_occupancy(o3d.core.Tensor.from_numpy(points),
                                                   nsamples=OCCUPANCY_RAYS)
-            occupancy[i + start, j, k] = inside.numpy().astype(bool)
+            occupancy[i[at], j[at], k[at]] = inside.numpy().astype(bool)
         return occupancy
 
+    def _line_parity(self, grid_to_part: FloatArray, n: int, axis: int
+                     ) -> tuple[BoolArray, BoolArray]:
+        """Occupancy by crossing parity along the grid lines of one axis, and where it is sure.
 
-def _rays_may_hit_box(
-    grid_to_part: FloatArray, n: int, slab: tuple[int, int], lo: FloatArray, hi: FloatArray
-) -> BoolArray:
-    """Whether the occupancy ray of each voxel centre may meet the (padded) box [lo, hi].
+        One ray per line, from well before the mesh's box, with the grid's step along
+        ``axis`` as direction, so a crossing's t minus the start's offset is its position in
+        voxel indices. A line is unsure when its crossings are odd in number, or one is within
+        ``_EDGE_EPS`` of a triangle's edge (barycentric) or grazes its triangle; a voxel is
+        unsure when a crossing lies within ``_ON_SURFACE_EPS`` voxels of its centre.
+
+        Returns:
+            (inside, sure), each (n, n, n) bool indexed (i, j, k).
+        """
+        others = [b for b in range(3) if b != axis]
+        step = grid_to_part[:3, axis]
+        a, b = np.meshgrid(np.arange(n, dtype=np.float64), np.arange(n, dtype=np.float64),
+                           indexing="ij")
+        starts = (grid_to_part[:3, 3] + a[..., None] * grid_to_part[:3, others[0]]
+                  + b[..., None] * grid_to_part[:3, others[1]]).reshape(-1, 3)
+        centre, reach = (self.lo + self.hi) / 2.0, float(np.linalg.norm(self.hi - self.lo))
+        length = float(np.linalg.norm(step))
+        offset = float(np.ceil((np.linalg.norm(starts - centre, axis=1).max() + reach)
+                               / length)) + 1.0
+        rays = np.empty((n * n, 6), dtype=np.float32)
+        rays[:, :3] = starts - offset * step
+        rays[:, 3:] = step
+        hits = self.scene.list_intersections(o3d.core.Tensor.from_numpy(rays))
+        line = hits["ray_ids"].numpy().astype(np.int64)
+        pos = hits["t_hit"].numpy().astype(np.float64) - offset
+        uv = hits["primitive_uvs"].numpy()
+        triangles = self.triangles[hits["primitive_ids"].numpy().astype(np.int64)]
+        normals = np.cross(triangles[:, 1] - triangles[:, 0], triangles[:, 2] - triangles[:, 0])
+        cosine = np.abs(normals @ step) / (np.linalg.norm(normals, axis=1) * length + 1e-300)
+        edge = np.minimum(np.minimum(uv[:, 0], uv[:, 1]), 1.0 - uv[:, 0] - uv[:, 1])
+        bad = np.bincount(line, minlength=n * n) % 2 == 1
+        bad[line[(edge < _EDGE_EPS) | (cosine < _GRAZING_COS)]] = True
+        # Each crossing flips the voxels after it: the parity is the running xor of the flips,
+        # row after row of (index along the axis, line) (numpy's accumulate along the first
+        # axis is 40x slower than this loop of n vector xors).
+        inside = np.zeros((n + 1, n * n), dtype=bool)
+        np.logical_xor.at(inside, (np.clip(np.floor(pos) + 1, 0, n).astype(np.int64), line),
+                          True)
+        for row in range(1, n):
+            np.logical_xor(inside[row - 1], inside[row], out=inside[row])
+        inside = inside[:n]
+        sure = np.repeat(~bad[None, :], n, axis=0)
+        nearest = np.rint(pos)
+        close = (np.abs(pos - nearest) < _ON_SURFACE_EPS) & (nearest >= 0) & (nearest < n)
+        sure[nearest[close].astype(np.int64), line[close]] = False
+        # (along axis, line a, line b) -> (i, j, k)
+        return (np.moveaxis(inside.reshape(n, n, n), 0, axis),
+                np.moveaxis(sure.reshape(n, n, n), 0, axis))
+
+
+def _rays_may_hit_box(grid_to_part: FloatArray, ijk: tuple[npt.NDArray[np.int64], ...],
+                      lo: FloatArray, hi: FloatArray) -> BoolArray:
+    """Whether the occupancy ray of each voxel centre asked may meet the (padded) box [lo, hi].
 
     The ray p + t d (t >= 0, every d_i in ``_RAY_DIRECTION_RANGE``) is inside the box on axis
     i for t in [(lo_i - p_i) / d_i, (hi_i - p_i) / d_i]; it surely misses when the latest entry
     (at t >= 0) comes after the earliest exit whatever d is, which covers a start beyond the
-    box on some axis (a negative exit). Each coordinate of the centres is a sum of one term per
-    grid index, so it is built by broadcasting, and stays (slab, 1, 1)-small along indices that
-    do not move it.
+    box on some axis (a negative exit).
 
     Args:
         grid_to_part: (4, 4) the grid's transform, mm.
-        n: voxels along each axis.
-        slab: (start, stop) of the x indices asked.
+        ijk: the voxels' indices i, j, k (arrays of one shape).
         lo, hi: (3,) the box, mm.
 
     Returns:
-        (stop - start, n, n) bool.
+        bool, of the indices' shape.
     """
     d_min, d_max = _RAY_DIRECTION_RANGE
     # The pad also covers the float32 rounding of the centres open3d is given.
     pad = _RAY_BOX_PAD * float(np.max(hi - lo)) + 1e-6 * float(np.max(np.abs([lo, hi])))
-    ijk = (np.arange(*slab, dtype=np.float64)[:, None, None],
-           np.arange(n, dtype=np.float64)[None, :, None],
-           np.arange(n, dtype=np.float64)[None, None, :])
     entry: FloatArray | float = 0.0
     exit_: FloatArray | float = np.inf
     for c in range(3):
-        coord = grid_to_part[c, 3] + sum(ijk[a] * grid_to_part[c, a] for a in range(3)
-                                         if grid_to_part[c, a] != 0.0)
+        coord = grid_to_part[c, 3] + sum(ijk[a] * grid_to_part[c, a] for a in range(3))
         entry = np.maximum(entry, lo[c] - pad - coord)
         exit_ = np.minimum(exit_, hi[c] + pad - coord)
-    may_hit = np.asarray(entry) * (d_min / d_max) <= np.asarray(exit_)
-    return np.broadcast_to(may_hit, (slab[1] - slab[0], n, n))
+    return np.asarray(np.asarray(entry) * (d_min / d_max) <= np.asarray(exit_))
 
 
 def points_to_grid(points: FloatArray, grid_to_part: FloatArray, n: int) -> BoolArray:
