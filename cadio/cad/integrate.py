@@ -101,6 +101,7 @@ class _Nurbs:
         self.u_knots, self.v_knots = np.unique(u_knots), np.unique(v_knots)
         self.u_period, self.v_period, self.u_lo, self.v_lo = u_period, v_period, u0, v0
         self.hom = hom
+        self.row_size = nu  # values per row of ``rows`` (memory of the inner chunks)
 
     def breaks(self, inner: bool, lo: float, hi: float) -> FloatArray:
         """The knots of one direction (u if ``inner``), repeated over [lo, hi] if periodic."""
@@ -111,21 +112,29 @@ class _Nurbs:
         k0, k1 = int(np.floor((lo - first) / period)), int(np.ceil((hi - first) / period))
         return np.unique(np.concatenate([knots + k * period for k in range(k0, k1 + 1)]))
 
-    def derivatives(self, u: FloatArray, v: FloatArray) -> tuple[FloatArray, FloatArray,
-                                                                    FloatArray]:
-        """S, S_u, S_v at the points (u[k], v[k]), each (n, 3)."""
-        if self.u_period:
-            u = self.u_lo + np.mod(u - self.u_lo, self.u_period)
+    def rows(self, v: FloatArray) -> tuple[FloatArray, FloatArray]:
+        """The surface's u-curves at each v: their homogeneous poles and those poles'
+        derivatives in v, each (len(v), u poles, 4). A tensor-product surface is a curve in u
+        at fixed v, so every point of one inner integral (all at one v) evaluates from one row.
+        """
         if self.v_period:
             v = self.v_lo + np.mod(v - self.v_lo, self.v_period)
-        su, nu, dnu = _basis(self.tu, self.p, self.hom.shape[0], u)
         sv, nv, dnv = _basis(self.tv, self.q, self.hom.shape[1], v)
-        iu = su[:, None] - self.p + np.arange(self.p + 1)
         iv = sv[:, None] - self.q + np.arange(self.q + 1)
-        block = self.hom[iu[:, :, None], iv[:, None, :]]  # (n, p+1, q+1, 4)
-        a = np.einsum("na,nb,nabk->nk", nu, nv, block)
-        au = np.einsum("na,nb,nabk->nk", dnu, nv, block)
-        av = np.einsum("na,nb,nabk->nk", nu, dnv, block)
+        block = self.hom[:, iv]  # (u poles, m, q+1, 4)
+        return (np.einsum("mb,ambk->mak", nv, block), np.einsum("mb,ambk->mak", dnv, block))
+
+    def along_rows(self, u: FloatArray, row: Any, poles: FloatArray, dpoles: FloatArray
+                   ) -> tuple[FloatArray, FloatArray, FloatArray]:
+        """S, S_u, S_v at the points (u[k], v of row[k]), each (n, 3), from ``rows``."""
+        if self.u_period:
+            u = self.u_lo + np.mod(u - self.u_lo, self.u_period)
+        su, nu, dnu = _basis(self.tu, self.p, self.hom.shape[0], u)
+        iu = su[:, None] - self.p + np.arange(self.p + 1)
+        q = poles[row[:, None], iu]  # (n, p+1, 4)
+        a = np.einsum("na,nak->nk", nu, q)
+        au = np.einsum("na,nak->nk", dnu, q)
+        av = np.einsum("na,nak->nk", nu, dpoles[row[:, None], iu])
         w = a[:, 3:]
         s = a[:, :3] / w
         return s, (au[:, :3] - s * au[:, 3:]) / w, (av[:, :3] - s * av[:, 3:]) / w
@@ -168,14 +177,15 @@ def _basis(t: FloatArray, p: int, n_poles: int, x: FloatArray
     return span, n, d
 
 
-def _integrand(nurbs: _Nurbs, u: FloatArray, v: FloatArray, sign: float) -> FloatArray:
-    """The eight integrands at (u, v), (n, 8), per unit du dv, points relative to
-    ``nurbs.origin``."""
-    s, su, sv = nurbs.derivatives(u, v)
+def _integrand(nurbs: _Nurbs, evaluated: tuple[FloatArray, FloatArray, FloatArray],
+               sign: float) -> FloatArray:
+    """The eight integrands at evaluated points (S, S_u, S_v), (n, 8), per unit du dv, points
+    relative to ``nurbs.origin``."""
+    s, su, sv = evaluated
     s = s - nurbs.origin
     normal = sign * np.cross(su, sv)
     jac = np.linalg.norm(normal, axis=1)
-    out = np.empty((len(u), 8))
+    out = np.empty((len(s), 8))
     out[:, AREA] = jac
     out[:, AREA_MOMENT] = s * jac[:, None]
     height = np.einsum("nk,nk->n", s, normal)
@@ -276,13 +286,18 @@ def _inner(nurbs: _Nurbs, u: FloatArray, v: FloatArray, sign: float, pieces: int
     half = 0.5 * (hi_a - lo_a)
     s = (lo_a[:, None] + half[:, None] * (1.0 + _GX)).ravel()
     w = (half[:, None] * _GW).ravel()
-    owner = np.repeat(row, _GAUSS)
+    owner = np.repeat(row, _GAUSS)  # ascending: np.nonzero walks row by row
     out = np.zeros((len(u), 8))
-    for c in range(0, len(s), _CHUNK):
-        sl = slice(c, c + _CHUNK)
-        vals = _integrand(nurbs, s[sl], v[owner[sl]], sign) * w[sl, None]
+    # outer points a chunk at a time: their rows (~u poles x 4 KB each), then their inner points
+    step = max(1, _CHUNK // (8 * nurbs.row_size))
+    for first in range(0, len(u), step):
+        last = min(len(u), first + step)
+        at = slice(*np.searchsorted(owner, [first, last]))
+        poles, dpoles = nurbs.rows(v[first:last])
+        local = owner[at] - first
+        vals = _integrand(nurbs, nurbs.along_rows(s[at], local, poles, dpoles), sign) * w[at, None]
         for k in range(8):
-            out[:, k] += np.bincount(owner[sl], vals[:, k], minlength=len(u))
+            out[first:last, k] += np.bincount(local, vals[:, k], minlength=last - first)
     return out
 
 
@@ -311,7 +326,9 @@ def _integrate_u(nurbs: _Nurbs, lo: FloatArray, hi: FloatArray, v0: float, sign:
     half = 0.5 * (b - a)
     x = (a[:, None] + half[:, None] * (1.0 + _GX)).ravel()
     w = (half[:, None] * _GW).ravel()
-    vals = _integrand(nurbs, x, np.full(len(x), v0), sign) * w[:, None]
+    poles, dpoles = nurbs.rows(np.array([v0]))
+    evaluated = nurbs.along_rows(x, np.zeros(len(x), dtype=np.int64), poles, dpoles)
+    vals = _integrand(nurbs, evaluated, sign) * w[:, None]
     out: FloatArray = vals.reshape(n, pieces * _GAUSS, 8).sum(axis=1)
     return out
 
