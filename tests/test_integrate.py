@@ -92,6 +92,39 @@ def test_a_plane_face_volume_terms_follow_from_its_area_moments() -> None:
                            cone.Mass() * (np.array([c.X(), c.Y(), c.Z()]) - origin), atol=1e-8)
 
 
+@pytest.mark.parametrize("build", [
+    # a tube, tilted and moved: its outer face points away from the axis, its bore towards it
+    lambda: bd.Pos(30, -5, 12) * bd.Rot(25, -40, 10) * (bd.Cylinder(6, 14) - bd.Cylinder(2.5, 14)),
+    # a half ball with a spherical cavity (a sphere face turned inwards) off its centre
+    lambda: bd.Pos(-7, 3, 20) * ((bd.Sphere(9) - bd.Sphere(3))
+                                 & bd.Pos(0, 0, 5) * bd.Box(30, 30, 20)),
+])
+def test_cylinder_and_sphere_volume_terms_follow_from_their_area_moments(  # type: ignore[no-untyped-def]
+        build) -> None:
+    """Cylinders and spheres skip OpenCascade's volume integration too: their cone terms come
+    from the area, centroid and inertia matrix, on faces of either orientation."""
+    from OCP.BRepGProp import BRepGProp_Domain, BRepGProp_Face, BRepGProp_Vinert
+    from OCP.gp import gp_Pnt
+
+    shape = build().wrapped
+    origin = _vertex_mean(shape) + np.array([1.5, -2.0, 0.7])
+    for face in indexed_faces(shape):
+        terms = _occt_terms(face, origin, MASS_PROPS_REL_EPS)
+        cone = BRepGProp_Vinert()
+        cone.SetLocation(gp_Pnt(*origin))
+        cone.Perform(BRepGProp_Face(face, True), BRepGProp_Domain(face), MASS_PROPS_REL_EPS)
+        c = cone.CentreOfMass()
+        scale = terms[AREA] * 40.0  # area times the reach of these parts, mm^3
+        assert abs(terms[VOLUME] - cone.Mass()) < 1e-8 * scale
+        assert np.allclose(terms[VOLUME_MOMENT],
+                           cone.Mass() * (np.array([c.X(), c.Y(), c.Z()]) - origin),
+                           atol=1e-8 * scale * 40.0)
+    volume, centroid = brep_mass(shape)
+    integrals = part_integrals(shape, indexed_faces(shape), MASS_PROPS_REL_EPS)
+    assert integrals.volume == pytest.approx(volume, rel=1e-9)
+    assert np.allclose(integrals.centroid, centroid, atol=1e-8)
+
+
 @pytest.mark.shared
 @pytest.mark.parametrize("name", ["abc_00001511.step", "abc_00003487.step"])
 def test_real_parts_with_many_span_faces(shared_step_dir: Path, name: str) -> None:

@@ -37,7 +37,13 @@ from OCP.BRep import BRep_Tool
 from OCP.BRepAdaptor import BRepAdaptor_Curve2d
 from OCP.BRepGProp import BRepGProp, BRepGProp_Domain, BRepGProp_Face, BRepGProp_Vinert
 from OCP.Geom import Geom_BSplineSurface
-from OCP.GeomAbs import GeomAbs_BSplineCurve, GeomAbs_BSplineSurface, GeomAbs_Plane
+from OCP.GeomAbs import (
+    GeomAbs_BSplineCurve,
+    GeomAbs_BSplineSurface,
+    GeomAbs_Cylinder,
+    GeomAbs_Plane,
+    GeomAbs_Sphere,
+)
 from OCP.GeomAdaptor import GeomAdaptor_Surface
 from OCP.gp import gp_Pnt, gp_Pnt2d, gp_Vec2d
 from OCP.GProp import GProp_GProps
@@ -462,7 +468,8 @@ def part_integrals(shape: TopoDS_Shape, faces: Sequence[TopoDS_Face], eps: float
     where it declines); the others through OpenCascade's adaptive rule with relative
     ``eps``, for the area (``BRepGProp.SurfaceProperties``) and the volume term
     (``BRepGProp_Vinert`` about the mean of the vertices, as ``BRepGProp.VolumeProperties``
-    does), except that a plane's volume terms follow from its area moments.
+    does), except that the volume terms of a plane, cylinder or sphere follow from its area,
+    centroid and (for the last two) inertia matrix.
 
     Args:
         shape: a solid (or compound of solids), mm.
@@ -518,6 +525,9 @@ def _occt_terms(face: TopoDS_Face, origin: FloatArray, eps: float) -> FloatArray
         out[VOLUME] = height * area / 3.0
         out[VOLUME_MOMENT] = height * area * rel / 4.0
         return out
+    if surface.GetType() in (GeomAbs_Cylinder, GeomAbs_Sphere):
+        _round_volume_terms(surface, face, sprops, origin, out)
+        return out
     vprops = BRepGProp_Vinert()
     vprops.SetLocation(gp_Pnt(*origin))
     bface = BRepGProp_Face(face, True)
@@ -530,6 +540,45 @@ def _occt_terms(face: TopoDS_Face, origin: FloatArray, eps: float) -> FloatArray
     out[VOLUME] = mass
     out[VOLUME_MOMENT] = mass * (np.array([vc.X(), vc.Y(), vc.Z()]) - origin)
     return out
+
+
+def _round_volume_terms(surface: GeomAdaptor_Surface, face: TopoDS_Face, sprops: GProp_GProps,
+                        origin: FloatArray, out: FloatArray) -> None:
+    """A cylinder's or sphere's volume terms from its area, centroid and inertia matrix.
+
+    The face's normal is n = sigma P (S - O) / R, P projecting out the axis (the identity for a
+    sphere, O its centre), sigma = +1 where it points away from the axis. With d = P (O - o)
+    (o the origin), (S - o) . n = sigma (R^2 + d . (S - O)) / R, so the cone from o over the face
+    has volume sigma A (R^2 + d . (c - O)) / (3 R) and first moment
+    sigma (R^2 A (c - o) + (C + A (c - o)(c - O)^T) d) / (4 R), where A, c and C are the face's
+    area, centroid and second central moments (C = tr(I) / 2 - I from its inertia matrix I).
+    """
+    if surface.GetType() == GeomAbs_Cylinder:
+        cylinder = surface.Cylinder()
+        radius, pos = cylinder.Radius(), cylinder.Position()
+        axis = _xyz(pos.Direction())
+        project = np.eye(3) - np.outer(axis, axis)
+    else:
+        sphere = surface.Sphere()
+        radius, pos = sphere.Radius(), sphere.Position()
+        project = np.eye(3)
+    centre = _xyz(pos.Location())
+    # The natural normal S_u x S_v points away from the axis on a right-handed position.
+    sigma = 1.0 if np.cross(_xyz(pos.XDirection()), _xyz(pos.YDirection())) @ \
+        _xyz(pos.Direction()) > 0 else -1.0
+    if face.Orientation() == TopAbs_REVERSED:
+        sigma = -sigma
+    area = sprops.Mass()
+    c = sprops.CentreOfMass()
+    c = np.array([c.X(), c.Y(), c.Z()])
+    m = sprops.MatrixOfInertia()
+    inertia = np.array([[m.Value(i, j) for j in (1, 2, 3)] for i in (1, 2, 3)])
+    second = np.trace(inertia) / 2.0 * np.eye(3) - inertia
+    d = project @ (centre - origin)
+    out[VOLUME] = sigma * area * (radius**2 + d @ (c - centre)) / (3.0 * radius)
+    out[VOLUME_MOMENT] = sigma * (radius**2 * area * (c - origin)
+                                  + (second + area * np.outer(c - origin, c - centre)) @ d
+                                  ) / (4.0 * radius)
 
 
 def _xyz(d: Any) -> FloatArray:
