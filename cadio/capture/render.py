@@ -42,6 +42,9 @@ _MISS = -1  # open3d's geometry id for a ray that hits nothing, 0xFFFFFFFF, read
 # Shading goes through a table of (geometry, light level) -> sRGB: per-pixel float colour
 # arithmetic and np.power cost more than the ray cast itself.
 _LEVELS = 1024
+# The scene's box is padded by this (relative to its largest coordinate, metres) before rays
+# are tested against it: far above the float32 rounding of open3d's ray-triangle tests.
+_BOX_PAD = 1e-5
 
 
 @dataclass(frozen=True)
@@ -100,6 +103,10 @@ class StagedScene:
     scale_m_per_mm: float
     centre_m: FloatArray
     meta: dict[str, Any] = field(default_factory=dict)
+    # (2, 3) float64 world box of every triangle, padded (``_BOX_PAD``): a ray that misses it
+    # hits nothing and is not cast
+    box_m: npt.NDArray[np.float64] = field(
+        default_factory=lambda: np.array([[-np.inf] * 3, [np.inf] * 3]))
 
 
 def camera_intrinsics(cfg: CaptureConfig) -> CameraIntrinsics:
@@ -199,19 +206,30 @@ def stage_scene(parts: list[PlacedPart], cfg: CaptureConfig) -> StagedScene:
     lo, hi = scene_bounds_mm(parts)
     scene = o3d.t.geometry.RaycastingScene()
     instance, albedo = [], []
+    box = np.array([[np.inf] * 3, [-np.inf] * 3])
+
+    def add(vertices: npt.NDArray[Any], triangles: npt.NDArray[Any]) -> None:
+        placed = np.asarray(vertices, dtype=np.float32)  # what open3d holds
+        box[0], box[1] = np.minimum(box[0], placed.min(axis=0)), np.maximum(box[1],
+                                                                            placed.max(axis=0))
+        _add(scene, placed, triangles)
+
     for p in parts:
-        _add(scene, scale * apply_pose(p.pose, p.mesh.vertices), p.mesh.triangles)
+        add(scale * apply_pose(p.pose, p.mesh.vertices), p.mesh.triangles)
         instance.append(p.instance_id)
         albedo.append(srgb_to_linear(p.colour))
     if cfg.support_plane:
-        _add(scene, *_support_plane(scale * lo, scale * hi, cfg.support_size_m))
+        add(*_support_plane(scale * lo, scale * hi, cfg.support_size_m))
         instance.append(0)
         albedo.append(srgb_to_linear(cfg.support_colour))
+    pad = _BOX_PAD * (1.0 + float(np.max(np.abs(box))))
+    box += np.array([[-pad], [pad]])
     centre = scale * (lo + hi) / 2
     levels = np.linspace(0, 1, _LEVELS, dtype=np.float32)
     table = _linear_to_srgb8(np.asarray(albedo)[:, None, :] * levels[None, :, None])
     return StagedScene(scene, np.asarray(instance, dtype=np.int32), table.reshape(-1, 3),
-                   scale, centre, {"scale_m_per_mm": scale, "scene_centre_m": centre.tolist()})
+                       scale, centre, {"scale_m_per_mm": scale,
+                                       "scene_centre_m": centre.tolist()}, box)
 
 
 @dataclass(frozen=True)
@@ -270,6 +288,38 @@ def _fill_rays(x: Any, y: Any, rot_cw: Any, eye: Any, rays: Any) -> None:
 
 
 @_jit
+def _fill_rays_in_box(x: Any, y: Any, rot_cw: Any, eye: Any, box: Any, rays: Any,
+                      cast: Any) -> int:
+    """``_fill_rays`` for the rays that may meet ``box`` (2, 3), packed at the front of
+    ``rays`` in pixel order; cast[p] says whether pixel p's ray is there. Returns their count.
+
+    Slab test in float64 on the float32 direction open3d is given: a ray is left out only when
+    its entry into the box (at t >= 0) comes after its exit.
+    """
+    flat = rays.reshape(-1)
+    m = 0
+    for p in range(len(x)):
+        enter, leave = 0.0, np.inf
+        for i in range(3):
+            d = np.float64(_direction(x[p], y[p], rot_cw, i))
+            o = np.float64(eye[i])
+            if d == 0.0:
+                if o < box[0, i] or o > box[1, i]:
+                    enter = np.inf
+            else:
+                t0, t1 = (box[0, i] - o) / d, (box[1, i] - o) / d
+                enter, leave = max(enter, min(t0, t1)), min(leave, max(t0, t1))
+        cast[p] = enter <= leave
+        if cast[p]:
+            row = 6 * m
+            for i in range(3):
+                flat[row + i] = eye[i]
+                flat[row + 3 + i] = _direction(x[p], y[p], rot_cw, i)
+            m += 1
+    return m
+
+
+@_jit
 def _direction(x: Any, y: Any, rot_cw: Any, i: int) -> Any:
     """Component i of the world direction rot_cw @ (x, y, 1), float32, summed left to right."""
     return x * rot_cw[i, 0] + y * rot_cw[i, 1] + rot_cw[i, 2]
@@ -282,19 +332,24 @@ _KEY_LIGHT = np.array([0.3, -0.4, 1.0], dtype=np.float32) / np.float32(math.sqrt
 def _shade_pixels(hit: Any, px: Any, rot_cw: Any, tables: Any, light: Any, out: Any) -> None:
     """Per pixel: z-depth (0 on a miss), |cos| of the view angle, instance id and colour.
 
-    hit: open3d's (t_hit, geometry ids as int32, primitive normals); px: the grid's (x, y,
-    inv_norm); tables: (instance_of, shade_table, background); light: float32 (key x, y, z,
-    headlight weight, key weight, offset), weights and offset in light levels; out: (depth,
-    cos, instance, colour), (h, w) images.
+    hit: open3d's (t_hit, geometry ids as int32, primitive normals) of the rays cast, packed in
+    pixel order, and cast (a pixel's ray was cast); px: the grid's (x, y, inv_norm); tables:
+    (instance_of, shade_table, background); light: float32 (key x, y, z, headlight weight, key
+    weight, offset), weights and offset in light levels; out: (depth, cos, instance, colour),
+    (h, w) images.
     """
-    t, gid, normal = hit
+    t, gid, normal, cast = hit
     x, y, inv_norm = px
     instance_of, shade_table, background = tables
     depth, cos, instance = out[0].reshape(-1), out[1].reshape(-1), out[2].reshape(-1)
-    colour = out[3].reshape((len(t), 3))
+    colour = out[3].reshape((len(x), 3))
     top = np.float32(_LEVELS - 0.5)
-    for p in range(len(t)):
-        g = gid[p]
+    j = -1
+    for p in range(len(x)):
+        g = _MISS
+        if cast[p]:
+            j += 1
+            g = gid[j]
         if g == _MISS:
             depth[p], cos[p], instance[p] = 0, 0, 0
             for i in range(3):
@@ -302,11 +357,11 @@ def _shade_pixels(hit: Any, px: Any, rot_cw: Any, tables: Any, light: Any, out: 
             continue
         ndotv, key = np.float32(0), np.float32(0)
         for i in range(3):
-            ndotv += normal[p, i] * _direction(x[p], y[p], rot_cw, i)
-            key += normal[p, i] * light[i]
+            ndotv += normal[j, i] * _direction(x[p], y[p], rot_cw, i)
+            key += normal[j, i] * light[i]
         ndotv *= inv_norm[p]
         key = max(-key if ndotv > 0 else key, np.float32(0))  # normal flipped to the camera
-        depth[p], cos[p], instance[p] = t[p], abs(ndotv), instance_of[g]
+        depth[p], cos[p], instance[p] = t[j], abs(ndotv), instance_of[g]
         row = g * _LEVELS + int(min(light[5] + light[3] * abs(ndotv) + light[4] * key, top))
         for i in range(3):
             colour[p, i] = shade_table[row, i]
@@ -326,18 +381,21 @@ class _Cast:
 
     view: int
     w2c: FloatArray
-    hit: tuple[npt.NDArray[Any], ...]  # t_hit, geometry ids as int32, primitive normals
+    # t_hit, geometry ids as int32, primitive normals (of the rays cast), and which were cast
+    hit: tuple[npt.NDArray[Any], ...]
 
 
 def _cast(staged: StagedScene, cfg: CaptureConfig, px: PixelGrid, view: int,
           rays: npt.NDArray[np.float32]) -> _Cast:
-    """Cast a view's rays, built in ``rays`` (reused from view to view: a fresh 7 MB array
-    each time costs page faults)."""
+    """Cast a view's rays that may meet the scene's box, built in ``rays`` (reused from view to
+    view: a fresh 7 MB array each time costs page faults). The others hit nothing: open3d
+    spends about as long on a ray that misses as on one that hits."""
     w2c = camera_pose(cfg, view, staged.centre_m)
-    _fill_rays(px.x, px.y, *_camera_axes(w2c), rays)
-    ans = staged.scene.cast_rays(o3d.core.Tensor.from_numpy(rays))
+    cast = np.empty(len(px.x), dtype=np.bool_)
+    m = _fill_rays_in_box(px.x, px.y, *_camera_axes(w2c), staged.box_m, rays, cast)
+    ans = staged.scene.cast_rays(o3d.core.Tensor.from_numpy(rays[:m]))
     return _Cast(view, w2c, (ans["t_hit"].numpy(), ans["geometry_ids"].numpy().view(np.int32),
-                             ans["primitive_normals"].numpy()))
+                             ans["primitive_normals"].numpy(), cast))
 
 
 @_jit
