@@ -74,22 +74,27 @@ def test_face_integrals_decline_other_surfaces() -> None:
     assert all(face_integrals(f) is None and not prefer_numpy(f) for f in indexed_faces(box))
 
 
-def test_a_plane_face_volume_terms_follow_from_its_area_moments() -> None:
-    """Planes skip OpenCascade's volume integration; their cone terms must be the same."""
+def _vinert(face: object, origin: np.ndarray) -> tuple[float, np.ndarray]:
+    """OpenCascade's volume and first moment of the cone from ``origin`` over ``face``."""
     from OCP.BRepGProp import BRepGProp_Domain, BRepGProp_Face, BRepGProp_Vinert
     from OCP.gp import gp_Pnt
 
+    cone = BRepGProp_Vinert()
+    cone.SetLocation(gp_Pnt(*origin))
+    cone.Perform(BRepGProp_Face(face, True), BRepGProp_Domain(face), MASS_PROPS_REL_EPS)
+    c = cone.CentreOfMass()
+    return cone.Mass(), cone.Mass() * (np.array([c.X(), c.Y(), c.Z()]) - origin)
+
+
+def test_a_plane_face_volume_terms_follow_from_its_area_moments() -> None:
+    """Planes skip OpenCascade's volume integration; their cone terms must be the same."""
     shape = (bd.Pos(4, -9, 2) * bd.Rot(20, 30, 40) * bd.Box(7, 5, 3)).wrapped
     origin = np.array([1.0, 2.0, -3.0])
     for face in indexed_faces(shape):
         terms = _occt_terms(face, origin, MASS_PROPS_REL_EPS)
-        cone = BRepGProp_Vinert()
-        cone.SetLocation(gp_Pnt(*origin))
-        cone.Perform(BRepGProp_Face(face, True), BRepGProp_Domain(face), MASS_PROPS_REL_EPS)
-        c = cone.CentreOfMass()
-        assert terms[VOLUME] == pytest.approx(cone.Mass(), rel=1e-9, abs=1e-9)
-        assert np.allclose(terms[VOLUME_MOMENT],
-                           cone.Mass() * (np.array([c.X(), c.Y(), c.Z()]) - origin), atol=1e-8)
+        volume, moment = _vinert(face, origin)
+        assert terms[VOLUME] == pytest.approx(volume, rel=1e-9, abs=1e-9)
+        assert np.allclose(terms[VOLUME_MOMENT], moment, atol=1e-8)
 
 
 @pytest.mark.parametrize("build", [
@@ -103,21 +108,14 @@ def test_cylinder_and_sphere_volume_terms_follow_from_their_area_moments(  # typ
         build) -> None:
     """Cylinders and spheres skip OpenCascade's volume integration too: their cone terms come
     from the area, centroid and inertia matrix, on faces of either orientation."""
-    from OCP.BRepGProp import BRepGProp_Domain, BRepGProp_Face, BRepGProp_Vinert
-    from OCP.gp import gp_Pnt
-
     shape = build().wrapped
     origin = _vertex_mean(shape) + np.array([1.5, -2.0, 0.7])
     for face in indexed_faces(shape):
         terms = _occt_terms(face, origin, MASS_PROPS_REL_EPS)
-        cone = BRepGProp_Vinert()
-        cone.SetLocation(gp_Pnt(*origin))
-        cone.Perform(BRepGProp_Face(face, True), BRepGProp_Domain(face), MASS_PROPS_REL_EPS)
-        c = cone.CentreOfMass()
+        volume, moment = _vinert(face, origin)
         scale = terms[AREA] * 40.0  # area times the reach of these parts, mm^3
-        assert abs(terms[VOLUME] - cone.Mass()) < 1e-8 * scale
-        assert np.allclose(terms[VOLUME_MOMENT],
-                           cone.Mass() * (np.array([c.X(), c.Y(), c.Z()]) - origin),
+        assert abs(terms[VOLUME] - volume) < 1e-8 * scale
+        assert np.allclose(terms[VOLUME_MOMENT], moment,
                            atol=1e-8 * scale * 40.0)
     volume, centroid = brep_mass(shape)
     integrals = part_integrals(shape, indexed_faces(shape), MASS_PROPS_REL_EPS)
