@@ -20,15 +20,16 @@ import numpy as np
 import numpy.typing as npt
 from OCP.Bnd import Bnd_Box
 from OCP.BRep import BRep_Tool
+from OCP.BRepAdaptor import BRepAdaptor_Curve2d
 from OCP.BRepBndLib import BRepBndLib
 from OCP.BRepTools import BRepTools
 from OCP.Geom import Geom_BSplineSurface
-from OCP.GeomAbs import GeomAbs_BSplineSurface, GeomAbs_Sphere, GeomAbs_Torus
+from OCP.GeomAbs import GeomAbs_BSplineSurface, GeomAbs_Line, GeomAbs_Sphere, GeomAbs_Torus
 from OCP.GeomAdaptor import GeomAdaptor_Surface
 from OCP.gp import gp_Ax3
 from OCP.TopAbs import TopAbs_EDGE, TopAbs_FACE, TopAbs_VERTEX
 from OCP.TopExp import TopExp_Explorer
-from OCP.TopoDS import TopoDS_Face, TopoDS_Shape
+from OCP.TopoDS import TopoDS, TopoDS_Face, TopoDS_Shape
 
 from cadio.cad.faces import (
     CYLINDER,
@@ -54,14 +55,17 @@ log = logging.getLogger(__name__)
 
 # Angles computed from dot products carry ~1e-8 rad of rounding: keep values at a tolerance in.
 _ANGLE_SLACK = 1e-9
-# A costly face's box is skipped (see ``tight_bbox``) only when its hull lies this far inside
-# the union: OpenCascade enlarges an optimised face box by Precision::Confusion (1e-7 mm), and
-# the hull itself carries rounding relative to the coordinates. Not a tolerance of the result.
+# A costly face's box is skipped (see ``tight_bbox``) when its hull reaches at most this far
+# beyond the union (plus rounding relative to the coordinates): the most by which the box may
+# fall short of the exact geometry. OpenCascade itself enlarges an optimised face box by
+# Precision::Confusion (1e-7 mm), and its optimisation falls short by up to 4.2e-5 mm.
 _HULL_MARGIN_MM = 1e-6
 _HULL_MARGIN_REL = 1e-9
 # ...and the face's parameter box is widened by this fraction (plus 1e-8) before bounding it:
 # OpenCascade's optimal box works on its own, slightly different, parameter bounds.
 _UV_WIDEN = 1e-6
+# An edge's ends lie on a side of the face's parameter box within this share of its range.
+_SIDE_REL = 1e-9
 
 
 def extract_features(
@@ -120,11 +124,18 @@ def extract_features(
 def tight_bbox(shape: TopoDS_Shape) -> tuple[FloatArray, FloatArray]:
     """Axis-aligned box of the exact geometry (not the mesh, not enlarged by tolerances).
 
-    The result is OpenCascade's optimal box (``BRepBndLib.AddOptimal_s`` without triangulation
-    or tolerances), which is the union of its faces' optimal boxes. A B-spline, torus or sphere
-    face costs an optimisation (up to ~50 ms on the real files), so such a face is skipped
-    when a cheap box that surely holds it (see ``_hull_box``) already lies inside the union of
-    the faces done so far: it cannot change the union, and the result stays the same to the bit.
+    The union of the faces' boxes: OpenCascade's optimal box of each face
+    (``BRepBndLib.AddOptimal_s`` without triangulation or tolerances, which OpenCascade
+    enlarges by 1e-7 mm), except where a cheaper one is as good. A B-spline, torus or sphere
+    face costs OpenCascade an optimisation (up to ~50 ms on the real files):
+
+    * a torus or sphere face that is its whole parameter box is boxed in closed form, exactly
+      (OpenCascade's optimisation falls short of two real fillets by up to 4.2e-5 mm);
+    * any other such face is skipped when a cheap box that surely holds it (see
+      ``_hull_box``) lies within ``_HULL_MARGIN_MM`` (plus rounding) of the union of the faces
+      done so far.
+
+    So the result holds the exact geometry, and exceeds it by at most ~1e-6 mm.
 
     Args:
         shape: any non-empty shape, mm.
@@ -145,18 +156,20 @@ def tight_bbox(shape: TopoDS_Shape) -> tuple[FloatArray, FloatArray]:
 
 
 def _union_of_faces(faces: Sequence[TopoDS_Face]) -> tuple[FloatArray, FloatArray]:
-    """Union of the faces' optimal boxes; costly faces last, skipped where they cannot count."""
+    """Union of the faces' boxes; costly faces last, skipped where they cannot count."""
     lo, hi = np.full(3, np.inf), np.full(3, -np.inf)
     costly = []
     for face in faces:
         hull = _hull_box(face)
         if hull is None:
             lo, hi = _union(lo, hi, _optimal_box(face))
+        elif hull[2]:
+            lo, hi = _union(lo, hi, hull[:2])
         else:
             costly.append((face, hull))
-    for face, (hull_lo, hull_hi) in costly:
+    for face, (hull_lo, hull_hi, _) in costly:
         margin = _HULL_MARGIN_MM + _HULL_MARGIN_REL * float(np.max(np.abs([hull_lo, hull_hi])))
-        if np.all(hull_lo - margin >= lo) and np.all(hull_hi + margin <= hi):
+        if np.all(hull_lo + margin >= lo) and np.all(hull_hi - margin <= hi):
             continue
         lo, hi = _union(lo, hi, _optimal_box(face))
     return lo, hi
@@ -178,27 +191,51 @@ def _optimal_box(shape: TopoDS_Shape) -> tuple[FloatArray, FloatArray]:
     return np.array([x0, y0, z0]), np.array([x1, y1, z1])
 
 
-def _hull_box(face: TopoDS_Face) -> tuple[FloatArray, FloatArray] | None:
-    """A box surely holding a costly face, or None for a face OpenCascade boxes cheaply.
+def _hull_box(face: TopoDS_Face) -> tuple[FloatArray, FloatArray, bool] | None:
+    """(lo, hi, exact): a box surely holding a costly face, and whether it is the face's own
+    box; or None for a face OpenCascade boxes cheaply.
 
-    Both bounds work on the face's parameter box, widened a little (``_uv_box``). B-spline:
-    the box of the poles whose basis functions reach into it (a rational B-spline with
-    positive weights lies in the convex hull of those). Torus and sphere: interval bounds of
-    their parametric formula. Planes, cylinders and cones are boxed from their edges by
+    The bounds work on the face's parameter box, widened a little (``_uv_box``), except an
+    exact one. B-spline: the box of the poles of the surface cut down to it. Torus and
+    sphere: the box of the surface over it (``_revolved_hull``), exact when the face is its
+    whole parameter box. Planes, cylinders and cones are boxed from their edges by
     OpenCascade; other freeform kinds are rare and simply computed.
     """
     surface = GeomAdaptor_Surface(BRep_Tool.Surface_s(face))  # located: shape coordinates
     kind = surface.GetType()
     if kind == GeomAbs_BSplineSurface:
-        return _bspline_hull(surface.BSpline(), _uv_box(face))
-    if kind == GeomAbs_Torus:
-        torus = surface.Torus()
-        return _revolved_hull(torus.Position(), torus.MajorRadius(), torus.MinorRadius(),
-                              _uv_box(face))
-    if kind == GeomAbs_Sphere:
-        sphere = surface.Sphere()  # a torus of major radius 0 in OpenCascade's formulas
-        return _revolved_hull(sphere.Position(), 0.0, sphere.Radius(), _uv_box(face))
+        return (*_bspline_hull(surface.BSpline(), _uv_box(face)), False)
+    if kind in (GeomAbs_Torus, GeomAbs_Sphere):
+        if kind == GeomAbs_Torus:
+            torus = surface.Torus()
+            position, major, minor = torus.Position(), torus.MajorRadius(), torus.MinorRadius()
+        else:
+            sphere = surface.Sphere()  # a torus of major radius 0 in OpenCascade's formulas
+            position, major, minor = sphere.Position(), 0.0, sphere.Radius()
+        uv = BRepTools.UVBounds_s(face)
+        if _fills_uv_box(face, uv) and major + minor * _cos_range(uv[2], uv[3])[0] >= 0.0:
+            return (*_revolved_hull(position, major, minor, uv), True)
+        return (*_revolved_hull(position, major, minor, _uv_box(face)), False)
     return None
+
+
+def _fills_uv_box(face: TopoDS_Face, uv: tuple[float, float, float, float]) -> bool:
+    """Whether the face is its whole parameter box: every edge on the face is a line along
+    one of the box's four sides (its seams and poles included)."""
+    u0, u1, v0, v1 = uv
+    du, dv = _SIDE_REL * max(u1 - u0, 1.0), _SIDE_REL * max(v1 - v0, 1.0)
+    explorer = TopExp_Explorer(face, TopAbs_EDGE)
+    while explorer.More():
+        curve = BRepAdaptor_Curve2d(TopoDS.Edge_s(explorer.Current()), face)
+        explorer.Next()
+        if curve.GetType() != GeomAbs_Line:
+            return False
+        a, b = curve.Value(curve.FirstParameter()), curve.Value(curve.LastParameter())
+        on_side = any(abs(a.X() - u) <= du and abs(b.X() - u) <= du for u in (u0, u1)) or \
+            any(abs(a.Y() - v) <= dv and abs(b.Y() - v) <= dv for v in (v0, v1))
+        if not on_side:
+            return False
+    return True
 
 
 def _uv_box(face: TopoDS_Face) -> tuple[float, float, float, float]:
@@ -209,6 +246,28 @@ def _uv_box(face: TopoDS_Face) -> tuple[float, float, float, float]:
 
 
 def _bspline_hull(
+    surface: Geom_BSplineSurface, uv: tuple[float, float, float, float]
+) -> tuple[FloatArray, FloatArray]:
+    """Box of the poles of ``surface`` cut down to ``uv`` (knots inserted at its ends), which
+    hold it there (a rational B-spline with positive weights lies in the convex hull of its
+    poles); the box of the poles that reach into ``uv`` where the cut fails."""
+    u_lo, u_hi, v_lo, v_hi = surface.Bounds()
+    cut = surface.Copy()
+    try:
+        cut.Segment(max(uv[0], u_lo) if not surface.IsUPeriodic() else uv[0],
+                    min(uv[1], u_hi) if not surface.IsUPeriodic() else uv[1],
+                    max(uv[2], v_lo) if not surface.IsVPeriodic() else uv[2],
+                    min(uv[3], v_hi) if not surface.IsVPeriodic() else uv[3])
+    except Exception:  # OCP's Standard_* exceptions share no Python base class but Exception
+        return _reaching_hull(surface, uv)
+    poles = cut.Poles()
+    xyz = np.array([[poles.Value(i, j).Coord()
+                     for j in range(poles.LowerCol(), poles.UpperCol() + 1)]
+                    for i in range(poles.LowerRow(), poles.UpperRow() + 1)]).reshape(-1, 3)
+    return xyz.min(axis=0), xyz.max(axis=0)
+
+
+def _reaching_hull(
     surface: Geom_BSplineSurface, uv: tuple[float, float, float, float]
 ) -> tuple[FloatArray, FloatArray]:
     """Box of the poles that shape ``surface`` over ``uv`` (all of them along periodic sides)."""
@@ -237,7 +296,14 @@ def _reaching(
 def _revolved_hull(
     position: gp_Ax3, major: float, minor: float, uv: tuple[float, float, float, float]
 ) -> tuple[FloatArray, FloatArray]:
-    """Interval box of P(u, v) = C + (major + minor cos v)(cos u X + sin u Y) + minor sin v Z."""
+    """Box of P(u, v) = C + (major + minor cos v)(cos u X + sin u Y) + minor sin v Z over uv.
+
+    Per coordinate k, cos u X_k + sin u Y_k = A cos(u - phi) ranges over [m, M] on [u0, u1].
+    Where rho = major + minor cos v >= 0 the extremes over u at each v are rho M and rho m,
+    so the largest P_k is C_k + major M + minor max(M cos v + Z_k sin v), one more cosine
+    range over [v0, v1], and the smallest likewise with m: the box of the whole patch, exact
+    to rounding. Elsewhere (a spindle torus) the product of the ranges bounds it.
+    """
     u0, u1, v0, v1 = uv
     x, y, z = (np.array(d.Coord()) for d in
                (position.XDirection(), position.YDirection(), position.Direction()))
@@ -249,10 +315,17 @@ def _revolved_hull(
         # cos u x_k + sin u y_k = A cos(u - phi): its exact range over [u0, u1]
         amp, phi = math.hypot(x[k], y[k]), math.atan2(y[k], x[k])
         radial = amp * np.array(_cos_range(u0 - phi, u1 - phi))
-        products = np.outer(rho, radial)
-        axial = minor * z[k] * sin_v
-        lo[k] = centre[k] + products.min() + axial.min()
-        hi[k] = centre[k] + products.max() + axial.max()
+        if rho[0] >= 0.0:
+            # r cos v + z_k sin v = B cos(v - psi)
+            low, high = (major * r + minor * math.hypot(r, z[k])
+                         * np.array(_cos_range(v0 - math.atan2(z[k], r), v1 - math.atan2(z[k], r)))
+                         for r in radial)
+            lo[k], hi[k] = centre[k] + low[0], centre[k] + high[1]
+        else:
+            products = np.outer(rho, radial)
+            axial = minor * z[k] * sin_v
+            lo[k] = centre[k] + products.min() + axial.min()
+            hi[k] = centre[k] + products.max() + axial.max()
     return lo, hi
 
 
