@@ -68,6 +68,20 @@ def test_cone_is_recovered_with_its_semi_angle_and_radius() -> None:
     assert found.radius == pytest.approx(12.446 - slope * station, abs=1e-9)
 
 
+def test_only_estimates_near_the_tolerance_are_refined(monkeypatch) -> None:  # type: ignore[no-untyped-def]
+    import scipy.optimize
+
+    refined = []
+    least_squares = scipy.optimize.least_squares
+    monkeypatch.setattr(scipy.optimize, "least_squares",
+                        lambda *args, **kwargs: refined.append(1) or least_squares(*args, **kwargs))
+    slope = math.tan(math.radians(30.0))
+    found = fit_primitive(*revolution(12.446, -slope, z0=-3.0, z1=5.5), TOL.freeform_fit_mm)
+    assert found is not None and found.kind == CONE
+    # The cylinder's estimate is millimetres off: only the cone's is refined.
+    assert len(refined) == 1
+
+
 def test_sphere_and_near_misses_are_rejected() -> None:
     theta, phi = np.meshgrid(np.linspace(0.3, 1.2, 9), np.linspace(0, 2 * math.pi, 9))
     normals = np.stack([np.sin(theta) * np.cos(phi), np.sin(theta) * np.sin(phi),

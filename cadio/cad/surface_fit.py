@@ -21,6 +21,12 @@ from cadio.records import FloatArray, perpendicular_pair
 PLANE, CYLINDER, CONE = "plane", "cylinder", "cone"
 # Normals this close to one direction (1 - |cos|) make an axis estimate meaningless.
 _SPREAD = 1e-9
+# ``fit_primitive`` refines a closed-form estimate only when it lies within this many times
+# the tolerance of every sample: the estimate of an exact cylinder or cone is exact to
+# rounding (its normal lines meet the axis), and least squares does not bring a primitive
+# that is a hundred times off within the tolerance (on the real files no rejected face's
+# estimate came within 190 tolerances, nor did its refinement within 190).
+_REFINE_WITHIN = 100.0
 
 
 @dataclass(frozen=True, eq=False)
@@ -58,8 +64,11 @@ def fit_primitive(points: FloatArray, normals: FloatArray, tol_mm: float) -> Fit
     if points.shape != normals.shape or points.ndim != 2 or len(points) < 7:
         raise ValueError(f"need matching (n >= 7, 3) points and normals, got {points.shape} "
                          f"and {normals.shape}")
-    for fit in (fit_plane, fit_cylinder, fit_cone):
-        found = fit(points, normals)
+    plane = fit_plane(points, normals)
+    if plane.deviation <= tol_mm:
+        return plane
+    for fit in (fit_cylinder, fit_cone):
+        found = fit(points, normals, _REFINE_WITHIN * tol_mm)
         if found is not None and found.deviation <= tol_mm:
             return found
     return None
@@ -73,21 +82,32 @@ def fit_plane(points: FloatArray, normals: FloatArray) -> FittedSurface:
     return FittedSurface(PLANE, normal, centre, 0.0, 0.0, deviation)
 
 
-def fit_cylinder(points: FloatArray, normals: FloatArray) -> FittedSurface | None:
-    """Least-squares cylinder, or None when the normals cannot place an axis."""
+def fit_cylinder(points: FloatArray, normals: FloatArray, refine_within: float = np.inf
+                 ) -> FittedSurface | None:
+    """Least-squares cylinder, or None when the normals cannot place an axis.
+
+    Args:
+        refine_within: mm; a closed-form estimate that deviates more is returned unrefined.
+    """
     axis = _axis_estimate(points, normals)
     if axis is None:
         return None
     d, p = axis
     residuals = _cylinder_residuals(points, d, p)
-    params = _refine(residuals, np.array([0.0, 0.0, 0.0, 0.0, _radial(points, p, d).mean()]))
+    params = _refine(residuals, np.array([0.0, 0.0, 0.0, 0.0, _radial(points, p, d).mean()]),
+                     refine_within)
     deviation = float(np.abs(residuals(params)).max())
     d, p = _axis_from(params, d, p)
     return FittedSurface(CYLINDER, d, p, float(params[4]), 0.0, deviation)
 
 
-def fit_cone(points: FloatArray, normals: FloatArray) -> FittedSurface | None:
-    """Least-squares cone, or None when the normals cannot place an axis or it is a cylinder."""
+def fit_cone(points: FloatArray, normals: FloatArray, refine_within: float = np.inf
+             ) -> FittedSurface | None:
+    """Least-squares cone, or None when the normals cannot place an axis or it is a cylinder.
+
+    Args:
+        refine_within: mm; a closed-form estimate that deviates more is returned unrefined.
+    """
     axis = _axis_estimate(points, normals)
     if axis is None:
         return None
@@ -97,7 +117,8 @@ def fit_cone(points: FloatArray, normals: FloatArray) -> FittedSurface | None:
     if slope < 0:  # let the radius grow along the axis: the semi-angle is then positive
         d, slope = -d, -slope
     residuals = _cone_residuals(points, d, p)
-    params = _refine(residuals, np.array([0.0, 0.0, 0.0, 0.0, radius, np.arctan(slope)]))
+    params = _refine(residuals, np.array([0.0, 0.0, 0.0, 0.0, radius, np.arctan(slope)]),
+                     refine_within)
     radius, angle = float(params[4]), float(params[5])
     if not 0.0 < angle < 0.5 * np.pi or radius < 0.0:
         return None
@@ -170,8 +191,12 @@ def _cone_residuals(points: FloatArray, d0: FloatArray, p0: FloatArray
     return residuals
 
 
-def _refine(residuals: Callable[[FloatArray], FloatArray], start: FloatArray) -> FloatArray:
-    """Parameters minimising the squared residuals (Levenberg-Marquardt), from ``start``."""
+def _refine(residuals: Callable[[FloatArray], FloatArray], start: FloatArray,
+            within: float = np.inf) -> FloatArray:
+    """Parameters minimising the squared residuals (Levenberg-Marquardt), from ``start``;
+    ``start`` itself where its largest residual exceeds ``within``."""
+    if not float(np.abs(residuals(start)).max()) <= within:
+        return start
     # Imported here: few faces get this far, and scipy.optimize costs every CAD worker 0.15 s.
     from scipy.optimize import least_squares
 
