@@ -320,3 +320,40 @@ def test_rays_left_out_beside_the_scene_box_change_no_pixel(cfg: CaptureConfig) 
             assert np.array_equal(getattr(a, image), getattr(b, image))
         # every ray left out misses the scene
         assert not np.any(b.depth.reshape(-1)[~cast] > 0)
+
+
+def test_the_box_outline_casts_every_ray_the_slab_test_casts() -> None:
+    """The outline of the box's projected corners (per pixel row, plus a margin) holds every
+    pixel whose ray the exact slab test sends; a camera inside the box has no outline."""
+    from cadio.capture.render import (
+        _box_outline,
+        _camera_axes,
+        _fill_rays_in_box,
+        _fill_rays_in_outline,
+        stage_scene,
+    )
+
+    cfg = CaptureConfig(n_views=12, step_deg=30.0, elevation_deg=50.0)
+    staged = stage_scene(pair_scene(), cfg)
+    k = camera_intrinsics(cfg)
+    px = pixel_grid(k)
+    rays = np.empty((len(px.x), 6), dtype=np.float32)
+    exact, outline = (np.empty(len(px.x), dtype=np.bool_) for _ in range(2))
+    lo, hi = np.empty(k.height), np.empty(k.height)
+    margin = np.array([2.0 / k.fx, 2.0 / k.fy])
+    for view in range(cfg.n_views):
+        rot_cw, eye = _camera_axes(camera_pose(cfg, view, staged.centre_m))
+        _fill_rays_in_box(px.x, px.y, rot_cw, eye, staged.box_m, rays, exact)
+        assert _box_outline(px.x[:k.width], px.y[::k.width], rot_cw, eye.astype(np.float64),
+                            staged.box_m, margin, lo, hi)
+        m = _fill_rays_in_outline(px.x, px.y, rot_cw, eye, k.width, lo, hi, rays, outline)
+        assert m == np.count_nonzero(outline)
+        assert np.all(outline[exact])  # never a ray left out that the slab test casts
+        assert np.count_nonzero(outline) <= 1.05 * np.count_nonzero(exact)  # and few more
+        w = np.flatnonzero(outline)
+        directions = rays[:m, 3:]
+        assert np.array_equal(directions[:, 0], (px.x[w] * rot_cw[0, 0] + px.y[w] * rot_cw[0, 1]
+                                                 + rot_cw[0, 2]).astype(np.float32))
+    inside = staged.box_m.mean(axis=0)
+    assert not _box_outline(px.x[:k.width], px.y[::k.width], rot_cw, inside, staged.box_m,
+                            margin, lo, hi)

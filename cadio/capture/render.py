@@ -319,6 +319,79 @@ def _fill_rays_in_box(x: Any, y: Any, rot_cw: Any, eye: Any, box: Any, rays: Any
     return m
 
 
+# Margin of the image-plane outline of the scene's box, in pixels: far above the float32
+# rounding of the directions open3d is given (~1e-7 of a normalised coordinate).
+_OUTLINE_MARGIN_PX = 2.0
+
+
+@_jit
+def _box_outline(x: Any, y: Any, rot_cw: Any, eye: Any, box: Any, margin: Any, lo: Any,
+                 hi: Any) -> bool:
+    """Per pixel row, the column range [lo, hi] (normalised x) whose rays may meet ``box``.
+
+    The box's corners are projected into the image; a ray meets the box only where its pixel
+    lies in their convex hull. The hull's x range over the band of the row's y +- margin[1] is
+    taken from the corners inside the band and from where each segment between two corners
+    crosses its edges, then widened by margin[0]. Returns False (nothing written) where a
+    corner is not in front of the camera, so that the hull is not the outline, or the box is
+    unbounded.
+
+    Args:
+        x: (w,) the columns' normalised x; y: (h,) the rows' normalised y.
+        margin: (2,) normalised x and y margins.
+    """
+    if not np.all(np.isfinite(box)):
+        return False
+    cx, cy = np.empty(8), np.empty(8)
+    for k in range(8):
+        rel = (np.float64(box[k & 1, 0]) - eye[0], np.float64(box[(k >> 1) & 1, 1]) - eye[1],
+               np.float64(box[(k >> 2) & 1, 2]) - eye[2])
+        cam = [0.0, 0.0, 0.0]
+        for j in range(3):
+            for i in range(3):
+                cam[j] += np.float64(rot_cw[i, j]) * rel[i]
+        if cam[2] <= 1e-9:
+            return False
+        cx[k], cy[k] = cam[0] / cam[2], cam[1] / cam[2]
+    for r in range(len(y)):
+        band = (np.float64(y[r]) - margin[1], np.float64(y[r]) + margin[1])
+        left, right = np.inf, -np.inf
+        for a in range(8):
+            if band[0] <= cy[a] <= band[1]:
+                left, right = min(left, cx[a]), max(right, cx[a])
+            for b in range(a + 1, 8):
+                if cy[a] == cy[b]:
+                    continue
+                for edge in band:
+                    if (cy[a] - edge) * (cy[b] - edge) <= 0:
+                        at = cx[a] + (edge - cy[a]) * (cx[b] - cx[a]) / (cy[b] - cy[a])
+                        left, right = min(left, at), max(right, at)
+        lo[r], hi[r] = left - margin[0], right + margin[0]
+    return True
+
+
+@_jit
+def _fill_rays_in_outline(x: Any, y: Any, rot_cw: Any, eye: Any, width: int, lo: Any, hi: Any,
+                          rays: Any, cast: Any) -> int:
+    """``_fill_rays_in_box`` for the rays within the rows' ranges of ``_box_outline``."""
+    flat = rays.reshape(-1)
+    columns = x[:width].astype(np.float64)  # increasing
+    cast[:] = False
+    m = 0
+    for r in range(len(lo)):
+        start = r * width
+        first = start + np.searchsorted(columns, lo[r], side="left")
+        last = start + np.searchsorted(columns, hi[r], side="right")
+        for p in range(first, last):
+            cast[p] = True
+            row = 6 * m
+            for i in range(3):
+                flat[row + i] = eye[i]
+                flat[row + 3 + i] = _direction(x[p], y[p], rot_cw, i)
+            m += 1
+    return m
+
+
 @_jit
 def _direction(x: Any, y: Any, rot_cw: Any, i: int) -> Any:
     """Component i of the world direction rot_cw @ (x, y, 1), float32, summed left to right."""
@@ -392,7 +465,15 @@ def _cast(staged: StagedScene, cfg: CaptureConfig, px: PixelGrid, view: int,
     spends about as long on a ray that misses as on one that hits."""
     w2c = camera_pose(cfg, view, staged.centre_m)
     cast = np.empty(len(px.x), dtype=np.bool_)
-    m = _fill_rays_in_box(px.x, px.y, *_camera_axes(w2c), staged.box_m, rays, cast)
+    rot_cw, eye = _camera_axes(w2c)
+    k = camera_intrinsics(cfg)
+    lo, hi = np.empty(k.height), np.empty(k.height)
+    margin = np.array([_OUTLINE_MARGIN_PX / k.fx, _OUTLINE_MARGIN_PX / k.fy])
+    if _box_outline(px.x[:k.width], px.y[::k.width], rot_cw, eye.astype(np.float64),
+                    staged.box_m, margin, lo, hi):
+        m = _fill_rays_in_outline(px.x, px.y, rot_cw, eye, k.width, lo, hi, rays, cast)
+    else:  # a corner of the box is not in front of the camera: each ray is tested
+        m = _fill_rays_in_box(px.x, px.y, rot_cw, eye, staged.box_m, rays, cast)
     ans = staged.scene.cast_rays(o3d.core.Tensor.from_numpy(rays[:m]))
     return _Cast(view, w2c, (ans["t_hit"].numpy(), ans["geometry_ids"].numpy().view(np.int32),
                              ans["primitive_normals"].numpy(), cast))
