@@ -42,7 +42,7 @@ STEP_SUFFIXES = (".step", ".stp")
 P = TypeVar("P")
 
 # Bump when the derived artefacts change meaning, so cached rows are recomputed.
-INGEST_VERSION = "2"
+INGEST_VERSION = "3"
 
 
 @dataclass(frozen=True)
