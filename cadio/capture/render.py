@@ -17,7 +17,10 @@ light / time-of-flight camera leaves at grazing angles and at depth discontinuit
 Speed: the per-pixel work (rays, shading, the sensor model) runs in compiled loops (numba) that
 release the GIL. open3d's ``cast_rays`` holds it, so ``render_views`` works on a frame's pixels
 on a worker thread while the next view is cast; ``bench/capture.py`` measures the whole against
-bare ``cast_rays`` of the same rays.
+bare ``cast_rays`` of the same rays. Only the rays whose pixels lie in the image outline of the
+parts' box are cast; the others meet the support plane, intersected in closed form (colour,
+instance and cos exactly as cast, depth within float32 rounding), or nothing. Near the plane's
+border, where the two could disagree, rays are cast.
 """
 
 from __future__ import annotations
@@ -39,6 +42,9 @@ from cadio.records import CameraIntrinsics, FloatArray, Mesh, RgbdFrame, apply_p
 
 Colour = str | tuple[float, float, float]
 _MISS = -1  # open3d's geometry id for a ray that hits nothing, 0xFFFFFFFF, read as int32
+# What became of a pixel's ray: nothing in its way (a miss), cast by open3d, or meeting the
+# support plane in closed form.
+_NOT_CAST, _CAST, _ON_TABLE = 0, 1, 2
 # Shading goes through a table of (geometry, light level) -> sRGB: per-pixel float colour
 # arithmetic and np.power cost more than the ray cast itself.
 _LEVELS = 1024
@@ -107,6 +113,13 @@ class StagedScene:
     # hits nothing and is not cast
     box_m: npt.NDArray[np.float64] = field(
         default_factory=lambda: np.array([[-np.inf] * 3, [np.inf] * 3]))
+    # The same of the parts alone: a ray outside its outline meets no part.
+    parts_box_m: npt.NDArray[np.float64] = field(
+        default_factory=lambda: np.array([[-np.inf] * 3, [np.inf] * 3]))
+    # The support plane, if any, as open3d holds it: (z, x0, x1, y0, y1, pad) world metres
+    # (pad: ``_BOX_PAD``'s margin; within it of its border rays are cast), and its geometry id.
+    table_m: npt.NDArray[np.float64] | None = None
+    table_id: int = -1
 
 
 def camera_intrinsics(cfg: CaptureConfig) -> CameraIntrinsics:
@@ -208,28 +221,38 @@ def stage_scene(parts: list[PlacedPart], cfg: CaptureConfig) -> StagedScene:
     instance, albedo = [], []
     box = np.array([[np.inf] * 3, [-np.inf] * 3])
 
-    def add(vertices: npt.NDArray[Any], triangles: npt.NDArray[Any]) -> None:
+    def add(vertices: npt.NDArray[Any], triangles: npt.NDArray[Any]) -> int:
         placed = np.asarray(vertices, dtype=np.float32)  # what open3d holds
         box[0], box[1] = np.minimum(box[0], placed.min(axis=0)), np.maximum(box[1],
                                                                             placed.max(axis=0))
-        _add(scene, placed, triangles)
+        return _add(scene, placed, triangles)
 
     for p in parts:
         add(scale * apply_pose(p.pose, p.mesh.vertices), p.mesh.triangles)
         instance.append(p.instance_id)
         albedo.append(srgb_to_linear(p.colour))
+    parts_box = box.copy()
+    table_m, table_id = None, -1
     if cfg.support_plane:
-        add(*_support_plane(scale * lo, scale * hi, cfg.support_size_m))
+        corners, triangles = _support_plane(scale * lo, scale * hi, cfg.support_size_m)
+        table_id = add(corners, triangles)
         instance.append(0)
         albedo.append(srgb_to_linear(cfg.support_colour))
+        c = corners.astype(np.float64)
+        table_m = np.array([c[0, 2], c[:, 0].min(), c[:, 0].max(), c[:, 1].min(), c[:, 1].max(),
+                            0.0])
     pad = _BOX_PAD * (1.0 + float(np.max(np.abs(box))))
     box += np.array([[-pad], [pad]])
+    parts_box += np.array([[-pad], [pad]])
+    if table_m is not None:
+        table_m[5] = pad
     centre = scale * (lo + hi) / 2
     levels = np.linspace(0, 1, _LEVELS, dtype=np.float32)
     table = _linear_to_srgb8(np.asarray(albedo)[:, None, :] * levels[None, :, None])
     return StagedScene(scene, np.asarray(instance, dtype=np.int32), table.reshape(-1, 3),
                        scale, centre, {"scale_m_per_mm": scale,
-                                       "scene_centre_m": centre.tolist()}, box)
+                                       "scene_centre_m": centre.tolist()}, box, parts_box,
+                       table_m, table_id)
 
 
 @dataclass(frozen=True)
@@ -297,7 +320,8 @@ def _put_ray(flat: Any, m: int, x: Any, y: Any, rot_cw: Any, eye: Any, p: int) -
 def _fill_rays_in_box(x: Any, y: Any, rot_cw: Any, eye: Any, box: Any, rays: Any,
                       cast: Any) -> int:
     """``_fill_rays`` for the rays that may meet ``box`` (2, 3), packed at the front of
-    ``rays`` in pixel order; cast[p] says whether pixel p's ray is there. Returns their count.
+    ``rays`` in pixel order; cast[p] says whether pixel p's ray is there (``_CAST``, else
+    ``_NOT_CAST``). Returns their count.
 
     Slab test in float64 on the float32 direction open3d is given: a ray is left out only when
     its entry into the box (at t >= 0) comes after its exit.
@@ -315,8 +339,8 @@ def _fill_rays_in_box(x: Any, y: Any, rot_cw: Any, eye: Any, box: Any, rays: Any
             else:
                 t0, t1 = (box[0, i] - o) / d, (box[1, i] - o) / d
                 enter, leave = max(enter, min(t0, t1)), min(leave, max(t0, t1))
-        cast[p] = enter <= leave
-        if cast[p]:
+        cast[p] = _CAST if enter <= leave else _NOT_CAST
+        if enter <= leave:
             _put_ray(flat, m, x, y, rot_cw, eye, p)
             m += 1
     return m
@@ -375,21 +399,64 @@ def _box_outline(x: Any, y: Any, rot_cw: Any, eye: Any, box: Any, margin: Any, l
 
 @_jit
 def _fill_rays_in_outline(x: Any, y: Any, rot_cw: Any, eye: Any, width: int, lo: Any, hi: Any,
-                          rays: Any, cast: Any) -> int:
-    """``_fill_rays_in_box`` for the rays within the rows' ranges of ``_box_outline``."""
+                          table: Any, rays: Any, cast: Any, table_t: Any) -> int:
+    """``_fill_rays_in_box`` for the rays within the rows' ranges of ``_box_outline``; of the
+    others, with a support plane ``table`` (see ``StagedScene.table_m``; None: nothing
+    outside the outline), those that meet it are ``_ON_TABLE`` at depth ``table_t[p]``, those
+    near its border are cast too (``_meet_table``)."""
     flat = rays.reshape(-1)
     columns = x[:width].astype(np.float64)  # increasing
-    cast[:] = False
     m = 0
     for r in range(len(lo)):
         start = r * width
         first = start + np.searchsorted(columns, lo[r], side="left")
         last = start + np.searchsorted(columns, hi[r], side="right")
+        if table is not None:
+            _meet_table(columns, np.float64(y[start]), rot_cw, eye, table,
+                        cast[start:start + width], table_t[start:start + width])
+        else:
+            cast[start:start + width] = _NOT_CAST
         for p in range(first, last):
-            cast[p] = True
-            _put_ray(flat, m, x, y, rot_cw, eye, p)
-            m += 1
+            cast[p] = _CAST
+        for p in range(start, start + width):
+            if cast[p] == _CAST:
+                _put_ray(flat, m, x, y, rot_cw, eye, p)
+                m += 1
     return m
+
+
+@_jit
+def _meet_table(x: Any, y: Any, rot_cw: Any, eye: Any, table: Any, cast: Any, table_t: Any
+                ) -> None:
+    """Where the rays of one pixel row (normalised x of its columns, y) meet the plane
+    z = table[0], in float64: ``_ON_TABLE`` (table_t = its depth) more than table[5] inside
+    the square, ``_NOT_CAST`` more than that outside it or when the ray leaves the plane
+    behind, else ``_CAST`` (near the border, where open3d's float32 test may decide either
+    way, or with the eye at the plane's height)."""
+    pad = table[5]
+    height = table[0] - np.float64(eye[2])
+    # the direction R (x, y, 1) of each column is a + x b
+    a = np.empty(3)
+    b = np.empty(3)
+    for i in range(3):
+        a[i] = np.float64(rot_cw[i, 1]) * y + np.float64(rot_cw[i, 2])
+        b[i] = np.float64(rot_cw[i, 0])
+    for c in range(len(x)):
+        rise = a[2] + x[c] * b[2]
+        if abs(height) <= pad or rise == 0.0:
+            cast[c] = _CAST
+            continue
+        t = height / rise
+        hx = np.float64(eye[0]) + t * (a[0] + x[c] * b[0])
+        hy = np.float64(eye[1]) + t * (a[1] + x[c] * b[1])
+        if t <= 0.0 or hx < table[1] - pad or hx > table[2] + pad or hy < table[3] - pad \
+                or hy > table[4] + pad:
+            cast[c] = _NOT_CAST
+        elif table[1] + pad < hx < table[2] - pad and table[3] + pad < hy < table[4] - pad:
+            cast[c] = _ON_TABLE
+            table_t[c] = np.float32(t)
+        else:
+            cast[c] = _CAST
 
 
 @_jit
@@ -406,23 +473,28 @@ def _shade_pixels(hit: Any, px: Any, rot_cw: Any, tables: Any, light: Any, out: 
     """Per pixel: z-depth (0 on a miss), |cos| of the view angle, instance id and colour.
 
     hit: open3d's (t_hit, geometry ids as int32, primitive normals) of the rays cast, packed in
-    pixel order, and cast (a pixel's ray was cast); px: the grid's (x, y, inv_norm); tables:
+    pixel order, cast (``_CAST``, ``_ON_TABLE`` or ``_NOT_CAST`` per pixel), the depths on the
+    table and its geometry id; px: the grid's (x, y, inv_norm); tables:
     (instance_of, shade_table, background); light: float32 (key x, y, z, headlight weight, key
     weight, offset), weights and offset in light levels; out: (depth, cos, instance, colour),
     (h, w) images.
     """
-    t, gid, normal, cast = hit
+    t, gid, normal, cast, table_t, table_id = hit
     x, y, inv_norm = px
     instance_of, shade_table, background = tables
     depth, cos, instance = out[0].reshape(-1), out[1].reshape(-1), out[2].reshape(-1)
     colour = out[3].reshape((len(x), 3))
     top = np.float32(_LEVELS - 0.5)
+    up = np.zeros(3, dtype=np.float32)
+    up[2] = 1  # the table's normal, as open3d gives it for its two triangles
     j = -1
     for p in range(len(x)):
-        g = _MISS
-        if cast[p]:
+        g, tp, n = _MISS, np.float32(0), up
+        if cast[p] == _CAST:
             j += 1
-            g = gid[j]
+            g, tp, n = gid[j], t[j], normal[j]
+        elif cast[p] == _ON_TABLE:
+            g, tp = table_id, table_t[p]
         if g == _MISS:
             depth[p], cos[p], instance[p] = 0, 0, 0
             for i in range(3):
@@ -430,11 +502,11 @@ def _shade_pixels(hit: Any, px: Any, rot_cw: Any, tables: Any, light: Any, out: 
             continue
         ndotv, key = np.float32(0), np.float32(0)
         for i in range(3):
-            ndotv += normal[j, i] * _direction(x[p], y[p], rot_cw, i)
-            key += normal[j, i] * light[i]
+            ndotv += n[i] * _direction(x[p], y[p], rot_cw, i)
+            key += n[i] * light[i]
         ndotv *= inv_norm[p]
         key = max(-key if ndotv > 0 else key, np.float32(0))  # normal flipped to the camera
-        depth[p], cos[p], instance[p] = t[j], abs(ndotv), instance_of[g]
+        depth[p], cos[p], instance[p] = tp, abs(ndotv), instance_of[g]
         row = g * _LEVELS + int(min(light[5] + light[3] * abs(ndotv) + light[4] * key, top))
         for i in range(3):
             colour[p, i] = shade_table[row, i]
@@ -454,29 +526,34 @@ class _Cast:
 
     view: int
     w2c: FloatArray
-    # t_hit, geometry ids as int32, primitive normals (of the rays cast), and which were cast
-    hit: tuple[npt.NDArray[Any], ...]
+    # t_hit, geometry ids as int32, primitive normals (of the rays cast), what became of each
+    # pixel's ray (_CAST, _ON_TABLE, _NOT_CAST), the depths on the table, its geometry id
+    hit: tuple[Any, ...]
 
 
 def _cast(staged: StagedScene, cfg: CaptureConfig, px: PixelGrid, view: int,
           rays: npt.NDArray[np.float32]) -> _Cast:
-    """Cast a view's rays that may meet the scene's box, built in ``rays`` (reused from view to
-    view: a fresh 7 MB array each time costs page faults). The others hit nothing: open3d
-    spends about as long on a ray that misses as on one that hits."""
+    """Cast a view's rays that may meet a part (or the support plane near its border), built
+    in ``rays`` (reused from view to view: a fresh 7 MB array each time costs page faults);
+    the support plane's others are intersected in closed form, the rest hit nothing. open3d
+    spends about as long on a ray that meets the two-triangle plane as on one that meets a part.
+    """
     w2c = camera_pose(cfg, view, staged.centre_m)
-    cast = np.empty(len(px.x), dtype=np.bool_)
+    cast = np.empty(len(px.x), dtype=np.int8)
+    table_t = np.empty(len(px.x), dtype=np.float32)
     rot_cw, eye = _camera_axes(w2c)
     k = camera_intrinsics(cfg)
     lo, hi = np.empty(k.height), np.empty(k.height)
     margin = np.array([_OUTLINE_MARGIN_PX / k.fx, _OUTLINE_MARGIN_PX / k.fy])
-    if _box_outline(px.x[:k.width], px.y[::k.width], rot_cw, eye.astype(np.float64),
-                    staged.box_m, margin, lo, hi):
-        m = _fill_rays_in_outline(px.x, px.y, rot_cw, eye, k.width, lo, hi, rays, cast)
-    else:  # a corner of the box is not in front of the camera: each ray is tested
+    outline = px.x[:k.width], px.y[::k.width], rot_cw, eye.astype(np.float64)
+    if _box_outline(*outline, staged.parts_box_m, margin, lo, hi):
+        m = _fill_rays_in_outline(px.x, px.y, rot_cw, eye, k.width, lo, hi, staged.table_m,
+                                  rays, cast, table_t)
+    else:  # a corner of the parts' box is not in front of the camera: each ray is tested
         m = _fill_rays_in_box(px.x, px.y, rot_cw, eye, staged.box_m, rays, cast)
     ans = staged.scene.cast_rays(o3d.core.Tensor.from_numpy(rays[:m]))
     return _Cast(view, w2c, (ans["t_hit"].numpy(), ans["geometry_ids"].numpy().view(np.int32),
-                             ans["primitive_normals"].numpy(), cast))
+                             ans["primitive_normals"].numpy(), cast, table_t, staged.table_id))
 
 
 @_jit
