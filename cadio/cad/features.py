@@ -260,21 +260,23 @@ def _bspline_hull(
                     min(uv[3], v_hi) if not surface.IsVPeriodic() else uv[3])
     except Exception:  # OCP's Standard_* exceptions share no Python base class but Exception
         return _reaching_hull(surface, uv)
-    poles = cut.Poles()
-    xyz = np.array([[poles.Value(i, j).Coord()
-                     for j in range(poles.LowerCol(), poles.UpperCol() + 1)]
-                    for i in range(poles.LowerRow(), poles.UpperRow() + 1)]).reshape(-1, 3)
+    xyz = _poles(cut).reshape(-1, 3)
     return xyz.min(axis=0), xyz.max(axis=0)
+
+
+def _poles(surface: Geom_BSplineSurface) -> FloatArray:
+    """The surface's poles, (u poles, v poles, 3)."""
+    poles = surface.Poles()
+    return np.array([[poles.Value(i, j).Coord()
+                      for j in range(poles.LowerCol(), poles.UpperCol() + 1)]
+                     for i in range(poles.LowerRow(), poles.UpperRow() + 1)])
 
 
 def _reaching_hull(
     surface: Geom_BSplineSurface, uv: tuple[float, float, float, float]
 ) -> tuple[FloatArray, FloatArray]:
     """Box of the poles that shape ``surface`` over ``uv`` (all of them along periodic sides)."""
-    poles = surface.Poles()
-    xyz = np.array([[poles.Value(i, j).Coord()
-                     for j in range(poles.LowerCol(), poles.UpperCol() + 1)]
-                    for i in range(poles.LowerRow(), poles.UpperRow() + 1)])  # (nu, nv, 3)
+    xyz = _poles(surface)
     rows = _reaching(surface.UKnotSequence(), surface.UDegree(), len(xyz), uv[0], uv[1],
                      surface.IsUPeriodic())
     cols = _reaching(surface.VKnotSequence(), surface.VDegree(), xyz.shape[1], uv[2], uv[3],

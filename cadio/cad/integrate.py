@@ -400,7 +400,7 @@ def face_integrals(face: TopoDS_Face, origin: FloatArray | None = None) -> Float
 
     Returns:
         (8,) float64, or None: the face is not a B-spline face, its domain is unusual (no
-        edges, infinite parameters), or the two rules do not agree within ``REL_TOL``; the
+        edges, infinite parameters), or no two successive passes agree within ``REL_TOL``; the
         caller then uses OpenCascade's adaptive rule.
     """
     adaptor = GeomAdaptor_Surface(BRep_Tool.Surface_s(face))  # located: the file's frame

@@ -346,7 +346,7 @@ def _fill_rays_in_box(x: Any, y: Any, rot_cw: Any, eye: Any, box: Any, rays: Any
     return m
 
 
-# Margin of the image-plane outline of the scene's box, in pixels: far above the float32
+# Margin of the image-plane outline of a box, in pixels: far above the float32
 # rounding of the directions open3d is given (~1e-7 of a normalised coordinate).
 _OUTLINE_MARGIN_PX = 2.0
 
@@ -441,9 +441,12 @@ def _meet_table(x: Any, y: Any, rot_cw: Any, eye: Any, table: Any, cast: Any, ta
     for i in range(3):
         a[i] = np.float64(rot_cw[i, 1]) * y + np.float64(rot_cw[i, 2])
         b[i] = np.float64(rot_cw[i, 0])
+    if abs(height) <= pad:  # the eye at the plane's height
+        cast[:] = _CAST
+        return
     for c in range(len(x)):
         rise = a[2] + x[c] * b[2]
-        if abs(height) <= pad or rise == 0.0:
+        if rise == 0.0:
             cast[c] = _CAST
             continue
         t = height / rise
