@@ -35,7 +35,7 @@ the cone from the origin over the face, which sum to the solid's over its closed
 from __future__ import annotations
 
 import itertools
-from collections.abc import Sequence
+from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
 from typing import Any
 
@@ -510,16 +510,23 @@ def part_integrals(shape: TopoDS_Shape, faces: Sequence[TopoDS_Face], eps: float
         PartIntegrals; face_props in the order of ``faces``.
     """
     origin = _vertex_mean(shape)
+    terms = []
+    for face in faces:
+        got = face_integrals(face, origin) if prefer_numpy(face) else None
+        terms.append(_occt_terms(face, origin, eps) if got is None else got)
+    return summed(origin, terms)
+
+
+def summed(origin: FloatArray, terms: Iterable[FloatArray]) -> PartIntegrals:
+    """A solid's integrals from the eight terms of each of its faces, taken about ``origin``."""
     volume, moment = 0.0, np.zeros(3)
     props = []
-    for face in faces:
-        terms = face_integrals(face, origin) if prefer_numpy(face) else None
-        if terms is None:
-            terms = _occt_terms(face, origin, eps)
-        area = float(terms[AREA])
-        props.append((area, origin + terms[AREA_MOMENT] / area if area > 0 else origin.copy()))
-        volume += float(terms[VOLUME])
-        moment += terms[VOLUME_MOMENT]
+    for face_terms in terms:
+        area = float(face_terms[AREA])
+        props.append((area, origin + face_terms[AREA_MOMENT] / area if area > 0
+                      else origin.copy()))
+        volume += float(face_terms[VOLUME])
+        moment += face_terms[VOLUME_MOMENT]
     centroid = origin + moment / volume if volume != 0 else origin.copy()
     return PartIntegrals(volume=volume, centroid=centroid, face_props=tuple(props))
 
