@@ -148,16 +148,27 @@ class ConvLSTM3d(nn.Module):
         return torch.sigmoid(o) * torch.tanh(c), c
 
 
+STATES = 2  # channels of a view's input grid: seen surface, seen free
+
+
+def union_views(views: Tensor) -> Tensor:
+    """(B, V, 2, n^3) state grids -> (B, 1, 2, n^3): surface where any view saw the part's
+    surface, free where any view saw through and none saw surface (``observe.union_states``)."""
+    surface = views[:, :, 0].amax(1)
+    free = views[:, :, 1].amax(1) * (1 - surface)
+    return torch.stack([surface, free], 1)[:, None]
+
+
 class Encoder(nn.Module):
     """Stride-2 3D convolutions from n_in to the bottleneck; returns every level's features."""
 
     def __init__(self, width: int, levels: int) -> None:
         super().__init__()
-        chans = [1] + [width * 2**k for k in range(levels)]
+        chans = [STATES] + [width * 2**k for k in range(levels)]
         self.blocks = nn.ModuleList(down3d(a, b) for a, b in pairwise(chans))
 
     def forward(self, x: Tensor) -> list[Tensor]:
-        """x (N, 1, n, n, n) -> [x, (N, w, n/2, ...), ..., (N, w 2^(L-1), n/2^L, ...)]."""
+        """x (N, 2, n, n, n) -> [x, (N, w, n/2, ...), ..., (N, w 2^(L-1), n/2^L, ...)]."""
         feats = [x]
         for block in self.blocks:
             feats.append(block(feats[-1]))
@@ -170,7 +181,7 @@ class Decoder(nn.Module):
     def __init__(self, cfg: CompletionConfig) -> None:
         super().__init__()
         w, levels = cfg.width, cfg.levels
-        skip_ch = [1] + [w * 2**k for k in range(levels - 1)]  # skips at sides n, n/2, ...
+        skip_ch = [STATES] + [w * 2**k for k in range(levels - 1)]  # skips at sides n, n/2, ...
         c_in = w * 2 ** (levels - 1)
         self.ups = nn.ModuleList()
         for k in reversed(range(levels)):
@@ -187,7 +198,7 @@ class Decoder(nn.Module):
 
 
 class Generator(nn.Module):
-    """Observed occupancy of V views -> logits of the completed solid."""
+    """State grids of V views -> logits of the completed solid."""
 
     input_key = "inputs"  # the data contract's field this model reads
 
@@ -200,20 +211,21 @@ class Generator(nn.Module):
         self.decoder = Decoder(cfg)
 
     def forward(self, views: Tensor) -> Tensor:
-        """views (B, V, n_in, n_in, n_in), any dtype, 1 = observed -> (B, 1, n_out^3) logits.
+        """views (B, V, 2, n_in, n_in, n_in), any dtype, channel 0 seen surface, 1 seen free
+        -> (B, 1, n_out^3) logits.
 
         Raises:
             ValueError: views do not have that shape.
         """
         n = self.cfg.n_in
-        check_shape(views, "views", (n, n, n))
+        check_shape(views, "views", (STATES, n, n, n))
         x = views.to(next(self.parameters()).dtype)
         if self.lstm is None:
             # Without a recurrent unit the views merge where they can: all share one grid, so
             # their union is itself a valid (fuller) observation.
-            x = x.amax(1, keepdim=True)  # (B, 1, n, n, n)
+            x = union_views(x)  # (B, 1, 2, n, n, n)
         b, v = x.shape[:2]
-        feats = self.encoder(x.reshape(b * v, 1, n, n, n))  # views batched through the encoder
+        feats = self.encoder(x.reshape(b * v, STATES, n, n, n))  # views batched through
         per_view = [f.unflatten(0, (b, v)) for f in feats]  # (B, V, C, s, s, s) each
         # Skips merge by a max over views: order-free, equal to the lone view's features when
         # V = 1 (so one view and many views feed the decoder the same kind of evidence), and a
@@ -241,13 +253,14 @@ class Critic(nn.Module):
     def __init__(self, cfg: CompletionConfig) -> None:
         super().__init__()
         self.scale = cfg.n_out // cfg.n_in
-        chans = [2] + [cfg.critic_width * 2 ** min(k, 3) for k in range(5)]
+        chans = [STATES + 1] + [cfg.critic_width * 2 ** min(k, 3) for k in range(5)]
         self.convs = nn.Sequential(*(down3d(a, b) for a, b in pairwise(chans)))
         self.score = nn.Conv3d(chans[-1], 1, cfg.n_out // 32)  # the sixth: n_out/32 cube -> 1
 
     def forward(self, observed: Tensor, solid: Tensor) -> Tensor:
-        """observed (B, 1, n_in^3) union of the views, solid (B, 1, n_out^3) in [0, 1] -> (B,)."""
-        cond = F.interpolate(observed, scale_factor=self.scale, mode="nearest")  # (B, 1, n_out^3)
+        """observed (B, 2, n_in^3) union of the views' states, solid (B, 1, n_out^3) in [0, 1]
+        -> (B,)."""
+        cond = F.interpolate(observed, scale_factor=self.scale, mode="nearest")  # (B, 2, n_out^3)
         x = self.convs(torch.cat([cond, solid], 1))  # (B, 8 cw, n_out/32, ...)
         return self.score(x).flatten()  # (B,)
 
@@ -268,7 +281,7 @@ def gradient_penalty(critic: Critic, observed: Tensor, real: Tensor, fake: Tenso
     """WGAN-GP: mean of (|grad of the score at a random mix of real and fake| - 1)^2.
 
     Args:
-        observed: (B, 1, n_in^3) the critic's condition.
+        observed: (B, 2, n_in^3) the critic's condition.
         real, fake: (B, 1, n_out^3) truth and generated probabilities (detached).
         eps: (B,) mixing weights in [0, 1], drawn by the caller (so it controls the seed).
     """

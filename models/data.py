@@ -29,6 +29,7 @@ from torch.utils.data import Dataset
 from models.errors import ShardError
 
 MAX_VIEWS = 8  # the contract's upper bound on V
+STATES = 2  # channels of a view's input grid: seen surface, seen free
 SHARD_KEYS = ("inputs", "depth", "target", "meta")
 
 
@@ -36,7 +37,8 @@ SHARD_KEYS = ("inputs", "depth", "target", "meta")
 class Example:
     """One part from V views in one grid (x right, y away from the first camera, z up).
 
-    inputs: (V, n_in, n_in, n_in) bool, the observed occupancy of each view.
+    inputs: (V, 2, n_in, n_in, n_in) bool, each view's seen-surface and seen-free voxels (a
+        voxel in neither is unknown).
     depth: (V, 2, 2 n_in, 2 n_in) float32 or None: channel 0 the distance along +y of the
         nearest observed point of each (x, z) cell over the grid side (1 where none), channel 1
         the observed mask. Only the ``r2n2`` baseline reads it.
@@ -55,14 +57,15 @@ class Example:
     def __post_init__(self) -> None:
         inputs, target = np.asarray(self.inputs), np.asarray(self.target)
         shape = inputs.shape
-        if inputs.ndim != 4 or not 1 <= shape[0] <= MAX_VIEWS or len(set(shape[1:])) != 1:
-            raise ValueError(f"inputs must be (V <= {MAX_VIEWS}, n, n, n); got {shape}")
+        if (inputs.ndim != 5 or not 1 <= shape[0] <= MAX_VIEWS or shape[1] != STATES
+                or len(set(shape[2:])) != 1):
+            raise ValueError(f"inputs must be (V <= {MAX_VIEWS}, {STATES}, n, n, n); got {shape}")
         if target.ndim != 3 or len(set(target.shape)) != 1:
             raise ValueError(f"target must be (n_out, n_out, n_out); got {target.shape}")
         object.__setattr__(self, "inputs", inputs.astype(bool, copy=False))
         object.__setattr__(self, "target", target.astype(bool, copy=False))
         if self.depth is not None:
-            d = 2 * shape[1]
+            d = 2 * shape[2]
             depth = np.asarray(self.depth, dtype=np.float32)
             if depth.shape != (shape[0], 2, d, d):
                 raise ValueError(f"depth must be ({shape[0]}, 2, {d}, {d}); got {depth.shape}")
@@ -109,7 +112,7 @@ def write_shard(path: Path | str, example: Example) -> None:
 class Batch:
     """Stacked examples with a common view count V, as float32 tensors."""
 
-    inputs: Tensor  # (B, V, n_in, n_in, n_in) 1 = observed
+    inputs: Tensor  # (B, V, 2, n_in, n_in, n_in) seen surface, seen free
     depth: Tensor | None  # (B, V, 2, 2 n_in, 2 n_in)
     target: Tensor  # (B, 1, n_out, n_out, n_out) 1 = solid
 
@@ -134,7 +137,7 @@ class CompletionDataset(Dataset[dict[str, Tensor]]):
         self._examples = list(examples)
         self._paths = [Path(p) for p in paths]
         first = self._examples[0] if self._examples else read_shard(self._paths[0])
-        self.n_in, self.n_out = first.inputs.shape[1], first.target.shape[0]
+        self.n_in, self.n_out = first.inputs.shape[2], first.target.shape[0]
         for ex in self._examples:
             self._check(ex)
 
@@ -155,8 +158,8 @@ class CompletionDataset(Dataset[dict[str, Tensor]]):
         return cls(paths=paths)
 
     def _check(self, ex: Example) -> Example:
-        if (ex.inputs.shape[1], ex.target.shape[0]) != (self.n_in, self.n_out):
-            raise ValueError(f"example grids {ex.inputs.shape[1:]} -> {ex.target.shape} differ "
+        if (ex.inputs.shape[2], ex.target.shape[0]) != (self.n_in, self.n_out):
+            raise ValueError(f"example grids {ex.inputs.shape[2:]} -> {ex.target.shape} differ "
                              f"from the dataset's {self.n_in} -> {self.n_out}")
         return ex
 
@@ -167,7 +170,7 @@ class CompletionDataset(Dataset[dict[str, Tensor]]):
         return self._examples[i] if self._examples else self._check(read_shard(self._paths[i]))
 
     def __getitem__(self, i: int) -> dict[str, Tensor]:
-        """Example i with all its views: inputs (V, n^3), depth (V, 2, d, d), target (m^3)."""
+        """Example i with all its views: inputs (V, 2, n^3), depth (V, 2, d, d), target (m^3)."""
         ex = self.example(i)
         item = {"inputs": torch.from_numpy(ex.inputs).float(),
                 "target": torch.from_numpy(ex.target).float()}
@@ -233,10 +236,17 @@ def training_batch(data: CompletionDataset, counts: Sequence[int], step: int, ba
 
 def eval_batches(data: CompletionDataset, counts: Sequence[int], batch_size: int,
                  n_views: int) -> list[tuple[list[int], list[list[int]]]]:
-    """Fixed evaluation batches: every example with its first n_views views (fewer if it has
-    fewer), grouped so each batch shares one view count. Returns (indices, views) pairs."""
-    by_k: dict[int, list[int]] = {}
-    for i, c in enumerate(counts):
+    """Fixed evaluation batches, grouped so each batch shares one view count; returns
+    (indices, views) pairs.
+
+    Where the data holds examples recorded with exactly ``n_views`` views, those alone are
+    evaluated, whole: an example of more views cut to its first ones keeps a grid placed from
+    all of them, extents that the views kept could not give. Otherwise every example is
+    evaluated with its first n_views views (fewer if it has fewer).
+    """
+    exact = [i for i, c in enumerate(counts) if c == n_views]
+    by_k: dict[int, list[int]] = {n_views: exact} if exact else {}
+    for i, c in enumerate(counts if not exact else ()):
         by_k.setdefault(min(c, n_views), []).append(i)
     out = []
     for k, idx in sorted(by_k.items()):

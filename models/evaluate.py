@@ -25,6 +25,7 @@ import pandas as pd
 import torch
 
 from cadio.capture.examples import Example, read_example
+from cadio.capture.observe import union_states
 from cadio.capture.register import register
 from cadio.catalog import read_catalog
 from cadio.workspace import Workspace, atomic_path
@@ -94,7 +95,7 @@ def _model_input(method: str, model: Model, example: Example) -> npt.NDArray[Any
     if model.input_key == "depth":
         return example.depth
     if method == "ae":  # no LSTM: the union of the views is its one input
-        union: npt.NDArray[np.bool_] = np.any(example.inputs, axis=0, keepdims=True)
+        union: npt.NDArray[np.bool_] = union_states(example.inputs)[None]
         return union
     return example.inputs
 

@@ -44,13 +44,17 @@ def cylinder(n: int, centre: npt.ArrayLike, radius: float, half_height: float) -
 
 
 def observe(solid: BoolGrid, n_in: int, view: int) -> BoolGrid:
-    """The coarse voxels of ``solid`` a camera looking along view ``view``'s axis sees first."""
+    """The (2, n_in^3) states a camera looking along view ``view``'s axis gives of ``solid``:
+    the coarse voxels it sees first (surface) and those its rays cross before (free)."""
     f = solid.shape[0] // n_in
     coarse = solid.reshape(n_in, f, n_in, f, n_in, f).any(axis=(1, 3, 5))
     axis, rev = VIEW_DIRECTIONS[view % len(VIEW_DIRECTIONS)]
     grid = np.flip(coarse, axis) if rev else coarse
-    first = grid & (np.cumsum(grid, axis=axis) == 1)
-    return np.flip(first, axis) if rev else first
+    hits = np.cumsum(grid, axis=axis)
+    first, free = grid & (hits == 1), hits == 0
+    if rev:
+        first, free = np.flip(first, axis), np.flip(free, axis)
+    return np.stack([first, free])
 
 
 def depth_image(observed: BoolGrid) -> npt.NDArray[np.float32]:
@@ -65,7 +69,7 @@ def depth_image(observed: BoolGrid) -> npt.NDArray[np.float32]:
 def example(solid: BoolGrid, n_in: int, n_views: int, meta: dict[str, object]) -> Example:
     """An example of ``solid`` seen from views 0..n_views-1."""
     inputs = np.stack([observe(solid, n_in, v) for v in range(n_views)])
-    depth = np.stack([depth_image(obs) for obs in inputs])
+    depth = np.stack([depth_image(obs[0]) for obs in inputs])
     return Example(inputs, solid, depth, meta)
 
 

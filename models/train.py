@@ -34,7 +34,14 @@ from models.checkpoint import (
     model_from_checkpoint,
     state_copy,
 )
-from models.completion import CompletionConfig, Critic, Generator, gradient_penalty, voxel_loss
+from models.completion import (
+    CompletionConfig,
+    Critic,
+    Generator,
+    gradient_penalty,
+    union_views,
+    voxel_loss,
+)
 from models.data import Batch, CompletionDataset, Example, eval_batches, training_batch
 
 logger = logging.getLogger(__name__)
@@ -47,14 +54,15 @@ Data = CompletionDataset | Sequence[Example]
 def config_for(method: str, **overrides: Any) -> Config:
     """The default config of a method, with field overrides.
 
-    ``ae`` is the paper's generator without LSTM and GAN, trained on single views.
+    ``ae`` is the paper's generator without LSTM and GAN: it sees the union of a sequence's
+    views, in training as in scoring.
 
     Raises:
         ValueError: unknown method or field.
     """
     presets: dict[str, Callable[[], Config]] = {
         "gan_lstm": CompletionConfig,
-        "ae": lambda: CompletionConfig(lstm=False, gan=False, max_views=1),
+        "ae": lambda: CompletionConfig(lstm=False, gan=False),
         "r2n2": R2N2Config,
     }
     if method not in presets:
@@ -132,7 +140,7 @@ class Learner:
         """One generator update (after the critic's updates for GAN methods): its losses."""
         self.model.train()
         x = batch.model_input(self.model.input_key)
-        observed = batch.inputs.amax(1, keepdim=True)  # (B, 1, n_in^3) the critic's condition
+        observed = union_views(batch.inputs)[:, 0]  # (B, 2, n_in^3) the critic's condition
         logits = self.model(x)  # (B, 1, n_out^3)
         # The critic learns on this very forward pass, detached, then judges it once updated.
         fake = torch.sigmoid(logits).detach()

@@ -322,8 +322,9 @@ def _empty_predictions(parts: pd.DataFrame) -> list[str]:
              .agg(predictions=("empty", "size"), empty=("empty", "sum")).reset_index())
     n = int(table["empty"].sum())
     return [f"{n} {'prediction is' if n == 1 else 'predictions are'} empty: scored IoU 0, "
-            "missing 1 and F-score 0, with composition_error and chamfer_l1 undefined (NaN) "
-            "and left out of the means.", "", markdown_table(table[table["empty"] > 0]), ""]
+            "missing 1, F-score 0 and Chamfer-L1 the part's diagonal, with composition_error "
+            "undefined (NaN) and left out of its mean.", "",
+            markdown_table(table[table["empty"] > 0]), ""]
 
 
 def _protocol_section(parts: pd.DataFrame, categories: pd.DataFrame, protocol: str,

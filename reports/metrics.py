@@ -34,8 +34,11 @@ class MetricsConfig:
 
     # IoU is also reported at 32^3, where 64^3 and 256^3 outputs compare (see ``downsample``).
     coarse_n: int = 32
-    # F-score threshold as a fraction of the part's size (the truth's bounding-box diagonal).
+    # F-score threshold as a fraction of the part's size (the truth's bounding-box diagonal),
+    # but never under ``fscore_min_voxels`` voxel edges: 1% of the diagonal is under one voxel
+    # at 64^3, where the F-score would only count surface voxels that coincide exactly.
     fscore_fraction: float = 0.01
+    fscore_min_voxels: float = 1.0
 
 
 DEFAULT_METRICS_CONFIG = MetricsConfig()
@@ -261,8 +264,10 @@ def part_metrics(pred: BoolGrid, truth: BoolGrid, voxel_mm: float,
     ``config.coarse_n`` (unchanged when they are that size already); composition_error,
     missing; overlap_xy/yz/zx = ``projection_overlap``; chamfer_l1 and fscore on the surface
     voxels' centres (mm), the F-score threshold being ``config.fscore_fraction`` times the
-    truth's ``bbox_diagonal``. An empty prediction scores iou 0, missing 1, overlaps 0, fscore
-    0, and NaN composition_error and chamfer_l1.
+    truth's ``bbox_diagonal`` and at least ``config.fscore_min_voxels`` voxel edges. An empty
+    prediction scores what it costs: iou 0, missing 1, overlaps 0, fscore 0, chamfer_l1 the
+    truth's ``bbox_diagonal`` (no surface point is nearer the truth than the part's size), and
+    a NaN composition_error (it is relative to the prediction's own volume).
 
     Args:
         pred, truth: (n, n, n) bool, one part in one grid; n a multiple of ``coarse_n``.
@@ -283,7 +288,10 @@ def part_metrics(pred: BoolGrid, truth: BoolGrid, voxel_mm: float,
         "missing": missing(pred, truth),
         **{f"overlap_{p}": projection_overlap(pred, truth, p) for p in PLANE_AXIS},
     }
-    threshold = config.fscore_fraction * bbox_diagonal(truth, voxel_mm)
+    diagonal = bbox_diagonal(truth, voxel_mm)
+    threshold = max(config.fscore_fraction * diagonal, config.fscore_min_voxels * voxel_mm)
     scores["chamfer_l1"], scores["fscore"] = _point_scores(
         surface_points(pred, voxel_mm), surface_points(truth, voxel_mm), threshold)
+    if not pred.any():
+        scores["chamfer_l1"] = diagonal
     return {name: float(scores[name]) for name in METRICS}

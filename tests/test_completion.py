@@ -113,8 +113,11 @@ def test_an_empty_prediction_counts_as_a_failure_without_making_means_nan() -> N
     means = _means(rows).loc[(BRAKES, "gan_lstm", "observed")]
     assert means["iou"] == pytest.approx(scores.loc["good", "iou"] / 2)  # the empty one is 0
     assert means["missing"] == pytest.approx((scores.loc["good", "missing"] + 1) / 2)
+    # The empty one costs the part's diagonal in Chamfer distance: the mean cannot improve.
+    assert means["chamfer_l1"] == pytest.approx((scores.loc["good", "chamfer_l1"]
+                                                 + scores.loc["empty", "chamfer_l1"]) / 2)
+    assert scores.loc["empty", "chamfer_l1"] > 10 * scores.loc["good", "chamfer_l1"]
     # Undefined for the empty prediction: left out, so the mean is the good part's own.
-    assert means["chamfer_l1"] == pytest.approx(scores.loc["good", "chamfer_l1"])
     assert means["composition_error"] == pytest.approx(scores.loc["good", "composition_error"])
     assert "1 prediction is empty" in completion_markdown(parts)
 

@@ -18,7 +18,13 @@ from models.checkpoint import (
     model_from_checkpoint,
     save_checkpoint,
 )
-from models.completion import CompletionConfig, Critic, Generator, gradient_penalty
+from models.completion import (
+    CompletionConfig,
+    Critic,
+    Generator,
+    gradient_penalty,
+    union_views,
+)
 from models.data import CompletionDataset, Example, read_shard, training_batch, write_shard
 from models.errors import CheckpointError, ShardError
 from models.synthetic import box, cylinder, example, synthetic_examples
@@ -88,7 +94,7 @@ def test_gradient_penalty_is_finite_and_non_negative(parts: CompletionDataset) -
     cfg = small("gan_lstm")
     critic = Critic(cfg)
     batch = parts.batch([0, 1, 2], [[0]] * 3)
-    observed = batch.inputs.amax(1, keepdim=True)
+    observed = union_views(batch.inputs)[:, 0]
     fake = torch.rand_like(batch.target)
     gp = gradient_penalty(critic, observed, batch.target, fake, torch.rand(3))
     assert math.isfinite(gp.item()) and gp.item() >= 0
@@ -140,10 +146,12 @@ def test_resume_refuses_another_config_or_a_shipped_checkpoint(parts: Completion
 
 def test_wrong_shapes_raise_value_errors_naming_the_shape(parts: CompletionDataset) -> None:
     gen = Generator(small("gan_lstm"))
-    with pytest.raises(ValueError, match=r"\(2, 1, 16, 16, 8\)"):
-        gen(torch.zeros(2, 1, 16, 16, 8))
+    with pytest.raises(ValueError, match=r"\(2, 1, 2, 16, 16, 8\)"):
+        gen(torch.zeros(2, 1, 2, 16, 16, 8))
     with pytest.raises(ValueError, match=r"\(1, 16, 16, 16\)"):
         gen(torch.zeros(1, 16, 16, 16))
+    with pytest.raises(ValueError, match=r"\(1, 1, 16, 16, 16\)"):
+        gen(torch.zeros(1, 1, 16, 16, 16))  # occupancy alone: the free channel is missing
     r2n2 = build_model(small("r2n2"))
     with pytest.raises(ValueError, match=r"\(1, 1, 2, 16, 16\)"):
         r2n2(torch.zeros(1, 1, 2, 16, 16))
@@ -152,8 +160,10 @@ def test_wrong_shapes_raise_value_errors_naming_the_shape(parts: CompletionDatas
     ex = parts.example(0)
     with pytest.raises(ValueError, match=r"\(3, 2, 16, 16\)"):
         Example(ex.inputs, ex.target, np.zeros((3, 2, 16, 16), np.float32))
-    with pytest.raises(ValueError, match=r"\(9, 16, 16, 16\)"):
-        Example(np.zeros((9, 16, 16, 16), bool), ex.target)
+    with pytest.raises(ValueError, match=r"\(9, 2, 16, 16, 16\)"):
+        Example(np.zeros((9, 2, 16, 16, 16), bool), ex.target)
+    with pytest.raises(ValueError, match=r"\(3, 16, 16, 16\)"):
+        Example(np.zeros((3, 16, 16, 16), bool), ex.target)  # occupancy alone: no free space
     no_depth = CompletionDataset([Example(ex.inputs, ex.target)])
     with pytest.raises(ValueError, match="no 'depth' views"):
         predict(r2n2, no_depth)

@@ -11,6 +11,7 @@ import pytest
 
 from reports.metrics import (
     METRICS,
+    MetricsConfig,
     bbox_diagonal,
     chamfer_l1,
     composition_error,
@@ -221,7 +222,9 @@ def test_part_metrics_of_a_perfect_prediction() -> None:
 def test_part_metrics_of_an_empty_prediction() -> None:
     _, truth = _pair()
     scores = part_metrics(np.zeros_like(truth), truth, voxel_mm=0.5)
-    assert math.isnan(scores["composition_error"]) and math.isnan(scores["chamfer_l1"])
+    assert math.isnan(scores["composition_error"])
+    # an empty prediction costs the part's size, so it cannot leave the means looking better
+    assert scores["chamfer_l1"] == pytest.approx(bbox_diagonal(truth, 0.5)) > 0
     assert {k: scores[k] for k in ("iou", "iou32", "missing", "overlap_xy", "fscore")} == {
         "iou": 0.0, "iou32": 0.0, "missing": 1.0, "overlap_xy": 0.0, "fscore": 0.0}
 
@@ -232,9 +235,12 @@ def test_part_metrics_refuses_an_empty_truth() -> None:
         part_metrics(pred, np.zeros_like(truth), voxel_mm=0.5)
 
 
-def test_fscore_threshold_is_one_percent_of_the_part_size() -> None:
+def test_fscore_threshold_is_one_percent_of_the_part_size_and_at_least_a_voxel() -> None:
     truth = _box((0, 0, 0), (60, 60, 60), n=64)  # diagonal 60 * sqrt(3) voxels = 1.04 voxels
     shifted = np.roll(truth, 1, axis=0)
     assert part_metrics(shifted, truth, voxel_mm=1.0)["fscore"] > 0.9  # 1 voxel is within
-    thin = _box((0, 0, 0), (60, 8, 8), n=64)  # diagonal about 61 voxels: 0.61 voxel
-    assert part_metrics(np.roll(thin, 1, axis=1), thin, voxel_mm=1.0)["fscore"] < 0.9
+    thin = _box((0, 0, 0), (60, 8, 8), n=64)  # 1% of the diagonal is 0.61 voxel: one voxel
+    assert part_metrics(np.roll(thin, 1, axis=1), thin, voxel_mm=1.0)["fscore"] > 0.9
+    big = MetricsConfig(fscore_min_voxels=0.0)  # without the floor, one voxel off misses
+    assert part_metrics(np.roll(thin, 1, axis=1), thin, 1.0, big)["fscore"] < 0.9
+    assert part_metrics(np.roll(thin, 2, axis=1), thin, voxel_mm=1.0)["fscore"] < 0.9

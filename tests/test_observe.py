@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import inspect
 import math
+from dataclasses import replace
 
 import numpy as np
 import open3d as o3d
@@ -21,15 +22,19 @@ from cadio.capture.examples import (
     write_example,
 )
 from cadio.capture.observe import (
+    FREE,
+    SURFACE,
     CubeGrid,
     camera_azimuth_deg,
     carve,
     depth_view,
     observed_occupancy,
     observer_rotation,
+    occluded_sides,
     oracle_grid,
     place_grid,
     truth_occupancy,
+    view_states,
 )
 from cadio.capture.render import CaptureConfig, camera_pose
 from cadio.records import Mesh
@@ -131,11 +136,11 @@ def test_carving_more_views_agrees_better_with_the_box(box_views) -> None:  # ty
 def test_depth_view_of_a_wall_is_flat() -> None:
     grid = CubeGrid(np.eye(3), np.zeros(3), 1.0)
     xs, zs = np.meshgrid(np.linspace(0.01, 0.99, 200), np.linspace(0.01, 0.49, 100))
-    wall = np.column_stack([xs.ravel(), np.full(xs.size, 0.25), zs.ravel()])
-    img = depth_view(wall, grid, 16)
+    wall = np.column_stack([xs.ravel(), np.full(xs.size, 0.26), zs.ravel()])
+    img = depth_view(observed_occupancy(wall, grid, 16))
     seen = img[1] > 0
     assert seen[:, :8].all() and not seen[:, 8:].any()
-    assert img[0][seen] == pytest.approx(0.25) and (img[0][~seen] == 1).all()
+    assert img[0][seen] == pytest.approx(4.5 / 16) and (img[0][~seen] == 1).all()
     occ = observed_occupancy(wall, grid, 8)
     assert occ[:, 2, :4].all() and occ.sum() == 32
 
@@ -160,3 +165,69 @@ def test_view_sets_spread_views() -> None:
 def test_carve_sees_nothing_without_views() -> None:
     grid = CubeGrid(np.eye(3), np.zeros(3), 1.0)
     assert not carve([], grid, 8).any()
+
+
+def _states_iou(a: np.ndarray, b: np.ndarray) -> float:
+    return float((a & b).sum() / max((a | b).sum(), 1))
+
+
+def test_view_states_are_three_and_honest(box_views) -> None:  # type: ignore[no-untyped-def]
+    """Seen free space never lies inside the solid, the seen surface lies on it, and what is
+    behind the surface stays unknown (neither state)."""
+    mesh, views, to_world = box_views
+    example = with_truth(observed_example(views[:1], SMALL), mesh, to_world, SMALL)
+    assert example.target is not None and example.inputs.shape == (1, 2, 16, 16, 16)
+    n = SMALL.n_in
+    states = view_states(views[0].evidence, views[0].points, example.grid, n)
+    assert np.array_equal(states, example.inputs[0])
+    surface, free = states[SURFACE], states[FREE]
+    assert not (surface & free).any() and surface.any() and free.sum() > surface.sum()
+    solid = truth_occupancy(mesh, to_world, example.grid, n)
+    assert (free & solid).sum() <= 0.02 * solid.sum()
+    unknown = ~(surface | free)
+    hidden = solid & ~surface
+    assert (unknown & hidden).sum() >= 0.9 * hidden.sum()  # the hidden back is unknown
+
+
+def test_inputs_do_not_depend_on_how_many_pixels_a_voxel_catches() -> None:
+    """The same view taken by a sensor with 64 times fewer pixels (80 x 60: a small part of an
+    assembly catches about as few) gives nearly the same states in the same grid; the binned
+    points alone lose far more."""
+    mesh = _box(60, 40, 30)
+    pose = _pose(20, (-30, -20, 0))
+    grid, out = None, {}
+    for width in (640, 80):
+        views, _ = render_part_views(mesh, pose, [0], CaptureConfig(width=width,
+                                                                    height=width * 3 // 4))
+        grid = grid or observed_example(views, SMALL).grid
+        out[width] = (view_states(views[0].evidence, views[0].points, grid, SMALL.n_in),
+                      observed_occupancy(views[0].points, grid, SMALL.n_in), len(views[0].points))
+    (fine, fine_pts, n_fine), (coarse, coarse_pts, n_coarse) = out[640], out[80]
+    assert n_fine > 50 * n_coarse
+    assert _states_iou(fine[FREE], coarse[FREE]) > 0.9
+    surface_iou = _states_iou(fine[SURFACE], coarse[SURFACE])
+    assert surface_iou > 0.6 and surface_iou > _states_iou(fine_pts, coarse_pts) + 0.05
+
+
+def test_an_occluded_part_gets_room_where_its_neighbour_hides_it() -> None:
+    """A box half hidden behind a nearer one: its silhouette side next to the occluder is
+    found, the grid goes on into the hidden space there, and it holds more of the part."""
+    from cadio.capture.examples import part_views
+    from cadio.capture.render import PlacedPart, render_views
+
+    back, front = _box(80, 30, 30), _box(50, 20, 80)
+    parts = [PlacedPart(1, back, _pose(0, (-40, 40, 0)), part_id="back"),
+             PlacedPart(2, front, _pose(0, (-55, -60, 0)), part_id="front")]
+    frames = list(render_views(parts, CAPTURE, [0]))
+    labels = [f.instance for f in frames]
+    views = part_views(frames, labels, 1)  # type: ignore[arg-type]
+    assert views and "left" in occluded_sides(views[0].evidence)
+    assert "right" not in occluded_sides(views[0].evidence)
+    scale = float(frames[0].meta["scale_m_per_mm"])
+    to_world = np.diag([scale, scale, scale, 1.0]) @ parts[0].pose
+    naive = place_grid(views[0].points, views[0].evidence.world_to_camera)
+    example = with_truth(observed_example(views, SMALL), back, to_world, SMALL)
+    assert example.grid.side > naive.side
+    ref = replace(example, grid=naive)
+    naive_cov = with_truth(ref, back, to_world, SMALL).coverage
+    assert example.coverage > naive_cov + 0.1 and example.coverage > 0.85

@@ -89,12 +89,14 @@ def test_inputs_are_examples_of_each_part_in_both_protocols(ws: Workspace) -> No
             assert len(z["view"]) == len(z["points"]) == len(z["world_to_camera"])
         truth = read_voxels(ws.voxels(pid, 32)).occupancy
         oracle = read_example(next(folder.glob("oracle-box-0.npz")))
-        # the oracle-box protocol is the ingest's truth grid: observed voxels sit on the truth
-        partial = oracle.inputs[0]
+        # the oracle-box protocol is the ingest's truth grid: seen surface sits on the truth,
+        # and seen free space is outside it
+        partial, free = oracle.inputs[0]
         assert partial.any() and oracle.target is not None
         assert np.array_equal(oracle.target, truth)
         near_truth = ndimage.binary_dilation(truth, iterations=1)
         assert (partial & near_truth).sum() >= 0.95 * partial.sum()
+        assert free.any() and (free & ndimage.binary_erosion(truth)).sum() == 0
 
 
 def test_observed_inputs_ignore_the_truth_in_the_capture(ws: Workspace) -> None:

@@ -2,10 +2,11 @@
 
 One example is one part seen in a sequence of V >= 1 views, in one cube (``observe.CubeGrid``):
 
-- ``inputs`` (V, n_in^3) bool, each view's observed voxels; ``depth`` (V, 2, 2 n_in, 2 n_in)
-  float32, each view's depth image along the cube's +y (``observe.depth_view``);
+- ``inputs`` (V, 2, n_in^3) bool, each view's seen-surface and seen-free voxels (a voxel in
+  neither is unknown: ``observe.view_states``); ``depth`` (V, 2, 2 n_in, 2 n_in) float32, each
+  view's seen surface as a depth image along the cube's +y (``observe.depth_view``);
 - the two baselines that need no learning, at the output resolution: ``visible`` (the views'
-  observed voxels) and ``carve`` (``observe.carve``);
+  seen surface) and ``carve`` (``observe.carve``);
 - ``target`` (n_out^3) bool, the part's solid in the cube, for the loss and the score only.
 
 ``observed_example`` builds the inputs of the observed protocol from the views alone (its
@@ -30,16 +31,19 @@ import numpy as np
 import numpy.typing as npt
 
 from cadio.capture.observe import (
+    SURFACE,
     CubeGrid,
     GridRule,
     ViewEvidence,
     camera_azimuth_deg,
     carve,
     depth_view,
-    observed_occupancy,
+    occluded_sides,
     oracle_grid,
     place_grid,
     truth_occupancy,
+    union_states,
+    view_states,
 )
 from cadio.capture.pointcloud import backproject
 from cadio.capture.render import CaptureConfig, PlacedPart, render_views
@@ -112,7 +116,7 @@ def part_views(frames: Sequence[RgbdFrame], labels: Sequence[npt.NDArray[np.int3
         if len(points) < MIN_POINTS:
             continue
         evidence = ViewEvidence(frame.depth, mask, frame.intrinsics, frame.world_to_camera,
-                                support_plane(frame, lab))
+                                support_plane(frame, lab), others=(lab > 0) & ~mask)
         view = int(frame.meta.get("view_index", order))
         out.append(PartView(view, camera_azimuth_deg(frame.world_to_camera), points, evidence))
     return out
@@ -140,7 +144,9 @@ def observed_example(views: Sequence[PartView], cfg: ExampleConfig) -> Example:
     if not views:
         raise ValueError("an example needs at least one view")
     points = np.concatenate([v.points for v in views])
-    grid = place_grid(points, views[0].evidence.world_to_camera, cfg.rule)
+    first = views[0].evidence
+    grid = place_grid(points, first.world_to_camera, cfg.rule,
+                      occluded_sides(first, cfg.rule), first.support)
     return _inputs(OBSERVED, views, grid, cfg)
 
 
@@ -155,12 +161,15 @@ def oracle_example(views: Sequence[PartView], mesh: Mesh, part_to_world: FloatAr
 def _inputs(protocol: str, views: Sequence[PartView], grid: CubeGrid,
             cfg: ExampleConfig) -> Example:
     points = np.concatenate([v.points for v in views])
+    fine = [view_states(v.evidence, v.points, grid, cfg.d) for v in views]
+    out = fine if cfg.n_out == cfg.d else [
+        view_states(v.evidence, v.points, grid, cfg.n_out) for v in views]
     return Example(
         protocol=protocol, views=tuple(v.view for v in views),
         azimuths=tuple(v.azimuth_deg for v in views), grid=grid,
-        inputs=np.stack([observed_occupancy(v.points, grid, cfg.n_in) for v in views]),
-        depth=np.stack([depth_view(v.points, grid, cfg.d) for v in views]),
-        visible=observed_occupancy(points, grid, cfg.n_out),
+        inputs=np.stack([view_states(v.evidence, v.points, grid, cfg.n_in) for v in views]),
+        depth=np.stack([depth_view(f[SURFACE]) for f in fine]),
+        visible=union_states(np.stack(out))[SURFACE],
         carve=carve([v.evidence for v in views], grid, cfg.n_out),
         points=_sample(points, POINTS_KEPT))
 

@@ -11,18 +11,26 @@ documented rule (``GridRule``), and builds every input in it:
 - the **oracle-box** protocol (the paper's setting, a labelled comparison only): the part's own
   truth grid, the cube around its CAD bounding box, placed with the true pose (``oracle_grid``).
 
-In either grid: ``observed_occupancy`` bins the points, ``depth_view`` renders them as a 2D
-depth image along +y (the input of the ``r2n2`` baseline) and ``carve`` is the ``carve``
-baseline (no learning: what lies behind the observed surface along each camera ray, carved by
-every view). The truth is voxelized into the same grid by ``truth_occupancy``, for the loss and
-the score only; ``cadio.capture.examples`` checks that no truth reaches the inputs.
+In either grid, ``view_states`` gives each voxel one of three states from one view (DESIGN.md,
+"Learning inputs"): seen surface (the part's own pixels meet the voxel), seen free (the camera's
+ray passed through it, or it lies under the support plane the view saw) or unknown (behind a
+surface, hidden by another instance, outside the image). The states come from projecting every
+voxel centre into the depth image, so they do not depend on how many pixels a voxel catches: a
+small part far away and a large one close by give the same kind of grid. ``depth_view``
+renders the part's seen surface as a 2D depth image along +y (the input of the ``r2n2``
+baseline) and ``carve`` is the ``carve`` baseline (no learning: what lies behind the observed
+surface along each camera ray, carved by every view). The truth is voxelized into the same grid
+by ``truth_occupancy``, for the loss and the score only; ``cadio.capture.examples`` checks that
+no truth reaches the inputs.
 
 Lengths are metres in the world frame of the capture (the scene scaled by ``scale_m_per_mm``).
 """
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 import numpy.typing as npt
@@ -39,15 +47,33 @@ class GridRule:
     """The one rule that places the observed-protocol grid from the observed points.
 
     In the first view's observer frame, the observed points span [lo, hi]. Across the view
-    (x) and vertically (z) the part is taken to span what was seen. Along the view (y) the
-    camera sees only the front: the part is assumed to reach ``depth_prior`` times its largest
-    seen extent behind the nearest observed point (a part is about as deep as it is wide), or
-    what was seen, if more. The cube is centred on that estimated box and its side is the
-    box's largest extent times ``1 + margin``, so the completed shape has room.
+    (x) and vertically (z) the part is taken to span what was seen, except on a side where its
+    silhouette meets a nearer instance (an occluder, ``occluded_sides``): there the part may go
+    on into the unknown space the occluder hides, so the box grows by ``occluded_extend`` times
+    the largest seen extent on that side (never below the support plane the view saw). Along
+    the view (y) the camera sees only the front: the part is assumed to reach ``depth_prior``
+    times its largest seen extent behind the nearest observed point (a part is about as deep as
+    it is wide), or what was seen, if more. The cube is centred on that estimated box and its
+    side is the box's largest extent times ``1 + margin``, so the completed shape has room.
     """
 
     depth_prior: float = 1.0
     margin: float = 0.15
+    # How far an occluded side may go on, times the largest seen extent: half of what was seen
+    # is hidden at most for a part that still shows enough points to be completed.
+    occluded_extend: float = 0.5
+    # A silhouette side counts as occluded when at least this share of its border pixels (and
+    # ``occluded_min_px`` of them) touch a nearer instance.
+    occluded_share: float = 0.15
+    occluded_min_px: int = 3
+
+
+SURFACE, FREE = 0, 1  # channels of a state grid; a voxel in neither is unknown
+N_STATES = 2
+# Image sides of a silhouette, in the order ``occluded_sides`` reports them, and the observer
+# axis (x right, z up) and sign each one faces: image u grows to the right, v downwards.
+SIDES = ("left", "right", "top", "bottom")
+_SIDE_AXIS = {"left": (0, -1), "right": (0, 1), "top": (2, 1), "bottom": (2, -1)}
 
 
 @dataclass(frozen=True)
@@ -95,13 +121,18 @@ def camera_azimuth_deg(world_to_camera: FloatArray) -> float:
 
 
 def place_grid(points_world: FloatArray, world_to_camera: FloatArray,
-               rule: GridRule = GridRule()) -> CubeGrid:
+               rule: GridRule = GridRule(), occluded: tuple[str, ...] = (),
+               support: tuple[FloatArray, float] | None = None) -> CubeGrid:
     """The observed-protocol cube of a part from its observed points and the first camera.
 
     Args:
         points_world: (m, 3) observed points of the part in all views given, world metres.
         world_to_camera: (4, 4) the first view's camera (its observer frame orients the cube).
         rule: the placement rule.
+        occluded: sides of the first view's silhouette hidden by a nearer instance
+            (``occluded_sides``); the box goes on into the unknown space there.
+        support: the support plane the first view saw (unit normal up, offset; world metres):
+            an occluded bottom side does not go below it.
 
     Raises:
         ValueError: fewer than one point, or a vertical camera (no observer frame).
@@ -113,12 +144,64 @@ def place_grid(points_world: FloatArray, world_to_camera: FloatArray,
     local = pts @ rot  # observer-frame coordinates
     lo, hi = local.min(axis=0), local.max(axis=0)
     seen = hi - lo
-    depth = max(seen[1], rule.depth_prior * max(seen[0], seen[2]))
-    box_lo = lo.copy()
-    box_hi = np.array([hi[0], lo[1] + depth, hi[2]])
+    grow = rule.occluded_extend * float(np.max(seen))
+    box_lo, box_hi = lo.copy(), hi.copy()
+    for hidden in occluded:
+        axis, sign = _SIDE_AXIS[hidden]
+        if sign > 0:
+            box_hi[axis] += grow
+        else:
+            box_lo[axis] -= grow
+    if "bottom" in occluded and support is not None:
+        box_lo[2] = max(box_lo[2], min(lo[2], _support_height(support, rot, (lo + hi) / 2)))
+    depth = max(seen[1], rule.depth_prior * max(box_hi[0] - box_lo[0], box_hi[2] - box_lo[2]))
+    box_hi[1] = lo[1] + depth
     side = max(float(np.max(box_hi - box_lo)), 1e-6) * (1.0 + rule.margin)
     centre = (box_lo + box_hi) / 2
     return CubeGrid(rotation=rot, corner=rot @ (centre - side / 2), side=side)
+
+
+def _support_height(support: tuple[FloatArray, float], rot: FloatArray,
+                    at: FloatArray) -> float:
+    """Observer-frame height of the support plane under the observer-frame point ``at``."""
+    normal, offset = support
+    n_local = rot.T @ np.asarray(normal, dtype=np.float64)
+    if abs(n_local[2]) < 1e-6:
+        return -math.inf
+    # n . (x, y, z) = offset, solved for z at the point's x and y.
+    return float((offset - n_local[0] * at[0] - n_local[1] * at[1]) / n_local[2])
+
+
+def occluded_sides(view: ViewEvidence, rule: GridRule = GridRule()) -> tuple[str, ...]:
+    """Sides of the part's silhouette (``SIDES``) that a nearer instance hides.
+
+    A border pixel of the part's mask is occluded on a side when its neighbour on that side
+    belongs to another instance (``view.others``) whose depth is nearer the camera. A side
+    counts when enough of its border pixels are (``GridRule.occluded_share``, ``_min_px``).
+    """
+    if view.others is None:
+        return ()
+    mask, depth = view.mask, np.nan_to_num(view.depth, nan=0.0)
+    out = []
+    for side, (dv, du) in zip(SIDES, ((0, -1), (0, 1), (-1, 0), (1, 0)), strict=True):
+        nb_mask = _shifted(mask, dv, du, False)
+        border = mask & ~nb_mask
+        nb_other = _shifted(view.others, dv, du, False)
+        nb_depth = _shifted(depth, dv, du, 0.0)
+        hidden = border & nb_other & (nb_depth > 0) & (nb_depth < depth)
+        count, total = int(hidden.sum()), int(border.sum())
+        if count >= max(rule.occluded_min_px, rule.occluded_share * total):
+            out.append(side)
+    return tuple(out)
+
+
+def _shifted(image: npt.NDArray[Any], dv: int, du: int, fill: Any) -> npt.NDArray[Any]:
+    """``image`` read one pixel away: out[v, u] = image[v + dv, u + du] (``fill`` outside)."""
+    out = np.full_like(image, fill)
+    h, w = image.shape
+    src = image[max(dv, 0):h + min(dv, 0), max(du, 0):w + min(du, 0)]
+    out[max(-dv, 0):h + min(-dv, 0), max(-du, 0):w + min(-du, 0)] = src
+    return out
 
 
 def oracle_grid(mesh: Mesh, part_to_world: FloatArray, margin: float) -> CubeGrid:
@@ -147,34 +230,64 @@ def observed_occupancy(points_world: FloatArray, grid: CubeGrid, n: int) -> Bool
     return out
 
 
-def depth_view(points_world: FloatArray, grid: CubeGrid, d: int) -> npt.NDArray[np.float32]:
-    """(2, d, d) float32: the observed points as a depth image of the cube seen along +y.
-
-    Channel 0: distance along +y of the nearest point in each (x, z) cell, as a fraction of
-    the side (1 where nothing was seen); channel 1: 1 where something was seen. Indexed [x, z].
-    """
-    g = grid.to_grid(points_world)
-    inside = np.all((g >= 0) & (g < 1), axis=1)
-    g = g[inside]
-    cell = np.floor(g[:, [0, 2]] * d).astype(np.int64)
-    depth = np.ones((d, d), dtype=np.float32)
-    np.minimum.at(depth, (cell[:, 0], cell[:, 1]), g[:, 1].astype(np.float32))
-    mask = np.zeros((d, d), dtype=np.float32)
-    mask[cell[:, 0], cell[:, 1]] = 1.0
-    return np.stack([depth, mask])
-
-
 @dataclass(frozen=True)
 class ViewEvidence:
-    """One view as the carve baseline needs it: depth (h, w) metres (0 = no return), the part's
-    pixels (h, w) bool (segmented), the camera, and the support plane the view saw (unit
-    normal pointing up (3,), offset d: n . p = d, world metres; None when it saw none)."""
+    """One view as the inputs and the carve baseline need it: depth (h, w) metres (0 = no
+    return), the part's pixels (h, w) bool (segmented), the camera, the support plane the view
+    saw (unit normal pointing up (3,), offset d: n . p = d, world metres; None when it saw
+    none) and the pixels of the other instances in view (h, w) bool (None when unknown)."""
 
     depth: npt.NDArray[np.float32]
     mask: npt.NDArray[np.bool_]
     intrinsics: CameraIntrinsics
     world_to_camera: FloatArray
     support: tuple[FloatArray, float] | None = None
+    others: npt.NDArray[np.bool_] | None = None
+
+
+def view_states(view: ViewEvidence, points_world: FloatArray, grid: CubeGrid,
+                n: int) -> BoolGrid:
+    """(2, n, n, n) bool: the seen-surface and seen-free voxels of one view (``SURFACE``,
+    ``FREE``); a voxel in neither is unknown.
+
+    Every voxel centre is projected into the view. It is *free* when the pixel has a return
+    and the centre lies in front of it by more than half a voxel diagonal (the ray passed
+    through), or when it lies under the support plane the view saw. It is *surface* when the
+    pixel is the part's and the return lies within half a diagonal of the centre, or when one
+    of the part's observed points falls in it (a voxel smaller than a pixel is met by its
+    centre's pixel alone; one larger than a pixel by the points). Surface wins over free.
+    """
+    centres = voxel_centres(grid.grid_to_world(n), n).reshape(-1, 3)
+    slack = np.float32(0.5 * np.sqrt(3.0) * grid.voxel_m(n))
+    depth_at, mask_at, z = _project(view, centres)
+    seen = depth_at > 0
+    free = seen & (z < depth_at - slack)
+    surface = mask_at & seen & (np.abs(z - depth_at) <= slack)
+    if view.support is not None:
+        free |= _below(view.support, centres, slack)
+    surface = surface.reshape(n, n, n) | observed_occupancy(points_world, grid, n)
+    return np.stack([surface, free.reshape(n, n, n) & ~surface])
+
+
+def union_states(states: BoolGrid) -> BoolGrid:
+    """(2, n, n, n): the states of several views (V, 2, n, n, n) merged. Surface where any
+    view saw the part's surface; free where any view saw through and none saw surface."""
+    surface = states[:, SURFACE].any(axis=0)
+    return np.stack([surface, states[:, FREE].any(axis=0) & ~surface])
+
+
+def depth_view(surface: BoolGrid) -> npt.NDArray[np.float32]:
+    """(2, d, d) float32: a seen-surface grid (d, d, d) as a depth image seen along +y.
+
+    Channel 0: distance along +y of the nearest surface voxel in each (x, z) column, as a
+    fraction of the side (1 where nothing was seen); channel 1: 1 where something was seen.
+    Indexed [x, z].
+    """
+    d = surface.shape[1]
+    hit = surface.any(axis=1)  # (d, d) over x, z
+    first = np.argmax(surface, axis=1).astype(np.float32)  # first True along y
+    depth = np.where(hit, (first + 0.5) / d, 1.0).astype(np.float32)
+    return np.stack([depth, hit.astype(np.float32)])
 
 
 def carve(views: list[ViewEvidence], grid: CubeGrid, n: int) -> BoolGrid:
@@ -199,9 +312,15 @@ def carve(views: list[ViewEvidence], grid: CubeGrid, n: int) -> BoolGrid:
         free |= seen & front
         behind |= mask_at & ~front
         if view.support is not None:
-            normal, offset = view.support
-            free |= centres @ normal.astype(np.float32) < np.float32(offset) - slack
+            free |= _below(view.support, centres, slack)
     return (behind & ~free).reshape(n, n, n)
+
+
+def _below(support: tuple[FloatArray, float], points: npt.NDArray[np.float32],
+           slack: np.float32) -> npt.NDArray[np.bool_]:
+    """Points under the support plane by more than ``slack`` (nothing lies inside a table)."""
+    normal, offset = support
+    return points @ np.asarray(normal, dtype=np.float32) < np.float32(offset) - slack
 
 
 def _project(view: ViewEvidence, points: npt.NDArray[np.float32]) -> tuple[
