@@ -173,35 +173,37 @@ def _support_height(support: tuple[FloatArray, float], rot: FloatArray,
 
 
 def occluded_sides(view: ViewEvidence, rule: GridRule = GridRule()) -> tuple[str, ...]:
-    """Sides of the part's silhouette (``SIDES``) that a nearer instance hides.
+    """Sides of the part's outer silhouette (``SIDES``) that a nearer instance hides.
 
-    A border pixel of the part's mask is occluded on a side when its neighbour on that side
-    belongs to another instance (``view.others``) whose depth is nearer the camera. A side
-    counts when enough of its border pixels are (``GridRule.occluded_share``, ``_min_px``).
+    On each image row the part's leftmost and rightmost pixels, on each column its topmost
+    and bottommost, are its outer border on that side (an instance in front of the part's
+    middle cuts holes in its mask, which say nothing of how far the part reaches). Such a
+    border pixel is occluded when its outward neighbour belongs to another instance
+    (``view.others``) nearer the camera. A side counts when enough of its border pixels are
+    (``GridRule.occluded_share``, ``occluded_min_px``).
     """
-    if view.others is None:
+    if view.others is None or not view.mask.any():
         return ()
-    mask, depth = view.mask, np.nan_to_num(view.depth, nan=0.0)
+    depth = np.nan_to_num(view.depth, nan=0.0)
     out = []
-    for side, (dv, du) in zip(SIDES, ((0, -1), (0, 1), (-1, 0), (1, 0)), strict=True):
-        nb_mask = _shifted(mask, dv, du, False)
-        border = mask & ~nb_mask
-        nb_other = _shifted(view.others, dv, du, False)
-        nb_depth = _shifted(depth, dv, du, 0.0)
-        hidden = border & nb_other & (nb_depth > 0) & (nb_depth < depth)
-        count, total = int(hidden.sum()), int(border.sum())
-        if count >= max(rule.occluded_min_px, rule.occluded_share * total):
+    for side in SIDES:
+        # Turn the images so that this side's outward direction is towards column 0.
+        mask, d, others = (_outward(m, side) for m in (view.mask, depth, view.others))
+        rows = np.flatnonzero(mask.any(axis=1))
+        first = mask[rows].argmax(axis=1)  # the outermost pixel of each row on this side
+        inside = first > 0
+        r, c = rows[inside], first[inside]
+        nb_depth = d[r, c - 1]
+        hidden = others[r, c - 1] & (nb_depth > 0) & (nb_depth < d[r, c])
+        if hidden.sum() >= max(rule.occluded_min_px, rule.occluded_share * len(rows)):
             out.append(side)
     return tuple(out)
 
 
-def _shifted(image: npt.NDArray[Any], dv: int, du: int, fill: Any) -> npt.NDArray[Any]:
-    """``image`` read one pixel away: out[v, u] = image[v + dv, u + du] (``fill`` outside)."""
-    out = np.full_like(image, fill)
-    h, w = image.shape
-    src = image[max(dv, 0):h + min(dv, 0), max(du, 0):w + min(du, 0)]
-    out[max(-dv, 0):h + min(-dv, 0), max(-du, 0):w + min(-du, 0)] = src
-    return out
+def _outward(image: npt.NDArray[Any], side: str) -> npt.NDArray[Any]:
+    """``image`` turned so that ``side`` of the picture faces column 0."""
+    turned = image.T if side in ("top", "bottom") else image
+    return turned[:, ::-1] if side in ("right", "bottom") else turned
 
 
 def oracle_grid(mesh: Mesh, part_to_world: FloatArray, margin: float) -> CubeGrid:
