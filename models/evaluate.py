@@ -112,6 +112,15 @@ class RegistrationRow:
     residual_mm: float
 
 
+def context_of(meta: Mapping[str, Any]) -> str:
+    """Where an example's part was seen: the corpus says it (``kind``); a nightly capture by its
+    name (``assembly-<name>``, ``alone-<part>``, else a pair scene)."""
+    if "kind" in meta:
+        return str(meta["kind"])
+    capture = str(meta.get("capture", ""))
+    return next((c for c in ("assembly", "alone") if capture.startswith(f"{c}-")), "pair")
+
+
 def score_example(example: Example, preds: Mapping[str, npt.NDArray[np.bool_]],
                   split: str, category: str) -> list[dict[str, Any]]:
     """One ``completion_parts`` row per method for an example with a target."""
@@ -121,7 +130,8 @@ def score_example(example: Example, preds: Mapping[str, npt.NDArray[np.bool_]],
     for method, pred in preds.items():
         case = CompletionCase(part_id=str(example.meta["part_id"]), category=category,
                               split=split, method=method, protocol=example.protocol,
-                              n_views=len(example.views), view_deg=example.azimuths[0] % 360)
+                              n_views=len(example.views), view_deg=example.azimuths[0] % 360,
+                              context=context_of(example.meta), coverage=example.coverage)
         rows.append(case.score(pred, example.target, example.voxel_mm))
     return rows
 

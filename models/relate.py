@@ -8,8 +8,8 @@ protocol, one view at a time), the pair views are assembled with their per-view 
 
 - ``ltn`` and ``mlp``: the relation networks (one checkpoint per method and input), which see
   only the points in the observer's frame; a pair and its swap are decided together;
-- ``geometric``: planes and cylinders fitted to the same points by RANSAC, turned into the
-  ground truth's features and handed to the ground truth's relation function.
+- ``geometric``: fixed tests on the pair's evidence from fitted planes and axes
+  (``cadio.capture.pair_features``), each the CAD definition widened by what points resolve.
 
 One row per pair view x input x method x relation (``reports.relations.PAIR_COLUMNS``).
 """
@@ -31,17 +31,21 @@ from cadio.capture.examples import OBSERVED, read_example
 from cadio.capture.pairs import DEFAULT_PAIRS, INPUTS, PairConfig, PairView, capture_pairs
 from cadio.capture.scan import ASSEMBLY_PREFIX
 from cadio.errors import CaptureError
-from cadio.records import Features, FloatArray, Relation
-from cadio.truth.relations import relate
+from cadio.records import FloatArray, Relation
 from cadio.workspace import Workspace, atomic_path
 from models.errors import CheckpointError
 from models.relations import RelationNet, violations
-from models.relations_train import load_relation_model, predict_relations
+from models.relations_train import (
+    Decision,
+    RelationData,
+    load_relation_model,
+    predict_relations,
+)
 from models.train import Model, predict
 from reports.metrics import surface_points
 
 if TYPE_CHECKING:
-    from cadio.capture.primitives import PrimitiveConfig
+    pass
 
 log = logging.getLogger(__name__)
 
@@ -59,7 +63,7 @@ _SINGLE = re.compile(rf"^{OBSERVED}-(\d+)\.npz$")
 class RelationModels:
     """Loaded relation networks by (method, input), their temperatures and what each says."""
 
-    models: dict[tuple[str, str], tuple[RelationNet, Any]]
+    models: dict[tuple[str, str], tuple[RelationNet, Decision]]
     cards: dict[tuple[str, str], dict[str, Any]]
     errors: tuple[str, ...] = ()  # checkpoints that could not be used, with the reason
 
@@ -78,13 +82,13 @@ def load_relation_models(folder: Path = SHIPPED_RELATIONS) -> RelationModels:
     models, cards, errors = {}, {}, []
     for path in sorted(Path(folder).glob("*.pt")) if Path(folder).is_dir() else []:
         try:
-            model, temperatures, ckpt = load_relation_model(path)
+            model, decision, ckpt = load_relation_model(path)
         except CheckpointError as exc:
             errors.append(f"{path.name}: {exc.reason.splitlines()[0]}")
             log.error("relation checkpoint %s left out: %s", path, exc.reason.splitlines()[0])
             continue
         key = (str(ckpt["method"]), str(ckpt["data"].get("input", "")))
-        models[key] = (model, temperatures)
+        models[key] = (model, decision)
         cards[key] = {k: v for k, v in ckpt.items() if k != "state_dict"}
     return RelationModels(models, cards, tuple(errors))
 
@@ -118,49 +122,84 @@ def capture_completions(capture: str, part_ids: Iterable[str], ws: Workspace,
             for view, pts in completed_clouds(ws.inputs(capture, pid), model).items()}
 
 
+@dataclass(frozen=True)
+class GeometricTests:
+    """The ``geometric`` baseline's tests on the pair evidence (``pair_features``). A fit
+    cannot meet the CAD's tolerances (0.1 mm, 0.5 degree: those stay the truth's), so each test
+    widens them by what the points themselves cannot resolve: their spacing."""
+
+    spacings: float = 1.0  # a length test passes within tolerance + this many point spacings
+    coaxial_deg: float = 5.0  # axes of a fit agree within this (the CAD's 0.5 is far finer)
+    flat_normal: float = 0.9  # both parts meet the contact plane face-on (mean |cos|)
+    flatness: float = 0.2  # the contact region's normals share an axis below this
+    parallel_deg: float = 3.0  # dominant directions within this of 0 or 90 degrees
+    dominant_ratio: float = 1.5  # the truth's own rule for a dominant direction
+
+
 def geometric_decisions(points: npt.NDArray[np.float32], mm_per_unit: npt.NDArray[Any],
+                        features: npt.NDArray[np.float32] | None = None,
                         keys: Sequence[tuple[Any, Any]] | None = None,
-                        cfg: PrimitiveConfig | None = None) -> npt.NDArray[np.bool_]:
+                        tests: GeometricTests = GeometricTests()) -> npt.NDArray[np.bool_]:
     """(N, 10) the geometric baseline's relations of pairs in the observer frame.
+
+    Directional relations: the truth's 15 degree cones on the offset of the clouds' centroids.
+    Symmetric ones: fixed tests on the pair evidence, each the CAD definition widened by the
+    points' spacing (``GeometricTests``).
 
     Args:
         points: (N, 2, k, 3) observer-frame points (the view axis is +Y there).
         mm_per_unit: (N,) millimetres of the CAD per unit of ``points`` (1 / scale_m_per_mm).
-        keys: per row, a key of each part's cloud (part, view, input): a cloud met again (a part
-            of an assembly in many pairs) is fitted once.
+        features: (N, F) raw pair evidence (``pair_features_many``), computed when None.
+        keys: per row, a key of each part's cloud (a cloud met again is analysed once).
     """
-    from cadio.capture.primitives import PrimitiveConfig, fit_features
+    from cadio.capture.pair_features import PAIR_FEATURES, pair_features_many
+    from cadio.truth.relations import directional_truth
 
-    fit_cfg = cfg or PrimitiveConfig()
-    cache: dict[Any, Features] = {}
-
-    def features(i: int, k: int) -> Features:
-        key = (i, k) if keys is None else keys[i][k]
-        if key not in cache:
-            cache[key] = fit_features(np.asarray(points[i, k], np.float64) * mm_per_unit[i],
-                                      fit_cfg)
-        return cache[key]
-
-    return np.array([relate(features(i, 0), features(i, 1), OBSERVER_VIEW_AXIS).truth
-                     for i in range(len(points))], dtype=bool).reshape(-1, len(RELATIONS))
+    mm = np.asarray(mm_per_unit, dtype=np.float64)
+    raw = pair_features_many(points, mm, list(keys) if keys is not None else None) \
+        if features is None else features
+    f = {name: raw[:, i].astype(np.float64) for i, name in enumerate(PAIR_FEATURES)}
+    offsets = (points[:, 0].mean(axis=1) - points[:, 1].mean(axis=1)) * mm[:, None]
+    directional, _ = directional_truth(offsets.astype(np.float64), OBSERVER_VIEW_AXIS)
+    slack = tests.spacings * f["spacing_mm"]
+    coincident = ((f["contact_plane_found"] > 0) & (f["gap_mm"] <= 0.1 + slack)
+                  & (f["contact_plane_rms_mm"] <= 0.1 + slack)
+                  & (f["contact_plane_normal"] >= tests.flat_normal))
+    concentric = ((f["contact_axis_found"] > 0) & (f["gap_mm"] <= 1.0 + slack)
+                  & (f["contact_axis_flatness"] <= tests.flatness)
+                  & (f["contact_axis_offset_mm"] <= 0.1 + slack)) | (
+        (f["axis_found"] > 0) & (f["gap_mm"] <= 1.0 + slack)
+        & (f["axis_angle_deg"] <= tests.coaxial_deg) & (f["axis_offset_mm"] <= 0.1 + slack))
+    dominant = (f["dom_found"] > 0) & (f["dom_ratio"] >= tests.dominant_ratio)
+    parallel = dominant & (f["dom_angle_deg"] <= tests.parallel_deg) & ~coincident
+    perpendicular = dominant & (f["dom_angle_deg"] >= 90.0 - tests.parallel_deg)
+    return np.column_stack([directional, parallel, perpendicular, concentric, coincident])
 
 
 def decide(points: npt.NDArray[np.float32], mm_per_unit: npt.NDArray[Any], method: str,
-           model: tuple[RelationNet, Any] | None,
-           keys: Sequence[tuple[Any, Any]] | None = None
+           model: tuple[RelationNet, Decision] | None,
+           keys: Sequence[tuple[Any, Any]] | None = None,
+           features: npt.NDArray[np.float32] | None = None
            ) -> tuple[npt.NDArray[np.bool_], npt.NDArray[np.float64],
                       npt.NDArray[np.bool_]] | None:
     """One method's (decided, confidence, violation), each (N, 10), on observer-frame pairs
-    (N, 2, k, 3); None for a learned method without its checkpoint."""
+    (N, 2, k, 3); None for a learned method without its checkpoint. ``features``: the pairs'
+    raw evidence (``pair_features_many``), computed here when None."""
+    from cadio.capture.pair_features import encode_features, pair_features_many
+
+    if features is None:
+        features = pair_features_many(points, mm_per_unit, list(keys) if keys else None)
     if method == "geometric":
-        decided = geometric_decisions(points, mm_per_unit, keys)
-        # relate's converse and symmetric rules hold by construction: nothing to violate; a
-        # hard geometric decision carries no calibrated probability.
+        decided = geometric_decisions(points, mm_per_unit, features, keys)
+        # the tests are symmetric and the cones converse: nothing to violate; a hard
+        # geometric decision carries no calibrated probability.
         return decided, np.full(decided.shape, np.nan), np.zeros(decided.shape, dtype=bool)
     if model is None:
         return None
-    net, temperatures = model
-    pred = predict_relations(net, points, temperatures=temperatures)
+    net, decision = model
+    data = RelationData(points, np.zeros((len(points), len(RELATIONS)), dtype=bool),
+                        np.asarray(mm_per_unit, dtype=np.float64), encode_features(features))
+    pred = predict_relations(net, data, decision=decision)
     return pred.decided, pred.confidence, violations(pred.raw_ab, pred.raw_ba)
 
 
@@ -175,8 +214,12 @@ def relate_views(views: Sequence[PairView], models: RelationModels,
         points = np.stack([v.observer_points(name) for v in having])
         mm = np.array([1.0 / v.scale_m_per_mm for v in having])
         keys = [((v.scene, v.part_a, v.view), (v.scene, v.part_b, v.view)) for v in having]
+        from cadio.capture.pair_features import pair_features_many
+
+        features = pair_features_many(points, mm, keys)
         for method in methods:
-            decided = decide(points, mm, method, models.models.get((method, name)), keys)
+            decided = decide(points, mm, method, models.models.get((method, name)), keys,
+                             features)
             if decided is not None:
                 rows += _rows(having, name, method, *decided)
     return rows

@@ -1,19 +1,24 @@
 """Relation network: the paper's Logic Tensor Network over the ten relations of a part pair.
 
 Each part's point cloud is grounded by a shared five-layer per-point MLP with max pooling
-(PointNet's shape, so point order does not matter); the pair vector [e_a, e_b, e_a - e_b] feeds
-one Neural Tensor Network predicate per relation. Training (``models.relations_train``)
-maximises the satisfaction of a knowledge base written in product real logic: the labelled
-facts and, for the ``ltn`` method, the paper's rules (converse, asymmetry, symmetry,
-exclusion). The ``mlp`` method is the same network trained on the facts alone.
+(PointNet's shape, so point order does not matter). Beside its coordinates each point carries
+how near the other part is (in the parts' millimetres: the CAD mates are decided at 0.1 and
+1 mm), so the grounding sees where and how the parts touch. The pair vector [e_a, e_b,
+e_a - e_b, f] feeds one Neural Tensor Network predicate per relation, where f encodes the
+pair's evidence from fitted planes and axes (``cadio.capture.pair_features``: contact plane,
+contact axis, part axes, dominant plane directions; symmetric in the two parts). Training
+(``models.relations_train``) maximises the satisfaction of a knowledge base written in
+product real logic: the labelled facts and, for the ``ltn`` method, the paper's rules
+(converse, asymmetry, symmetry, exclusion). The ``mlp`` method is the same network trained on
+the facts alone.
 
 Inference decides a pair and its swap together (``combine`` then ``decide``), so the answers
 obey the rules for any network output; ``violations`` says where the raw outputs do not.
 
 Points are (B, 2, P, 3) in the observer's frame (x right, y behind = the camera's forward
-direction on the ground, z up), any length unit: each pair is centred on the mean of its two
-clouds' centroids and divided by its RMS radius, which keeps the parts' relative position.
-No I/O here.
+direction on the ground, z up), any length unit, with the millimetres per unit of each pair
+(B,): each pair is centred on the mean of its two clouds' centroids and divided by its RMS
+radius, which keeps the parts' relative position. No I/O here.
 """
 
 from __future__ import annotations
@@ -40,6 +45,7 @@ PARALLEL, PERPENDICULAR = _INDEX[Relation.PARALLEL], _INDEX[Relation.PERPENDICUL
 OPPOSITES = ((0, 1), (2, 3), (4, 5))  # left/right, above/below, front/behind: never both
 EXCLUSIVE = (*OPPOSITES, (PARALLEL, PERPENDICULAR))  # pairs of one pair's relations, at most one
 N_DESCRIPTORS = 24  # per part: centroid 3, principal directions' d d^T 3 x 6, extents 3
+N_CONTACT = 2  # per point: nearness of the other part at 1 mm and at 10 mm
 METHODS = ("ltn", "mlp")
 
 BoolArray = npt.NDArray[np.bool_]
@@ -53,7 +59,12 @@ class RelationConfig:
 
     method: str = "ltn"  # "ltn": facts and rules; "mlp": the same network on the facts only
     n_points: int = 600  # points per part the data layer delivers (inference takes any count)
-    train_points: int = 256  # random subset per part per training step (augmentation, speed)
+    # Points per part per training step: all of them, as at inference (a subset thins the
+    # contact region the mates are decided on).
+    train_points: int = 600
+    contact: bool = True  # each point also carries the other part's nearness (N_CONTACT)
+    pair_features: int = 0  # width of the pair evidence vector (0: none)
+    feature_width: int = 16  # its encoding in the pair vector
     widths: tuple[int, ...] = (32, 64, 64, 128)  # hidden widths of the per-point MLP
     # Part embedding: the MLP's fifth layer, max- and mean-pooled (2 x 32). Each predicate's
     # bilinear tensor grows with its square: 64 made 24 MB float32 checkpoints for 0.7 points
@@ -75,7 +86,9 @@ class RelationConfig:
     steps: int = 1500
     batch_size: int = 64
     eval_every: int = 100  # steps between validations (the best one is kept)
-    jitter: float = 0.005  # Gaussian noise on training points, times the pair's RMS radius
+    # Gaussian noise on training points, millimetres: under the 0.1 mm of the mates' tolerances,
+    # which noise of a pair's size (0.3-0.5 mm) washed out.
+    jitter_mm: float = 0.02
     # Present each training pair as (b, a) with probability 1/2 (labels by the rules), so both
     # methods see both orders in their facts and differ by the rules alone.
     swap_augment: bool = True
@@ -87,6 +100,8 @@ class RelationConfig:
             raise ValueError(f"method must be one of {METHODS}, got {self.method!r}")
         if min(self.widths, default=0) < 1 or min(self.embed, self.ntn_k, self.n_points) < 1:
             raise ValueError("widths, embed, ntn_k and n_points must be positive")
+        if self.pair_features < 0 or self.feature_width < 1 or self.jitter_mm < 0:
+            raise ValueError("pair_features >= 0, feature_width >= 1, jitter_mm >= 0 required")
         if min(self.train_points, self.steps, self.batch_size, self.eval_every) < 1:
             raise ValueError("train_points, steps, batch_size and eval_every must be >= 1")
         if min(self.p_forall, self.p_sat) < 1 or min(self.lr, self.rule_weight) <= 0:
@@ -204,6 +219,22 @@ def part_descriptors(points: Tensor) -> Tensor:
     return torch.cat([centroid, outer.flatten(1), extents], 1).float()
 
 
+def contact_channels(points: Tensor, mm: Tensor) -> Tensor:
+    """Per point, how near the other part of its pair is: exp(-d / 1 mm) and exp(-d / 10 mm),
+    d the distance to the other part's nearest point in millimetres.
+
+    Args:
+        points: (B, 2, P, 3) any unit. mm: (B,) millimetres per unit.
+
+    Returns:
+        (B, 2, P, 2) float32; the swapped pair's channels are exactly the swapped channels.
+    """
+    a, b = points[:, 0].double(), points[:, 1].double()
+    d = torch.cdist(a, b) * mm.double()[:, None, None]  # (B, P, P) mm
+    near = torch.stack([d.amin(2), d.amin(1)], 1)  # (B, 2, P)
+    return torch.stack([torch.exp(-near / 1.0), torch.exp(-near / 10.0)], -1).float()
+
+
 class PointEncoder(nn.Module):
     """Shared per-point MLP (len(widths) + 1 linear layers), max (and mean) pool, tanh: a
     part's embedding."""
@@ -253,14 +284,21 @@ class RelationNet(nn.Module):
     def __init__(self, cfg: RelationConfig) -> None:
         super().__init__()
         self.cfg = cfg
-        self.encoder = PointEncoder(cfg.widths, cfg.embed, mean_pool=cfg.mean_pool)
+        self.encoder = PointEncoder(cfg.widths, cfg.embed, 3 + (N_CONTACT if cfg.contact else 0),
+                                    mean_pool=cfg.mean_pool)
         part = cfg.embed * (2 if cfg.mean_pool else 1) + (N_DESCRIPTORS if cfg.descriptors
                                                           else 0)
         dim = part * (3 if cfg.pair_diff else 2)
+        self.features: nn.Module | None = None
+        if cfg.pair_features:
+            self.features = nn.Sequential(nn.Linear(cfg.pair_features, 32), nn.ReLU(),
+                                          nn.Linear(32, cfg.feature_width), nn.Tanh())
+            dim += cfg.feature_width
         self.predicates = nn.ModuleList(NTNPredicate(dim, cfg.ntn_k) for _ in RELATIONS)
 
-    def embed(self, points: Tensor) -> tuple[Tensor, Tensor]:
-        """points (B, 2, P, 3) -> part embeddings e_a, e_b, (B, E') each.
+    def embed(self, points: Tensor, mm: Tensor | None = None) -> tuple[Tensor, Tensor]:
+        """points (B, 2, P, 3), mm (B,) millimetres per unit -> part embeddings e_a, e_b,
+        (B, E') each.
 
         The parts go through the encoder in two calls of the same shape, so the swapped pair
         gets bit-identical embeddings (and outputs) whatever the kernels' row blocking.
@@ -272,24 +310,47 @@ class RelationNet(nn.Module):
             raise ValueError(f"points must have shape (B, 2, P, 3); got {tuple(points.shape)}")
         if not bool(torch.isfinite(points).all()):
             raise ValueError("points must be finite")
-        x = normalise_pair(points.to(next(self.parameters()).device))  # (B, 2, P, 3)
+        device = next(self.parameters()).device
+        points = points.to(device)
+        x = normalise_pair(points)  # (B, 2, P, 3)
+        if self.cfg.contact:
+            scale = torch.ones(len(points), device=device) if mm is None else mm.to(device)
+            x = torch.cat([x, contact_channels(points, scale)], -1)  # (B, 2, P, 3 + 2)
         parts = []
         for j in (0, 1):
             e = self.encoder(x[:, j])  # (B, E)
             if self.cfg.descriptors:
-                e = torch.cat([e, part_descriptors(x[:, j])], 1)  # (B, E + 15)
+                e = torch.cat([e, part_descriptors(x[:, j, :, :3])], 1)  # (B, E + 24)
             parts.append(e)
         return parts[0], parts[1]
 
-    def head(self, e_a: Tensor, e_b: Tensor) -> Tensor:
-        """Part embeddings (B, E') each -> logits of the ordered pair (a, b): (B, 10)."""
-        x = torch.cat([e_a, e_b, e_a - e_b] if self.cfg.pair_diff else [e_a, e_b], 1)  # (B, D)
+    def head(self, e_a: Tensor, e_b: Tensor, f: Tensor | None = None) -> Tensor:
+        """Part embeddings (B, E') each and the encoded pair evidence (B, W) -> logits of the
+        ordered pair (a, b): (B, 10)."""
+        terms = [e_a, e_b, e_a - e_b] if self.cfg.pair_diff else [e_a, e_b]
+        if f is not None:
+            terms.append(f)
+        x = torch.cat(terms, 1)  # (B, D)
         return torch.stack([pred(x) for pred in self.predicates], 1)  # (B, 10)
 
-    def forward(self, points: Tensor) -> tuple[Tensor, Tensor]:
-        """points (B, 2, P, 3) -> logits for (a, b) and for (b, a), (B, 10) each."""
-        e_a, e_b = self.embed(points)
-        return self.head(e_a, e_b), self.head(e_b, e_a)
+    def forward(self, points: Tensor, mm: Tensor | None = None,
+                features: Tensor | None = None) -> tuple[Tensor, Tensor]:
+        """points (B, 2, P, 3), mm (B,), features (B, F) -> logits for (a, b) and for (b, a),
+        (B, 10) each.
+
+        Raises:
+            ValueError: points as ``embed`` refuses them, or pair features missing or of
+                another width than the config's.
+        """
+        e_a, e_b = self.embed(points, mm)
+        f = None
+        if self.features is not None:
+            if features is None or features.shape != (len(points), self.cfg.pair_features):
+                got = None if features is None else tuple(features.shape)
+                raise ValueError(f"pair features must have shape (B, {self.cfg.pair_features})"
+                                 f"; got {got}")
+            f = self.features(features.to(e_a.device).float())
+        return self.head(e_a, e_b, f), self.head(e_b, e_a, f)
 
 
 def knowledge_base(t_ab: Tensor, t_ba: Tensor, labels: Tensor, cfg: RelationConfig
@@ -351,19 +412,23 @@ def combine(raw_ab: FloatArray, raw_ba: FloatArray) -> FloatArray:
     return (ab + swap_decision(ba)) / 2
 
 
-def decide(score: FloatArray) -> BoolArray:
+def decide(score: FloatArray, thresholds: npt.ArrayLike | None = None) -> BoolArray:
     """Relations that hold, (N, 10) bool, from ``combine``'s scores.
 
-    A score above 0.5 holds, except that of each exclusive pair (left/right, above/below,
-    front/behind, parallel/perpendicular) only the stronger may hold; on an exact tie neither
-    does (any other choice would break the converse rule on the swapped pair).
+    A score above its relation's threshold (default 0.5; fitted on validation by
+    ``relations_train.fit_thresholds``) holds, except that of each exclusive pair (left/right,
+    above/below, front/behind, parallel/perpendicular) only the one further above its threshold
+    may hold; on an exact tie neither does (any other choice would break the converse rule on
+    the swapped pair, whose converse relations share one threshold).
     """
     score = np.asarray(score)
-    decided = score > 0.5
+    t = np.full(score.shape[-1], 0.5) if thresholds is None else np.asarray(thresholds)
+    decided = score > t
+    margin = score - t
     for i, j in EXCLUSIVE:
         both = decided[:, i] & decided[:, j]
-        decided[:, i] &= ~both | (score[:, i] > score[:, j])
-        decided[:, j] &= ~both | (score[:, j] > score[:, i])
+        decided[:, i] &= ~both | (margin[:, i] > margin[:, j])
+        decided[:, j] &= ~both | (margin[:, j] > margin[:, i])
     return decided
 
 

@@ -2,11 +2,15 @@
 
 ``train_relations`` runs ``cfg.steps`` Adam steps on loss = 1 - satisfaction of the knowledge
 base, seeded throughout; each step's batch, point subsets, jitter and swaps are pure functions
-of (seed, step). Every ``eval_every`` steps it scores the validation pairs (mean per-relation
-accuracy of the consistent decisions) and keeps the best weights; it then fits one temperature
-per relation on the validation scores (converse relations share one, so a pair and its swap get
-the same confidences) and returns a self-describing checkpoint. ``predict_relations`` gives raw
-outputs for both orders, consistent decisions and calibrated confidences.
+of (seed, step). Every ``eval_every`` steps it scores the validation pairs and keeps the best
+weights by the mean over relations of the F1 at thresholds fitted on those pairs (mean accuracy
+would let the six directional relations, frequent and easy, hide the rare ones). It then fits,
+per relation, the decision threshold that maximises F1 on validation (the fact axioms weigh a
+rare relation's positives and negatives alike, so a score of 0.5 over-predicts it) and a
+temperature about that threshold (converse relations share both, so a pair and its swap get the
+same decisions and confidences), and returns a self-describing checkpoint.
+``predict_relations`` gives raw outputs for both orders, consistent decisions and calibrated
+confidences.
 """
 
 from __future__ import annotations
@@ -53,6 +57,7 @@ logger = logging.getLogger(__name__)
 
 RELATION_KEYS = ("temperatures",)  # beyond the completion checkpoints' keys
 _T_GRID = np.exp(np.linspace(np.log(0.05), np.log(20.0), 241))  # temperatures tried
+_THRESHOLDS = np.linspace(0.05, 0.95, 91)  # decision thresholds tried
 
 
 @dataclass(frozen=True, eq=False)
@@ -61,10 +66,15 @@ class RelationData:
 
     points: (N, 2, P, 3) float32, the two parts' clouds in the observer's frame, any unit.
     labels: (N, 10) bool, the relations of the ordered pair (a, b) in ``Relation`` order.
+    mm: (N,) millimetres of the parts per unit of ``points`` (default 1: points in mm).
+    features: (N, F) float32 encoded pair evidence (``pair_features.encode_features``), or
+        None; symmetric in the two parts.
     """
 
     points: npt.NDArray[np.float32]
     labels: npt.NDArray[np.bool_]
+    mm: npt.NDArray[np.float64] | None = None
+    features: npt.NDArray[np.float32] | None = None
 
     def __post_init__(self) -> None:
         points = np.asarray(self.points, dtype=np.float32)
@@ -73,15 +83,39 @@ class RelationData:
             raise ValueError(f"points must be (N, 2, P, 3); got {points.shape}")
         if labels.shape != (len(points), len(RELATIONS)):
             raise ValueError(f"labels must be ({len(points)}, 10); got {labels.shape}")
+        mm = np.ones(len(points)) if self.mm is None else np.asarray(self.mm, dtype=np.float64)
+        if mm.shape != (len(points),):
+            raise ValueError(f"mm must be ({len(points)},); got {mm.shape}")
+        if self.features is not None:
+            feats = np.asarray(self.features, dtype=np.float32)
+            if feats.ndim != 2 or len(feats) != len(points):
+                raise ValueError(f"features must be ({len(points)}, F); got {feats.shape}")
+            object.__setattr__(self, "features", feats)
         object.__setattr__(self, "points", points)
         object.__setattr__(self, "labels", labels)
+        object.__setattr__(self, "mm", mm)
 
     def __len__(self) -> int:
         return len(self.points)
 
+    def subset(self, rows: npt.NDArray[np.bool_] | npt.NDArray[np.int64]) -> RelationData:
+        return RelationData(self.points[rows], self.labels[rows],
+                            None if self.mm is None else self.mm[rows],
+                            None if self.features is None else self.features[rows])
+
     def swapped(self) -> RelationData:
-        """The pairs (b, a), labelled by the rules."""
-        return RelationData(self.points[:, ::-1].copy(), swap_decision(self.labels))
+        """The pairs (b, a), labelled by the rules (the pair evidence is symmetric)."""
+        return RelationData(self.points[:, ::-1].copy(), swap_decision(self.labels), self.mm,
+                            self.features)
+
+    def tensors(self, rows: slice | npt.NDArray[np.int64]) -> tuple[torch.Tensor, ...]:
+        """(points, mm, features or an empty (B, 0)) of some rows, as the network takes them."""
+        assert self.mm is not None
+        pts = torch.from_numpy(np.ascontiguousarray(self.points[rows]))
+        mm = torch.from_numpy(np.ascontiguousarray(self.mm[rows]))
+        feats = (torch.zeros(len(pts), 0) if self.features is None
+                 else torch.from_numpy(np.ascontiguousarray(self.features[rows])))
+        return pts, mm, feats
 
 
 @dataclass(frozen=True)
@@ -100,34 +134,38 @@ class RelationResult:
     """The outcome of ``train_relations``."""
 
     model: RelationNet  # best weights, eval mode
-    checkpoint: Checkpoint  # best weights, temperatures, metrics: ship this
-    temperatures: npt.NDArray[np.float64]  # (10,)
+    checkpoint: Checkpoint  # best weights, decision, metrics: ship this
+    decision: Decision
     history: list[dict[str, float]] = field(default_factory=list)  # one record per evaluation
     losses: list[dict[str, float]] = field(default_factory=list)  # one per step
 
 
 def training_batch(data: RelationData, cfg: RelationConfig, step: int
-                   ) -> tuple[torch.Tensor, torch.Tensor]:
-    """Step ``step``'s batch: points (B, 2, T, 3) float32 and labels (B, 10) float32.
+                   ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]:
+    """Step ``step``'s batch: points (B, 2, T, 3), mm (B,), features (B, F) and labels (B, 10).
 
     Pairs drawn without replacement (with, when there are fewer than B), ``train_points``
-    points per part drawn without replacement, Gaussian jitter of ``jitter`` times the pair's
-    RMS radius, and a swap to (b, a) with probability 1/2 when ``swap_augment``.
+    points per part drawn without replacement, Gaussian jitter of ``jitter_mm`` millimetres,
+    and a swap to (b, a) with probability 1/2 when ``swap_augment``.
     """
     rng = np.random.default_rng([cfg.seed, step, 7])
     idx = rng.choice(len(data), cfg.batch_size, replace=len(data) < cfg.batch_size)
     pts, labels = data.points[idx], data.labels[idx]  # (B, 2, P, 3), (B, 10)
+    assert data.mm is not None
+    mm = data.mm[idx]
     n = pts.shape[2]
     keep = np.argsort(rng.random(pts.shape[:3]), axis=-1)[..., :min(cfg.train_points, n)]
     pts = np.take_along_axis(pts, keep[..., None], axis=2)  # (B, 2, T, 3)
-    centred = pts - pts.mean(axis=(1, 2), keepdims=True)
-    radius = np.sqrt(np.square(centred).sum(-1).mean(axis=(1, 2)))  # (B,)
-    pts = pts + rng.standard_normal(pts.shape) * (cfg.jitter * radius[:, None, None, None])
+    noise = rng.standard_normal(pts.shape) * (cfg.jitter_mm / mm[:, None, None, None])
+    pts = (pts + noise).astype(np.float32)
     if cfg.swap_augment:
         flip = rng.random(len(idx)) < 0.5
         pts[flip] = pts[flip][:, ::-1]
         labels = np.where(flip[:, None], swap_decision(labels), labels)
-    return (torch.from_numpy(pts.astype(np.float32)),
+    feats = (np.zeros((len(idx), 0), np.float32) if data.features is None
+             else data.features[idx])
+    return (torch.from_numpy(pts.astype(np.float32)), torch.from_numpy(mm),
+            torch.from_numpy(feats.astype(np.float32)),
             torch.from_numpy(labels.astype(np.float32)))
 
 
@@ -136,26 +174,51 @@ def _logit(p: npt.NDArray[np.floating]) -> npt.NDArray[np.float64]:
     return np.log(p) - np.log1p(-p)
 
 
-def calibrate(score: npt.NDArray[np.floating], temperatures: npt.ArrayLike
-              ) -> npt.NDArray[np.float64]:
-    """Calibrated probabilities sigmoid(logit(score) / T) per relation: (N, 10)."""
+def calibrate(score: npt.NDArray[np.floating], temperatures: npt.ArrayLike,
+              thresholds: npt.ArrayLike | None = None) -> npt.NDArray[np.float64]:
+    """Calibrated probabilities sigmoid((logit(score) - logit(t)) / T) per relation: (N, 10);
+    0.5 exactly at each relation's decision threshold t (default 0.5)."""
     t = np.asarray(temperatures, dtype=np.float64)
-    return 1 / (1 + np.exp(-_logit(score) / t))
+    shift = 0.0 if thresholds is None else _logit(np.asarray(thresholds))
+    return 1 / (1 + np.exp(-(_logit(score) - shift) / t))
 
 
-def fit_temperatures(score: npt.NDArray[np.floating], labels: npt.NDArray[np.bool_]
-                     ) -> npt.NDArray[np.float64]:
+def _groups() -> list[list[int]]:
+    """Columns that share a threshold and a temperature: converse pairs, then the rest."""
+    groups = [list(p) for p in OPPOSITES]
+    return groups + [[r] for r in range(len(RELATIONS)) if all(r not in g for g in groups)]
+
+
+def fit_thresholds(score: npt.NDArray[np.floating], labels: npt.NDArray[np.bool_]
+                   ) -> npt.NDArray[np.float64]:
+    """Per-relation decision thresholds maximising F1 on labelled scores (converse relations
+    share one, fitted on both columns); 0.5 for a relation without positives. The highest
+    threshold among equally good ones is kept (fewer false mates)."""
+    s, y = np.asarray(score, dtype=np.float64), np.asarray(labels, dtype=bool)
+    out = np.full(len(RELATIONS), 0.5)
+    for cols in _groups():
+        ss, yy = s[:, cols].ravel(), y[:, cols].ravel()
+        if not yy.any():
+            continue
+        pred = ss[None] > _THRESHOLDS[:, None]  # (G, M)
+        tp = (pred & yy).sum(1)
+        f1 = 2 * tp / np.maximum(pred.sum(1) + yy.sum(), 1)
+        out[cols] = _THRESHOLDS[len(f1) - 1 - int(np.argmax(f1[::-1]))]
+    return out
+
+
+def fit_temperatures(score: npt.NDArray[np.floating], labels: npt.NDArray[np.bool_],
+                     thresholds: npt.ArrayLike | None = None) -> npt.NDArray[np.float64]:
     """Per-relation temperatures minimising the log loss of ``calibrate`` on labelled scores.
 
     Converse relations share one temperature (fitted on both columns), so that the confidences
     of a pair's swap are exactly the swapped confidences. A grid over [0.05, 20]: 1-D, exact
     enough and deterministic.
     """
-    z, y = _logit(score), np.asarray(labels, dtype=np.float64)
+    shift = 0.0 if thresholds is None else _logit(np.asarray(thresholds))
+    z, y = _logit(score) - shift, np.asarray(labels, dtype=np.float64)
     temps = np.ones(len(RELATIONS))
-    groups = [list(p) for p in OPPOSITES]
-    groups += [[r] for r in range(len(RELATIONS)) if all(r not in g for g in groups)]
-    for cols in groups:
+    for cols in _groups():
         zz, yy = z[:, cols].ravel()[None], y[:, cols].ravel()[None]  # (1, M)
         s = zz / _T_GRID[:, None]  # (G, M)
         nll = (np.logaddexp(0, s) - yy * s).mean(1)  # log loss of sigmoid(s)
@@ -164,12 +227,14 @@ def fit_temperatures(score: npt.NDArray[np.floating], labels: npt.NDArray[np.boo
 
 
 @torch.no_grad()
-def _raw(model: RelationNet, points: npt.ArrayLike | torch.Tensor, batch: int
+def _raw(model: RelationNet, data: RelationData, batch: int
          ) -> tuple[npt.NDArray[np.float32], npt.NDArray[np.float32]]:
     """Network probabilities for (a, b) and (b, a), (N, 10) each, in batches."""
     model.eval()
-    x = points if isinstance(points, torch.Tensor) else torch.from_numpy(np.asarray(points))
-    outs = [model(x[s:s + batch]) for s in range(0, len(x), batch)]
+    outs = []
+    for s in range(0, len(data), batch):
+        pts, mm, feats = data.tensors(slice(s, s + batch))
+        outs.append(model(pts, mm, feats if model.cfg.pair_features else None))
     if not outs:
         empty = np.zeros((0, len(RELATIONS)), np.float32)
         return empty, empty
@@ -178,56 +243,85 @@ def _raw(model: RelationNet, points: npt.ArrayLike | torch.Tensor, batch: int
     return ab, ba
 
 
+@dataclass(frozen=True)
+class Decision:
+    """How a network's scores become answers: per-relation temperatures and thresholds."""
+
+    temperatures: npt.NDArray[np.float64]
+    thresholds: npt.NDArray[np.float64]
+
+    @classmethod
+    def default(cls) -> Decision:
+        return cls(np.ones(len(RELATIONS)), np.full(len(RELATIONS), 0.5))
+
+
 def predict_relations(model_or_checkpoint: RelationNet | Mapping[str, Any] | Path | str,
-                      points: npt.ArrayLike | torch.Tensor, batch: int = 256,
-                      temperatures: npt.ArrayLike | None = None) -> RelationPrediction:
+                      data: RelationData, batch: int = 256,
+                      decision: Decision | None = None) -> RelationPrediction:
     """Relations of N ordered pairs, decided consistently with their swaps.
 
     Args:
-        model_or_checkpoint: a ``RelationNet`` (temperatures from the argument, default 1), or a
-            checkpoint dict or path (its temperatures unless given).
-        points: (N, 2, P, 3) float, observer frame, any unit; any P >= 1.
+        model_or_checkpoint: a ``RelationNet`` (decision from the argument, default
+            thresholds 0.5 and temperatures 1), or a checkpoint dict or path (its own decision
+            unless given).
+        data: the pairs (labels are not read); points in the observer frame, any unit.
         batch: pairs per forward pass.
 
     Returns:
         A ``RelationPrediction``; ``swap_decision(decided)`` is what the swapped pairs decide.
 
     Raises:
-        ValueError: points of the wrong shape or not finite.
+        ValueError: points of the wrong shape or not finite, or missing pair features.
         CheckpointError: an unusable checkpoint.
     """
     if isinstance(model_or_checkpoint, RelationNet):
-        model, temps = model_or_checkpoint, np.ones(len(RELATIONS))
+        model, own = model_or_checkpoint, Decision.default()
     elif isinstance(model_or_checkpoint, Path | str):
-        model, temps, _ = load_relation_model(model_or_checkpoint)
+        model, own, _ = load_relation_model(model_or_checkpoint)
     else:
-        model, temps = relation_model_from_checkpoint(model_or_checkpoint)
-    if temperatures is not None:
-        temps = np.asarray(temperatures, dtype=np.float64)
-    raw_ab, raw_ba = _raw(model, points, batch)
+        model, own = relation_model_from_checkpoint(model_or_checkpoint)
+    decision = decision or own
+    raw_ab, raw_ba = _raw(model, data, batch)
     score = combine(raw_ab, raw_ba)
-    decided = decide(score)
-    prob = calibrate(score, temps)
+    decided = decide(score, decision.thresholds)
+    prob = calibrate(score, decision.temperatures, decision.thresholds)
     return RelationPrediction(raw_ab, raw_ba, decided, np.where(decided, prob, 1 - prob), prob)
 
 
+def f1_scores(decided: npt.NDArray[np.bool_], truth: npt.NDArray[np.bool_]
+              ) -> npt.NDArray[np.float64]:
+    """(10,) F1 of each relation's decisions (1 where a relation has neither positives nor
+    predictions)."""
+    tp = (decided & truth).sum(0)
+    total = decided.sum(0) + truth.sum(0)
+    return np.where(total > 0, 2 * tp / np.maximum(total, 1), 1.0)
+
+
 def evaluate(model: RelationNet, data: RelationData, batch: int = 256,
-             temperatures: npt.ArrayLike | None = None) -> dict[str, float]:
+             decision: Decision | None = None) -> dict[str, float]:
     """Accuracy (mean over relations) of the decisions and of the raw (a, b) outputs, balanced
-    accuracy, violation rates of the raw outputs (per entry and per pair) and ECE."""
-    pred = predict_relations(model, data.points, batch, temperatures)
+    accuracy, mean F1, violation rates of the raw outputs (per entry and per pair) and ECE.
+    Without a decision, thresholds are fitted on ``data`` itself (model selection)."""
+    raw_ab, raw_ba = _raw(model, data, batch)
+    score = combine(raw_ab, raw_ba)
     truth = data.labels
-    hit = pred.decided == truth
+    if decision is None:
+        decision = Decision(np.ones(len(RELATIONS)), fit_thresholds(score, truth))
+    decided = decide(score, decision.thresholds)
+    prob = calibrate(score, decision.temperatures, decision.thresholds)
+    confidence = np.where(decided, prob, 1 - prob)
+    hit = decided == truth
     pos, neg = truth.sum(0).clip(min=1), (~truth).sum(0).clip(min=1)
     balanced = ((hit & truth).sum(0) / pos + (hit & ~truth).sum(0) / neg) / 2
-    viol = violations(pred.raw_ab, pred.raw_ba)
+    viol = violations(raw_ab, raw_ba)
     return {"accuracy": float(hit.mean(0).mean()), "balanced_accuracy": float(balanced.mean()),
-            "raw_accuracy": float(((pred.raw_ab > 0.5) == truth).mean()),
+            "f1": float(f1_scores(decided, truth).mean()),
+            "raw_accuracy": float(((raw_ab > 0.5) == truth).mean()),
             "violation_rate": float(viol.mean()), "pairs_violating": float(viol.any(1).mean()),
-            "ece": expected_calibration_error(pred.confidence, hit)}
+            "ece": expected_calibration_error(confidence, hit)}
 
 
-def make_relation_checkpoint(model: RelationNet, temperatures: npt.ArrayLike, step: int,
+def make_relation_checkpoint(model: RelationNet, decision: Decision, step: int,
                              metrics: Mapping[str, float],
                              data: Mapping[str, Any] | None = None) -> Checkpoint:
     """The self-describing checkpoint of ``model`` (float32 weights, copied)."""
@@ -238,12 +332,13 @@ def make_relation_checkpoint(model: RelationNet, temperatures: npt.ArrayLike, st
             "step": int(step), "metrics": {k: float(v) for k, v in metrics.items()},
             "code_version": code_version(), "data": dict(data or {}),
             "created": datetime.now(UTC).isoformat(timespec="seconds"),
-            "temperatures": [float(t) for t in np.asarray(temperatures).ravel()]}
+            "temperatures": [float(t) for t in decision.temperatures],
+            "thresholds": [float(t) for t in decision.thresholds]}
 
 
 def relation_model_from_checkpoint(ckpt: Mapping[str, Any], method: str | None = None
-                                   ) -> tuple[RelationNet, npt.NDArray[np.float64]]:
-    """Rebuild the network (eval mode) and its temperatures from a checkpoint dict.
+                                   ) -> tuple[RelationNet, Decision]:
+    """Rebuild the network (eval mode) and its decision from a checkpoint dict.
 
     Raises:
         CheckpointError: another format or method, missing keys, or weights that do not fit.
@@ -258,16 +353,17 @@ def relation_model_from_checkpoint(ckpt: Mapping[str, Any], method: str | None =
     if missing:
         raise CheckpointError(where, f"missing keys {missing}")
     temps = np.asarray(ckpt["temperatures"], dtype=np.float64)
+    thresholds = np.asarray(ckpt.get("thresholds", [0.5] * len(RELATIONS)), dtype=np.float64)
     try:
         cfg = RelationConfig.from_dict(dict(ckpt["config"]))
-        if cfg.method != ckpt["method"] or temps.shape != (len(RELATIONS),):
-            raise ValueError("config method or temperatures do not match the checkpoint")
+        if cfg.method != ckpt["method"] or temps.shape != thresholds.shape != (len(RELATIONS),):
+            raise ValueError("config method, temperatures or thresholds do not match")
         model = RelationNet(cfg)
         model.load_state_dict({k: v.float() if v.is_floating_point() else v
                                for k, v in ckpt["state_dict"].items()})
     except (ValueError, TypeError, RuntimeError) as exc:
         raise CheckpointError(where, f"does not rebuild a relation network: {exc}") from exc
-    return model.eval(), temps
+    return model.eval(), Decision(temps, thresholds)
 
 
 def save_relation_checkpoint(path: Path | str, ckpt: Mapping[str, Any],
@@ -283,18 +379,18 @@ def save_relation_checkpoint(path: Path | str, ckpt: Mapping[str, Any],
 
 
 def load_relation_model(path: Path | str, method: str | None = None
-                        ) -> tuple[RelationNet, npt.NDArray[np.float64], Checkpoint]:
-    """Read with ``torch.load(weights_only=True)``: (model in eval mode, temperatures, dict).
+                        ) -> tuple[RelationNet, Decision, Checkpoint]:
+    """Read with ``torch.load(weights_only=True)``: (model in eval mode, decision, dict).
 
     Raises:
         CheckpointError: unreadable, missing keys, another method (or not ``method``).
     """
     ckpt = load_checkpoint(path)
     try:
-        model, temps = relation_model_from_checkpoint(ckpt, method)
+        model, decision = relation_model_from_checkpoint(ckpt, method)
     except CheckpointError as exc:
         raise CheckpointError(path, exc.reason) from exc
-    return model, temps, ckpt
+    return model, decision, ckpt
 
 
 def train_relations(cfg: RelationConfig, train: RelationData, val: RelationData | None = None,
@@ -304,8 +400,9 @@ def train_relations(cfg: RelationConfig, train: RelationData, val: RelationData 
 
     Args:
         cfg: the config; its seed fixes initialisation, batches and augmentation.
-        train: labelled pairs. val: pairs for model selection and calibration; when None or
-            empty, the last weights are kept and the temperatures are 1.
+        train: labelled pairs. val: pairs for model selection, decision thresholds and
+            calibration; when None or empty, the last weights are kept, the thresholds are 0.5
+            and the temperatures 1.
         progress: called after every step with a ``TrainEvent`` (``epoch`` set after an
             evaluation).
         data_info: stored as the checkpoint's ``data`` (plain values).
@@ -340,7 +437,7 @@ def train_relations(cfg: RelationConfig, train: RelationData, val: RelationData 
                 history.append(record)
                 logger.info("step %d: %s", step + 1,
                             ", ".join(f"{k} {v:.4g}" for k, v in record.items()))
-                score = record.get("val_accuracy", float(step))
+                score = record.get("val_f1", float(step))
                 if best is None or score > best[0]:
                     best = (score, step + 1, _state_copy(model, half=False))
                 event = dataclasses.replace(event, epoch=record)
@@ -349,23 +446,26 @@ def train_relations(cfg: RelationConfig, train: RelationData, val: RelationData 
     assert best is not None
     model.load_state_dict(best[2])
     model.eval()
-    temps, metrics = np.ones(len(RELATIONS)), dict(history[-1])
+    decision, metrics = Decision.default(), dict(history[-1])
     if val is not None:
-        raw_ab, raw_ba = _raw(model, val.points, 256)
-        temps = fit_temperatures(combine(raw_ab, raw_ba), val.labels)
+        raw_ab, raw_ba = _raw(model, val, 256)
+        val_score = combine(raw_ab, raw_ba)
+        thresholds = fit_thresholds(val_score, val.labels)
+        decision = Decision(fit_temperatures(val_score, val.labels, thresholds), thresholds)
         metrics = {**next(h for h in history if h["step"] == best[1]),
                    **{f"val_{k}_calibrated": v
-                      for k, v in evaluate(model, val, temperatures=temps).items()
+                      for k, v in evaluate(model, val, decision=decision).items()
                       if k == "ece"}}
-    ckpt = make_relation_checkpoint(model, temps, best[1], metrics, info)
-    return RelationResult(model, ckpt, temps, history, losses)
+    ckpt = make_relation_checkpoint(model, decision, best[1], metrics, info)
+    return RelationResult(model, ckpt, decision, history, losses)
 
 
 def _step(model: RelationNet, opt: torch.optim.Optimizer, cfg: RelationConfig,
-          points: torch.Tensor, labels: torch.Tensor) -> dict[str, float]:
+          points: torch.Tensor, mm: torch.Tensor, features: torch.Tensor,
+          labels: torch.Tensor) -> dict[str, float]:
     """One Adam step on 1 - sat: the losses and satisfactions."""
     model.train()
-    logits_ab, logits_ba = model(points)  # (B, 10) each
+    logits_ab, logits_ba = model(points, mm, features if cfg.pair_features else None)
     kb = knowledge_base(torch.sigmoid(logits_ab), torch.sigmoid(logits_ba), labels, cfg)
     loss = 1 - kb["sat"]
     opt.zero_grad(set_to_none=True)

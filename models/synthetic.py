@@ -212,15 +212,18 @@ def relation_pairs(count: int, n_points: int = 600, seed: int = 0) -> RelationDa
     coincident (face-to-face plates) to hold; labels follow from the placement: directional
     when a's centre seen from b's is within 15 degrees of an axis, parallel/perpendicular from
     plate normals (10 degrees), concentric from cylinder axes. Each pair is then scaled by a
-    random factor in [0.01, 10] and shifted, so the units are arbitrary.
+    random factor in [0.01, 10] and shifted, so the units are arbitrary; ``mm`` says what a
+    unit is (a unit before scaling is 30 mm of parts).
     """
     from models.relations_train import RelationData  # torch only for callers who want pairs
 
     rng = np.random.default_rng(seed)
     points = np.empty((count, 2, n_points, 3), dtype=np.float32)
     labels = np.empty((count, 10), dtype=bool)
+    mm = np.empty(count)
     for i in range(count):
         pts, labels[i] = _relation_pair(n_points, rng)
         scale = 10 ** rng.uniform(-2, 1)
         points[i] = (pts + rng.uniform(-2, 2, 3)) * scale
-    return RelationData(points, labels)
+        mm[i] = 30.0 / scale  # a unit of the pair before scaling is 30 mm of parts
+    return RelationData(points, labels, mm)

@@ -2,11 +2,16 @@
 
 Two files other tools read (DESIGN.md, "Report files": names and columns are a contract):
 
-- ``runs/<run_id>/completion_parts.parquet``: one row per part x method x protocol x n_views x
-  view, columns and dtypes ``PARTS_SCHEMA`` (the keys, then ``reports.metrics.METRICS``).
+- ``runs/<run_id>/completion_parts.parquet``: one row per part x context x method x protocol
+  x n_views x view, columns and dtypes ``PARTS_SCHEMA`` (the keys, ``reports.metrics.METRICS``,
+  then ``coverage``: the share of the part's volume inside the grid the camera's view placed).
+  The context is where the camera saw the part: ``alone``, in a ``pair`` scene, or inside an
+  ``assembly`` as placed (occluded by its neighbours).
 - ``runs/<run_id>/completion_categories.csv``: one row per category x method x protocol,
-  columns ``CATEGORY_COLUMNS``: n_parts and the mean of every metric over the held-out parts
-  scored from a single view, plus the category ``all``.
+  columns ``CATEGORY_COLUMNS``: n_parts and the mean of every metric (and of the coverage)
+  over the held-out parts scored from a single view, plus the category ``all``.
+- ``runs/<run_id>/completion_contexts.csv``: the same means per category x context
+  (``CONTEXT_COLUMNS``): how the methods do on parts in pairs and inside assemblies.
 
 Every mean here is taken first over the views of a part, then over parts, so a part scored
 from 125 views weighs as much as a part scored from one. ``all`` is the mean over every part
@@ -38,11 +43,15 @@ from reports.tables import markdown_table
 
 PARTS_FILE = "completion_parts.parquet"
 CATEGORIES_FILE = "completion_categories.csv"
+CONTEXTS_FILE = "completion_contexts.csv"
 MARKDOWN_FILE = "completion.md"
-KEY_SCHEMA = {"part_id": "str", "category": "str", "split": "str", "method": "str",
-              "protocol": "str", "n_views": "int64", "view_deg": "float64"}
-PARTS_SCHEMA = {**KEY_SCHEMA, **dict.fromkeys(METRICS, "float64")}
-CATEGORY_COLUMNS = ("category", "method", "protocol", "n_parts", *METRICS)
+KEY_SCHEMA = {"part_id": "str", "category": "str", "split": "str", "context": "str",
+              "method": "str", "protocol": "str", "n_views": "int64", "view_deg": "float64"}
+PARTS_SCHEMA = {**KEY_SCHEMA, **dict.fromkeys(METRICS, "float64"), "coverage": "float64"}
+MEANS = (*METRICS, "coverage")
+CATEGORY_COLUMNS = ("category", "method", "protocol", "n_parts", *MEANS)
+CONTEXT_COLUMNS = ("category", "context", "method", "protocol", "n_parts", *MEANS)
+CONTEXTS = ("alone", "pair", "assembly")
 
 PROTOCOLS = ("observed", "oracle-box")
 OURS = "gan_lstm"
@@ -73,6 +82,7 @@ class CompletionCase:
 
     protocol: one of ``PROTOCOLS``. n_views: input views (1, 2, 4, 8). view_deg: azimuth about
     Z of the first input view, degrees in [0, 360) (view k of the 125-view circle: 2.88 k).
+    context: where the part was seen (``CONTEXTS``). coverage: share of its volume in the grid.
     """
 
     part_id: str
@@ -82,6 +92,8 @@ class CompletionCase:
     protocol: str
     n_views: int
     view_deg: float
+    context: str = "pair"
+    coverage: float = math.nan
 
     def __post_init__(self) -> None:
         if self.protocol not in PROTOCOLS:
@@ -104,6 +116,9 @@ def parts_frame(rows: Iterable[Mapping[str, Any]]) -> pd.DataFrame:
 
 
 def _typed_parts(frame: pd.DataFrame) -> pd.DataFrame:
+    # Runs written before parts had a context or a coverage read as parts of pair scenes.
+    frame = frame.assign(**{c: frame[c] if c in frame else v
+                            for c, v in (("context", "pair"), ("coverage", math.nan))})
     absent = [c for c in PARTS_SCHEMA if c not in frame.columns]
     if absent:
         raise ValueError(f"completion parts lack the columns {absent}")
@@ -112,7 +127,7 @@ def _typed_parts(frame: pd.DataFrame) -> pd.DataFrame:
     if unknown:
         raise ValueError(f"unknown protocols {unknown}; known: {PROTOCOLS}")
     if typed.duplicated(list(KEY_SCHEMA)).any():
-        raise ValueError("a part x method x protocol x n_views x view is scored twice")
+        raise ValueError("a part x context x method x protocol x n_views x view is scored twice")
     return typed
 
 
@@ -148,7 +163,15 @@ def category_means(parts: pd.DataFrame, split: str = HELD_OUT, n_views: int = 1)
     ``CATEGORY_COLUMNS``, ``all`` last."""
     rows = parts[(parts["split"] == split) & (parts["n_views"] == n_views)]
     keys = ["category", "method", "protocol"]
-    return _part_means(_with_all(rows), keys, list(METRICS))[list(CATEGORY_COLUMNS)]
+    return _part_means(_with_all(rows), keys, list(MEANS))[list(CATEGORY_COLUMNS)]
+
+
+def context_means(parts: pd.DataFrame, split: str = HELD_OUT, n_views: int = 1) -> pd.DataFrame:
+    """``category_means`` per context as well (``CONTEXT_COLUMNS``): a part seen in a pair and
+    inside an assembly counts in each."""
+    rows = parts[(parts["split"] == split) & (parts["n_views"] == n_views)]
+    keys = ["category", "context", "method", "protocol"]
+    return _part_means(_with_all(rows), keys, list(MEANS))[list(CONTEXT_COLUMNS)]
 
 
 def _with_all(rows: pd.DataFrame) -> pd.DataFrame:
@@ -195,9 +218,11 @@ def read_completion_categories(run_dir: Path) -> pd.DataFrame:
     path = run_dir / CATEGORIES_FILE
     frame = pd.read_csv(path, dtype={"category": "str", "method": "str", "protocol": "str"},
                         keep_default_na=False, na_values=[""])
+    if "coverage" not in frame:  # written before the coverage was reported
+        frame["coverage"] = math.nan
     if tuple(frame.columns) != CATEGORY_COLUMNS:
         raise InputFileError(path, f"columns {tuple(frame.columns)}, not {CATEGORY_COLUMNS}")
-    return frame.astype({"n_parts": "int64", **dict.fromkeys(METRICS, "float64")})
+    return frame.astype({"n_parts": "int64", **dict.fromkeys(MEANS, "float64")})
 
 
 def iou_by_view_angle(parts: pd.DataFrame, bin_deg: float = VIEW_BIN_DEG,
@@ -311,7 +336,32 @@ def completion_markdown(parts: pd.DataFrame, split: str = HELD_OUT) -> str:
     lines += _empty_predictions(parts)
     for protocol in [p for p in PROTOCOLS if p in set(parts["protocol"])]:
         lines += _protocol_section(parts, categories, protocol, split)
+    lines += _context_section(parts, split)
     return "\n".join(lines) + "\n"
+
+
+def context_iou_table(contexts: pd.DataFrame) -> pd.DataFrame:
+    """IoU (%) per protocol, context and category, one column per method, with the mean
+    coverage (%) of the parts' grids."""
+    frame = contexts.assign(cell=contexts["iou"] * 100)
+    keys = ["protocol", "context", "category"]
+    wide = frame.pivot(index=keys, columns="method", values="cell")
+    methods = _sorted(contexts.drop_duplicates("method"), ["method"])["method"]
+    wide = wide.reindex(columns=list(methods))
+    wide.columns.name = None
+    wide.insert(0, "coverage", frame.groupby(keys)["coverage"].mean() * 100)
+    wide.insert(0, "n_parts", frame.groupby(keys)["n_parts"].max())
+    return _sorted(wide.reset_index(), keys)
+
+
+def _context_section(parts: pd.DataFrame, split: str) -> list[str]:
+    table = context_iou_table(context_means(parts, split))
+    if table.empty:
+        return []
+    return ["### Where the parts were seen: alone, in pairs, inside assemblies", "",
+            "Single-view IoU (%) of the held-out parts by the context the camera saw them in; "
+            "coverage: the share of the part inside the grid its view placed (a part hidden "
+            "behind others can reach out of it).", "", markdown_table(_fmt(table, 2)), ""]
 
 
 def _empty_predictions(parts: pd.DataFrame) -> list[str]:
@@ -361,6 +411,8 @@ def write_completion(run_dir: Path, parts: pd.DataFrame) -> Path:
     Markdown path."""
     write_completion_parts(run_dir, parts)
     write_completion_categories(run_dir, category_means(parts))
+    with atomic_write(run_dir / CONTEXTS_FILE, "w") as fh:
+        context_means(parts).to_csv(fh, index=False)
     with atomic_write(run_dir / MARKDOWN_FILE, "w") as fh:
         fh.write(completion_markdown(parts))
     return run_dir / MARKDOWN_FILE

@@ -16,11 +16,14 @@ from cadio.records import Category
 from reports.completion import (
     ALL,
     CATEGORY_COLUMNS,
+    CONTEXTS_FILE,
     PARTS_FILE,
     PARTS_SCHEMA,
     CompletionCase,
     category_means,
     completion_markdown,
+    context_iou_table,
+    context_means,
     iou_by_n_views,
     iou_by_view_angle,
     paper_iou_table,
@@ -39,8 +42,9 @@ BRAKES, MOTION = Category.BRAKES.value, Category.MOTION.value
 def _row(part: str, category: str = BRAKES, **fields: Any) -> dict[str, Any]:
     """One scored prediction: a test-split single view of gan_lstm, observed, metrics 0.5."""
     row: dict[str, Any] = {"part_id": part, "category": category, "split": "test",
-                           "method": "gan_lstm", "protocol": "observed", "n_views": 1,
-                           "view_deg": 0.0, **dict.fromkeys(METRICS, 0.5)}
+                           "context": "pair", "method": "gan_lstm", "protocol": "observed",
+                           "n_views": 1, "view_deg": 0.0, **dict.fromkeys(METRICS, 0.5),
+                           "coverage": 1.0}
     return {**row, **fields}
 
 
@@ -176,3 +180,26 @@ def test_report_section_states_split_sizes_and_the_protocol_of_every_table() -> 
     assert all(h.endswith(("protocol: observed", "protocol: oracle-box")) for h in headings)
     assert "No prediction is empty." in text
     assert completion_markdown(parts_frame([])).endswith("No completion scores in this run.\n")
+
+
+def test_parts_seen_in_pairs_and_inside_assemblies_are_reported_apart(tmp_path: Path) -> None:
+    """A part seen in a pair scene and inside an assembly counts in each context; the coverage
+    of its grids is averaged like a metric; old files without either still read."""
+    rows = [_row("a", iou=0.8, coverage=1.0), _row("a", context="assembly", iou=0.2,
+                                                     coverage=0.6),
+            _row("b", context="assembly", iou=0.4, coverage=0.8)]
+    parts = parts_frame(rows)
+    table = context_means(parts).set_index(["category", "context", "method", "protocol"])
+    assert table.loc[(ALL, "pair", "gan_lstm", "observed"), "iou"] == pytest.approx(0.8)
+    assert table.loc[(ALL, "assembly", "gan_lstm", "observed"), "iou"] == pytest.approx(0.3)
+    assert table.loc[(ALL, "assembly", "gan_lstm", "observed"), "coverage"] == pytest.approx(0.7)
+    # part a: the mean of its two contexts (0.8), then over the parts
+    assert _means(rows).loc[(ALL, "gan_lstm", "observed"), "coverage"] == pytest.approx(0.8)
+    wide = context_iou_table(context_means(parts))
+    assert set(wide["context"]) == {"pair", "assembly"} and "gan_lstm" in wide
+    write_completion(tmp_path, parts)
+    assert (tmp_path / CONTEXTS_FILE).exists()
+    assert "inside assemblies" in (tmp_path / "completion.md").read_text()
+    old = parts.drop(columns=["context", "coverage"])
+    old.drop_duplicates(["part_id", "method"]).to_parquet(tmp_path / PARTS_FILE)
+    assert set(read_completion_parts(tmp_path)["context"]) == {"pair"}

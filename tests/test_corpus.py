@@ -52,11 +52,12 @@ def ws(tmp_path_factory: pytest.TempPathFactory) -> Workspace:
 def test_a_shape_held_out_anywhere_is_held_out_everywhere() -> None:
     groups = {"a.step": ["p1", "p2"], "b.step": ["p3"], "c.step": ["p4"]}
     shape_of = {"p1": "bolt", "p3": "bolt", "p2": "nut", "p4": "plate"}
-    group_split, part_split = corpus_splits(groups, shape_of,
-                                            held_out=lambda g: g == "b.step")
+    group_split, part_split = corpus_splits(
+        groups, shape_of, fractions=lambda g: (0.0, 1.0) if g == "b.step" else (0.0, 0.0))
     assert group_split["b.step"] == "test"
     assert part_split["p1"] == part_split["p3"] == "test"  # the same bolt geometry
     assert set(part_split) == {"p1", "p2", "p3", "p4"}
+    assert part_split["p2"] == part_split["p4"] == "train"
 
 
 def test_shots_of_three_kinds_give_examples_and_relation_inputs(ws: Workspace,

@@ -52,6 +52,7 @@ from cadio.capture.examples import (
     oracle_example,
     part_pose,
     part_views,
+    support_plane,
     view_sets,
     with_truth,
     write_example,
@@ -78,12 +79,18 @@ INDEX_COLUMNS = ("file", "shot", "kind", "group", "part_id", "category", "split"
 @dataclass(frozen=True)
 class CorpusConfig:
     """What each shot contributes. The defaults give 4 views a shot: 4 single-view examples and
-    sequences of 2 and 4 views per instance seen, in the observed protocol."""
+    a sequence of 2 views per instance seen, in the observed protocol, and the single views of
+    parts alone in the oracle-box protocol too."""
 
     example: ExampleConfig = field(default_factory=ExampleConfig)
     views: int = 4  # cameras per shot, spread over the circle from a seeded start
-    lengths: tuple[int, ...] = (2, 4)
-    protocols: tuple[str, ...] = (OBSERVED,)
+    # Sequences of views beside the single views (the headline is one view; the LSTM needs
+    # some sequences to learn to merge them).
+    lengths: tuple[int, ...] = (2,)
+    protocols: tuple[str, ...] = (OBSERVED, ORACLE)
+    # Shot kinds whose single views are also cut in the oracle-box protocol (a labelled
+    # comparison with the paper's setting: a part alone is the paper's own setting).
+    oracle_kinds: tuple[str, ...] = ("alone",)
     n_points: int = 600  # relation inputs per instance and view (the grounding MLP's 600)
     noise: bool = False  # the nightly's default captures are noise-free
     seed: int = 0
@@ -233,8 +240,9 @@ def shot_job(job: ShotJob) -> list[IndexRow]:
               for f in frames]
     rows: list[IndexRow] = []
     seen: dict[int, list[PartView]] = {}
+    supports = [support_plane(f, lab) for f, lab in zip(frames, labels, strict=True)]
     for part in shot.parts:
-        views = part_views(frames, labels, part.instance)
+        views = part_views(frames, labels, part.instance, supports)
         if not views:
             continue
         seen[part.instance] = views
@@ -255,7 +263,7 @@ def _instance_examples(shot: Shot, part: ShotPart, views: list[PartView], mesh: 
     for chosen in view_sets(len(views), len(views), cfg.lengths):
         seq = [views[i] for i in chosen]
         for protocol in cfg.protocols:
-            if protocol == ORACLE and len(seq) > 1:
+            if protocol == ORACLE and (len(seq) > 1 or shot.kind not in cfg.oracle_kinds):
                 continue  # the oracle-box comparison is made on single views
             example = (observed_example(seq, cfg.example) if protocol == OBSERVED
                        else oracle_example(seq, mesh, to_world, cfg.example))
@@ -388,15 +396,16 @@ def read_shots(path: Path) -> list[Shot]:
 
 
 def corpus_splits(groups: Mapping[str, Sequence[str]], shape_of: Mapping[str, str],
-                  seed: int = 0, val_fraction: float = 0.1, test_fraction: float = 0.2,
-                  held_out: Callable[[str], bool] = lambda g: False
+                  seed: int = 0,
+                  fractions: Callable[[str], tuple[float, float]] = lambda g: (0.1, 0.2)
                   ) -> tuple[dict[str, str], dict[str, str]]:
     """Splits by group and by part.
 
     Args:
         groups: group (a file) -> the part ids it holds.
         shape_of: part id -> shape key (parts of one geometry in several files share it).
-        held_out: groups that are always "test" (the nightly's own sample library).
+        fractions: group -> (val, test) fractions of its draw; (0, 1) holds a group out (the
+            nightly's own sample library).
 
     Returns:
         (group -> split, part id -> split). A group's split is a uniform draw from
@@ -405,9 +414,9 @@ def corpus_splits(groups: Mapping[str, Sequence[str]], shape_of: Mapping[str, st
     """
     group_split = {}
     for g in sorted(groups):
+        val, test = fractions(g)
         u = int(hashlib.sha256(f"{seed}:{g}".encode()).hexdigest()[:15], 16) / 16.0**15
-        group_split[g] = "test" if held_out(g) or u < test_fraction else (
-            "val" if u < test_fraction + val_fraction else "train")
+        group_split[g] = "test" if u < test else ("val" if u < test + val else "train")
     shape_split: dict[str, str] = {}
     for g, pids in groups.items():
         for pid in pids:
@@ -417,3 +426,55 @@ def corpus_splits(groups: Mapping[str, Sequence[str]], shape_of: Mapping[str, st
     part_split = {pid: shape_split[shape_of.get(pid, pid)] for pids in groups.values()
                   for pid in pids}
     return group_split, part_split
+
+
+def shape_keys(catalog: pd.DataFrame) -> dict[str, str]:
+    """Part id -> a key of its geometry: volume, face count and sorted extents (an assembly's
+    bolt and the same bolt as its own file share it, so they share a split)."""
+    ok = catalog[catalog["status"] == "ok"]
+    out = {}
+    for r in ok.itertuples():
+        extent = tuple(sorted(np.round(np.subtract(r.bbox_max, r.bbox_min), 3)))
+        out[str(r.part_id)] = f"{r.volume:.0f}|{r.n_faces}|{extent}"
+    return out
+
+
+@dataclass(frozen=True)
+class CorpusPlan:
+    """The shots of a corpus and the splits they were drawn with."""
+
+    shots: list[Shot]
+    group_split: dict[str, str]
+    part_split: dict[str, str]
+
+
+def plan_corpus(catalog: pd.DataFrame, mesh_of: Callable[[str], Path], scenes: pd.DataFrame,
+                fractions: Callable[[str], tuple[float, float]], seed: int = 0,
+                max_assembly_parts: int = 40) -> CorpusPlan:
+    """Every shot of a corpus: each distinct part alone, each scene row, each multi-part file.
+
+    Args:
+        catalog: the training workspace's catalog.
+        scenes: a scene table of its single parts (``cadio.truth.scenes``), drawn with the
+            part splits of ``plan_splits`` (pairs join parts of one split).
+        fractions: group (source file) -> (val, test) fractions, as ``corpus_splits``.
+    """
+    group_split, part_split = plan_splits(catalog, fractions, seed)
+    ok = catalog[catalog["status"] == "ok"]
+    keys = shape_keys(catalog)
+    single = ok[ok["n_solids"] == 1].assign(_key=lambda f: f["part_id"].astype(str).map(keys))
+    distinct = single.sort_values("part_id").drop_duplicates("_key")
+    # Assemblies first: a build stopped early still holds the scenes the nightly finds hardest.
+    shots = [*assembly_shots(catalog, part_split, group_split, mesh_of, max_assembly_parts),
+             *alone_shots(distinct, part_split, mesh_of),
+             *pair_shots(scenes, part_split, mesh_of)]
+    return CorpusPlan(shots, group_split, part_split)
+
+
+def plan_splits(catalog: pd.DataFrame, fractions: Callable[[str], tuple[float, float]],
+                seed: int = 0) -> tuple[dict[str, str], dict[str, str]]:
+    """``corpus_splits`` of a catalog's ok parts, grouped by source file."""
+    ok = catalog[catalog["status"] == "ok"]
+    groups = {str(src): [str(p) for p in rows["part_id"]]
+              for src, rows in ok.groupby("source", sort=True)}
+    return corpus_splits(groups, shape_keys(catalog), seed, fractions)

@@ -36,11 +36,11 @@ from cadio.capture.observe import (
     GridRule,
     ViewEvidence,
     camera_azimuth_deg,
-    carve,
     depth_view,
     occluded_sides,
     oracle_grid,
     place_grid,
+    states_and_carve,
     truth_occupancy,
     union_states,
     view_states,
@@ -57,6 +57,9 @@ PROTOCOLS = (OBSERVED, ORACLE)
 MIN_POINTS = 30
 # Observed points kept with an example, for registering the completion onto the scan.
 POINTS_KEPT = 2048
+# The support plane is fitted to every this-many-th pixel of no part: a table is hundreds of
+# thousands of returns, and a plane needs far fewer.
+SUPPORT_STRIDE = 8
 
 
 @dataclass(frozen=True)
@@ -104,19 +107,24 @@ class Example:
 
 
 def part_views(frames: Sequence[RgbdFrame], labels: Sequence[npt.NDArray[np.int32]],
-               label: int) -> list[PartView]:
+               label: int,
+               supports: Sequence[tuple[FloatArray, float] | None] | None = None
+               ) -> list[PartView]:
     """The views of the part whose pixels carry ``label`` (instance ids or clusters), each
     frame's labels given in ``labels``; views where it shows fewer than ``MIN_POINTS`` points
     are left out. A view is known by its index on the camera circle where the frame says so
-    (rendered frames), else by its order in the capture; its azimuth comes from the camera."""
+    (rendered frames), else by its order in the capture; its azimuth comes from the camera.
+    ``supports``: each frame's ``support_plane``, where the caller has them (a frame showing
+    several parts needs it once)."""
     out = []
     for order, (frame, lab) in enumerate(zip(frames, labels, strict=True)):
         mask = lab == label
         points = backproject(frame, mask)
         if len(points) < MIN_POINTS:
             continue
+        support = supports[order] if supports is not None else support_plane(frame, lab)
         evidence = ViewEvidence(frame.depth, mask, frame.intrinsics, frame.world_to_camera,
-                                support_plane(frame, lab), others=(lab > 0) & ~mask)
+                                support, others=(lab > 0) & ~mask)
         view = int(frame.meta.get("view_index", order))
         out.append(PartView(view, camera_azimuth_deg(frame.world_to_camera), points, evidence))
     return out
@@ -126,7 +134,7 @@ def support_plane(frame: RgbdFrame,
                   labels: npt.NDArray[np.int32]) -> tuple[FloatArray, float] | None:
     """The support plane under the parts (normal up, offset), fitted to the pixels of no part
     (label 0: table and background returns), or None when too few of them have depth."""
-    rest = backproject(frame, labels == 0)
+    rest = backproject(frame, labels == 0)[::SUPPORT_STRIDE]
     if len(rest) < 100:
         return None
     normal, offset = fit_plane(rest, SegmentConfig())
@@ -161,16 +169,16 @@ def oracle_example(views: Sequence[PartView], mesh: Mesh, part_to_world: FloatAr
 def _inputs(protocol: str, views: Sequence[PartView], grid: CubeGrid,
             cfg: ExampleConfig) -> Example:
     points = np.concatenate([v.points for v in views])
-    fine = [view_states(v.evidence, v.points, grid, cfg.d) for v in views]
-    out = fine if cfg.n_out == cfg.d else [
-        view_states(v.evidence, v.points, grid, cfg.n_out) for v in views]
+    out, carved = states_and_carve([v.evidence for v in views], [v.points for v in views],
+                                   grid, cfg.n_out)
+    fine = out if cfg.n_out == cfg.d else [
+        view_states(v.evidence, v.points, grid, cfg.d) for v in views]
     return Example(
         protocol=protocol, views=tuple(v.view for v in views),
         azimuths=tuple(v.azimuth_deg for v in views), grid=grid,
         inputs=np.stack([view_states(v.evidence, v.points, grid, cfg.n_in) for v in views]),
         depth=np.stack([depth_view(f[SURFACE]) for f in fine]),
-        visible=union_states(np.stack(out))[SURFACE],
-        carve=carve([v.evidence for v in views], grid, cfg.n_out),
+        visible=union_states(np.stack(out))[SURFACE], carve=carved,
         points=_sample(points, POINTS_KEPT))
 
 

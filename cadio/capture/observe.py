@@ -29,6 +29,7 @@ Lengths are metres in the world frame of the capture (the scene scaled by ``scal
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Any
 
@@ -259,16 +260,40 @@ def view_states(view: ViewEvidence, points_world: FloatArray, grid: CubeGrid,
     of the part's observed points falls in it (a voxel smaller than a pixel is met by its
     centre's pixel alone; one larger than a pixel by the points). Surface wins over free.
     """
-    centres = voxel_centres(grid.grid_to_world(n), n).reshape(-1, 3)
-    slack = np.float32(0.5 * np.sqrt(3.0) * grid.voxel_m(n))
-    depth_at, mask_at, z = _project(view, centres)
-    seen = depth_at > 0
-    free = seen & (z < depth_at - slack)
-    surface = mask_at & seen & (np.abs(z - depth_at) <= slack)
-    if view.support is not None:
-        free |= _below(view.support, centres, slack)
-    surface = surface.reshape(n, n, n) | observed_occupancy(points_world, grid, n)
-    return np.stack([surface, free.reshape(n, n, n) & ~surface])
+    return _ViewCast(view, grid, n).states(points_world)
+
+
+class _ViewCast:
+    """One view's projection of a grid's voxel centres: what ``view_states`` and ``carve``
+    read, computed once for both."""
+
+    def __init__(self, view: ViewEvidence, grid: CubeGrid, n: int) -> None:
+        self.view, self.grid, self.n = view, grid, n
+        self.centres = voxel_centres(grid.grid_to_world(n), n).reshape(-1, 3)
+        self.slack = np.float32(0.5 * np.sqrt(3.0) * grid.voxel_m(n))
+        self.depth_at, self.mask_at, self.z = _project(view, self.centres)
+        self.seen = self.depth_at > 0
+        self.front = self.z < self.depth_at - self.slack
+        self.free = self.seen & self.front
+        if view.support is not None:
+            self.free |= _below(view.support, self.centres, self.slack)
+
+    def states(self, points_world: FloatArray) -> BoolGrid:
+        n = self.n
+        surface = self.mask_at & self.seen & (np.abs(self.z - self.depth_at) <= self.slack)
+        surface = surface.reshape(n, n, n) | observed_occupancy(points_world, self.grid, n)
+        return np.stack([surface, self.free.reshape(n, n, n) & ~surface])
+
+    def behind(self) -> npt.NDArray[np.bool_]:
+        """(n^3,) centres at or behind the part's surface on the part's own pixels."""
+        return self.mask_at & ~self.front
+
+
+def states_and_carve(views: Sequence[ViewEvidence], points: Sequence[FloatArray],
+                     grid: CubeGrid, n: int) -> tuple[list[BoolGrid], BoolGrid]:
+    """Each view's ``view_states`` and the views' ``carve``, from one projection per view."""
+    casts = [_ViewCast(v, grid, n) for v in views]
+    return [c.states(p) for c, p in zip(casts, points, strict=True)], _carved(casts, n)
 
 
 def union_states(states: BoolGrid) -> BoolGrid:
@@ -303,18 +328,17 @@ def carve(views: list[ViewEvidence], grid: CubeGrid, n: int) -> BoolGrid:
     surface voxels themselves. Nothing lies inside the support plane a view saw: voxels below
     it are free too (the camera saw the table; parts rest on it or above it).
     """
-    centres = voxel_centres(grid.grid_to_world(n), n).reshape(-1, 3)
-    free = np.zeros(len(centres), dtype=bool)
-    behind = np.zeros(len(centres), dtype=bool)
-    slack = np.float32(0.5 * np.sqrt(3.0) * grid.voxel_m(n))
-    for view in views:
-        depth_at, mask_at, z = _project(view, centres)
-        seen = depth_at > 0
-        front = z < depth_at - slack
-        free |= seen & front
-        behind |= mask_at & ~front
-        if view.support is not None:
-            free |= _below(view.support, centres, slack)
+    return _carved([_ViewCast(v, grid, n) for v in views], n)
+
+
+def _carved(casts: Sequence[_ViewCast], n: int) -> BoolGrid:
+    if not casts:
+        return np.zeros((n, n, n), dtype=bool)
+    free = np.zeros(n**3, dtype=bool)
+    behind = np.zeros(n**3, dtype=bool)
+    for cast in casts:
+        free |= cast.free
+        behind |= cast.behind()
     return (behind & ~free).reshape(n, n, n)
 
 
