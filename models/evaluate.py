@@ -12,6 +12,7 @@ well the completed shape explains the scan, in the part's millimetres.
 
 from __future__ import annotations
 
+import json
 import logging
 import math
 from collections.abc import Callable, Iterable, Mapping
@@ -184,13 +185,28 @@ def score_files(paths: Iterable[Path], models: CompletionModels,
 
 
 def part_inputs(captures: Iterable[Path]) -> list[Path]:
-    """The input folder of each part in the first capture (by name) that shows it: a part in
-    several scenes is scored once, as ``completion_parts`` has one row per part and view."""
-    first: dict[str, Path] = {}
+    """The input folder of each part in each context (alone, in a pair, inside an assembly) in
+    the first capture (by name) that shows it there: a part in several scenes is scored once
+    per context, as ``completion_parts`` has one row per part, context and view. A folder is
+    one instance of a capture; its part is the one its examples name."""
+    first: dict[tuple[str, str], Path] = {}
     for capture in sorted(c for c in captures if Path(c).is_dir()):
         for folder in sorted(p for p in Path(capture).iterdir() if p.is_dir()):
-            first.setdefault(folder.name, folder)
+            meta = _folder_meta(folder)
+            if meta is not None:
+                first.setdefault((str(meta["part_id"]), context_of(meta)), folder)
     return [first[k] for k in sorted(first)]
+
+
+def _folder_meta(folder: Path) -> dict[str, Any] | None:
+    """The meta of one example of an input folder (None when it holds none readable)."""
+    for path in sorted(folder.glob("*-*.npz")):
+        try:
+            with np.load(path) as z:
+                return dict(json.loads(str(z["meta"])))
+        except (OSError, ValueError, KeyError):
+            continue
+    return None
 
 
 def complete_parts(folders: Iterable[Path], models_dir: Path, ws: Workspace) -> Scores:

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 import math
 from pathlib import Path
 
@@ -113,10 +114,21 @@ def test_a_perfect_completion_registers_with_no_residual(examples: list[Path]) -
     assert math.isclose(row.view_deg, 0.0, abs_tol=1e-9)
 
 
-def test_a_part_in_two_captures_is_scored_once(tmp_path: Path) -> None:
-    for capture in ("s1", "s2"):
-        for part in ("a-0", "b-0"):
-            (tmp_path / capture / part).mkdir(parents=True)
-    (tmp_path / "s2" / "c-0").mkdir()
-    found = part_inputs([tmp_path / "s2", tmp_path / "s1", tmp_path / "gone"])
-    assert [str(p.relative_to(tmp_path)) for p in found] == ["s1/a-0", "s1/b-0", "s2/c-0"]
+def _instance(folder: Path, part: str, capture: str) -> None:
+    folder.mkdir(parents=True)
+    np.savez(folder / "observed-0.npz", meta=np.array(json.dumps(
+        {"part_id": part, "capture": capture})))
+
+
+def test_a_part_in_two_captures_is_scored_once_per_context(tmp_path: Path) -> None:
+    """Folders are instances (1, 2, ...): two scenes' instance 1 are different parts, and one
+    part shown by a pair scene and by an assembly is scored in each."""
+    for capture, parts in (("s1", ("a", "b")), ("s2", ("b", "c"))):
+        for i, part in enumerate(parts, 1):
+            _instance(tmp_path / capture / str(i), part, capture)
+    _instance(tmp_path / "assembly-x" / "1", "a", "assembly-x")
+    (tmp_path / "s2" / "3").mkdir()  # an instance without examples is skipped
+    found = part_inputs([tmp_path / "s2", tmp_path / "s1", tmp_path / "assembly-x",
+                         tmp_path / "gone"])
+    assert sorted(str(p.relative_to(tmp_path)) for p in found) == [
+        "assembly-x/1", "s1/1", "s1/2", "s2/2"]
