@@ -39,6 +39,8 @@ class BaseConfig:
     w_occupied: float = 0.85
     w_empty: float = 0.15
     lr: float = 1e-4  # Adam, generator (the paper's)
+    # Training inputs lose up to this share of their seen-surface voxels (``training_batch``).
+    surface_dropout: float = 0.3
 
     def __post_init__(self) -> None:
         if self.n_in < 8 or self.n_in & (self.n_in - 1):
@@ -52,6 +54,8 @@ class BaseConfig:
             raise ValueError("need 1 <= eval_views <= max_views <= 8 (the data contract's V)")
         if min(self.w_occupied, self.w_empty, self.lr) <= 0:
             raise ValueError("loss weights and learning rate must be positive")
+        if not 0 <= self.surface_dropout < 1:
+            raise ValueError(f"surface_dropout must be in [0, 1), got {self.surface_dropout}")
 
 
 @dataclass(frozen=True)

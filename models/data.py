@@ -211,7 +211,7 @@ def sample_views(n_views: int, k: int, rng: np.random.Generator) -> list[int]:
 
 
 def training_batch(data: CompletionDataset, counts: Sequence[int], step: int, batch_size: int,
-                   max_views: int, seed: int) -> Batch:
+                   max_views: int, seed: int, surface_dropout: float = 0.0) -> Batch:
     """The batch of training step ``step``: a pure function of (seed, step).
 
     The batch shares one view count k: 1 with probability one half (the single scan is the
@@ -219,6 +219,10 @@ def training_batch(data: CompletionDataset, counts: Sequence[int], step: int, ba
     taken whole where the data has them, since their grid was placed from exactly those views;
     otherwise examples with more views keep their first view and a random ordered subset of
     k - 1 others. Examples are drawn with replacement.
+
+    With ``surface_dropout`` > 0, each example loses a share of its seen-surface voxels drawn
+    uniformly up to that share (they become unknown): a part far away or behind others is seen
+    by fewer pixels, and the network must not need every surface voxel.
 
     Args:
         counts: the view count of every example (``data.view_counts()``, computed once).
@@ -230,8 +234,16 @@ def training_batch(data: CompletionDataset, counts: Sequence[int], step: int, ba
     pool = exact or [i for i, c in enumerate(counts) if c > k]
     indices = [int(i) for i in rng.choice(pool, size=batch_size)]
     if exact:
-        return data.batch(indices, [list(range(k))] * batch_size)
-    return data.batch(indices, [sample_views(counts[i], k, rng) for i in indices])
+        batch = data.batch(indices, [list(range(k))] * batch_size)
+    else:
+        batch = data.batch(indices, [sample_views(counts[i], k, rng) for i in indices])
+    if surface_dropout <= 0:
+        return batch
+    drop = rng.uniform(0.0, surface_dropout, size=(batch_size, 1, 1, 1, 1))
+    keep = rng.random(batch.inputs[:, :, 0].shape) >= drop  # (B, V, n, n, n)
+    inputs = batch.inputs.clone()
+    inputs[:, :, 0] *= torch.from_numpy(keep).float()
+    return Batch(inputs, batch.depth, batch.target)
 
 
 def eval_batches(data: CompletionDataset, counts: Sequence[int], batch_size: int,

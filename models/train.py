@@ -250,7 +250,7 @@ class _Run:
         """Train step ``step``; at an epoch's end also validate, keep the best, snapshot."""
         cfg = self.cfg
         batch = training_batch(self.train, self.counts, step, cfg.batch_size, cfg.max_views,
-                               cfg.seed)
+                               cfg.seed, cfg.surface_dropout)
         self.losses.append(self.learner.step(batch.to(self.learner.device), step))
         done = step + 1
         event = TrainEvent(done, steps, self.losses[-1])

@@ -232,3 +232,14 @@ def test_batches_take_recorded_sequences_whole() -> None:
         if batch.inputs.shape[1] == 2:
             for second in batch.inputs[:, 1].numpy().astype(bool):
                 assert tuple(np.flatnonzero(second)[:20]) in pair_inputs
+
+
+def test_surface_dropout_thins_the_seen_surface_only(parts: CompletionDataset) -> None:
+    counts = parts.view_counts()
+    plain = training_batch(parts, counts, 3, 4, 3, seed=0)
+    thinned = training_batch(parts, counts, 3, 4, 3, seed=0, surface_dropout=0.9)
+    assert torch.equal(plain.inputs[:, :, 1], thinned.inputs[:, :, 1])  # free space kept
+    assert 0 < thinned.inputs[:, :, 0].sum() < plain.inputs[:, :, 0].sum()
+    assert (thinned.inputs[:, :, 0] <= plain.inputs[:, :, 0]).all()
+    with pytest.raises(ValueError, match="surface_dropout"):
+        small("gan_lstm", surface_dropout=1.0)
