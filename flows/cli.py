@@ -279,7 +279,7 @@ def _cmd_train(args: argparse.Namespace) -> int:
     import torch
 
     from cadio.cad.ingest import IngestConfig
-    from cadio.capture.dataset import DatasetConfig
+    from cadio.capture.corpus import CorpusConfig
     from cadio.capture.examples import ExampleConfig
     from cadio.sandbox import Limits
     from cadio.workspace import Workspace
@@ -294,9 +294,9 @@ def _cmd_train(args: argparse.Namespace) -> int:
     try:
         with _progress("corpus parts", None) as advance:
             corpus = prepare_corpus(ws, args.shared, args.variants, args.seed, ingest_cfg,
-                                    DatasetConfig(example=ExampleConfig(
+                                    CorpusConfig(example=ExampleConfig(
                 n_in=args.grids[0], n_out=args.grids[1],
-                grid_margin=args.tolerances.grid_margin)), advance)
+                grid_margin=args.tolerances.grid_margin), seed=args.seed), advance)
     except (InputFileError, ValueError) as exc:
         print(f"mateqa train: {exc}", file=sys.stderr)
         return 2

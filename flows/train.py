@@ -3,11 +3,13 @@
 ``mateqa train completion`` runs these steps in the process (progress bars, no server); the
 ``train`` flow runs the same steps as Prefect tasks. Each step is one call into the packages:
 
-1. corpus: the sample library with parametric variants (``cadio.samples``), plus the real
+1. library: the sample library with parametric variants (``cadio.samples``), plus the real
    parts of a shared STEP folder where given, ingested into the training workspace;
-2. dataset: every distinct part rendered alone and cut into examples in both protocols
-   (``cadio.capture.dataset``), split by part: the nightly's own sample parts are never
-   trained on;
+2. corpus: what the nightly's cameras see, cut into its inputs (``cadio.capture.corpus``):
+   every distinct part alone, pair scenes of the single parts, every multi-part file as
+   placed; split by source file and part (a shape held out anywhere is held out everywhere):
+   the nightly's own sample library is never trained on, half of the shared real files are
+   held out whole (``groups.csv`` of the corpus lists each file's split);
 3. training of each learned method and protocol (``models``), checkpoints self-describing;
 4. evaluation on the held-out parts beside the baselines (``models.evaluate``), written as the
    run's completion report and the model card.
@@ -15,11 +17,10 @@
 
 from __future__ import annotations
 
-import json
 import logging
 import time
 from collections.abc import Callable
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, field
 from datetime import UTC, datetime
 from pathlib import Path
 from typing import Any
@@ -28,18 +29,24 @@ import pandas as pd
 from prefect import flow, get_run_logger, task
 
 from cadio.cad.ingest import IngestConfig, discover, ingest_files, mark_duplicates
-from cadio.capture.dataset import (
-    DatasetConfig,
-    build_dataset,
-    corpus_splits,
+from cadio.capture.corpus import (
+    CorpusConfig,
+    build_corpus,
+    plan_corpus,
+    plan_splits,
     read_index,
-    unique_parts,
-    write_index,
 )
 from cadio.capture.examples import PROTOCOLS
 from cadio.catalog import read_catalog, to_frame, write_catalog
 from cadio.samples.library import SampleConfig, generate_library
 from cadio.sandbox import Limits
+from cadio.truth.scenes import (
+    SceneConfig,
+    generate_scenes,
+    read_scene_parts,
+    read_scenes,
+    write_scenes,
+)
 from cadio.workspace import Workspace
 from models.evaluate import LEARNED, SHIPPED
 
@@ -50,12 +57,15 @@ Progress = Callable[[str], None]
 
 @dataclass(frozen=True)
 class Corpus:
-    """Where the training examples are and how many parts each split holds."""
+    """Where the training examples are and how many parts, shots and examples each holds."""
 
     dataset: str
     parts: int
     splits: dict[str, int]
     failed: int
+    shots: dict[str, int] = field(default_factory=dict)
+    examples: int = 0
+    seconds: float = 0.0
 
 
 def corpus_library(ws: Workspace) -> Path:
@@ -63,62 +73,70 @@ def corpus_library(ws: Workspace) -> Path:
     return ws.root / "library-train"
 
 
+def corpus_fractions(library: Path, shared: Path | None) -> Callable[[str], tuple[float, float]]:
+    """(val, test) fractions of each source file's draw: the nightly's own sample library is
+    always held out; real files of ``shared`` are held out by half (whole files, so a held-out
+    assembly's night is on parts no network saw); generated variants by a fifth."""
+    originals, real = str(library), None if shared is None else str(Path(shared).resolve())
+
+    def fractions(source: str) -> tuple[float, float]:
+        if source.startswith(originals) and "/variants/" not in source:
+            return 0.0, 1.0
+        if real is not None and str(Path(source).resolve()).startswith(real):
+            return 0.1, 0.5
+        return 0.1, 0.2
+
+    return fractions
+
+
 def prepare_corpus(ws: Workspace, shared: Path | None, variants: int, seed: int,
-                   ingest_cfg: IngestConfig, dataset_cfg: DatasetConfig,
-                   progress: Progress | None = None) -> Corpus:
-    """Library with variants (+ shared parts), ingest, dataset. Reruns reuse every step."""
+                   ingest_cfg: IngestConfig, corpus_cfg: CorpusConfig,
+                   progress: Progress | None = None, pairs_per_relation: int = 150) -> Corpus:
+    """Library with variants (+ shared parts), ingest, pair scenes, the corpus of shots
+    (``cadio.capture.corpus``). Reruns reuse every step; a stopped build resumes."""
+    clock = time.perf_counter()
     library = corpus_library(ws)
     generate_library(library, SampleConfig(variants=variants, variant_seed=seed))
     found = discover(library) + (discover(shared) if shared is not None else [])
     rows = ingest_files(found, ws.root, ingest_cfg, read_catalog(ws.catalog))
     catalog = to_frame(mark_duplicates(rows))
     write_catalog(ws.catalog, catalog)
-    parts = unique_parts(catalog)
-    originals = str(library)
-
-    def held_out(source: str) -> bool:  # the nightly's own sample parts: never trained on
-        return source.startswith(originals) and "/variants/" not in source
-
-    splits = corpus_splits(parts, held_out, seed)
+    fractions = corpus_fractions(library, shared)
     out = dataset_dir(ws)
-    index = _reuse_or_build(parts, ws, out, splits, ingest_cfg, dataset_cfg, progress)
+    out.mkdir(parents=True, exist_ok=True)
+    scenes = _corpus_scenes(ws, catalog, fractions, seed, pairs_per_relation, out)
+    plan = plan_corpus(catalog, ws.mesh, scenes, fractions, seed)
+    groups = pd.DataFrame(sorted(plan.group_split.items()), columns=["source", "split"])
+    groups.to_csv(out / "groups.csv", index=False)
+    index = build_corpus(plan.shots, out, corpus_cfg, ingest_cfg.limits, progress)
     ok = index[index["status"] == "ok"]
     per_split = ok.drop_duplicates("part_id")["split"].value_counts().to_dict()
-    return Corpus(str(out), int(ok["part_id"].nunique()), {str(k): int(v)
-                                                           for k, v in per_split.items()},
-                  int((index["status"] != "ok").sum()))
+    kinds = pd.Series([s.kind for s in plan.shots]).value_counts().to_dict()
+    return Corpus(str(out), int(ok["part_id"].nunique()),
+                  {str(k): int(v) for k, v in per_split.items()},
+                  int((index["status"] == "failed").sum()),
+                  {str(k): int(v) for k, v in kinds.items()}, len(ok),
+                  time.perf_counter() - clock)
+
+
+def _corpus_scenes(ws: Workspace, catalog: pd.DataFrame,
+                   fractions: Callable[[str], tuple[float, float]], seed: int,
+                   pairs_per_relation: int, out: Path) -> pd.DataFrame:
+    """The pair scenes of the corpus's single parts (each part in its corpus split), kept in
+    the corpus folder and reused."""
+    path = out / "scenes.parquet"
+    if path.exists():
+        return read_scenes(path)
+    _, part_split = plan_splits(catalog, fractions, seed)
+    parts = [p for p in read_scene_parts(catalog, ws.root) if p.part_id in part_split]
+    scenes = generate_scenes(parts, SceneConfig(seed=seed, pairs_per_relation=pairs_per_relation),
+                             part_split)
+    write_scenes(path, scenes)
+    return scenes
 
 
 def dataset_dir(ws: Workspace) -> Path:
-    return ws.root / "datasets" / "completion"
-
-
-def _reuse_or_build(parts: pd.DataFrame, ws: Workspace, out: Path, splits: dict[str, str],
-                    ingest_cfg: IngestConfig, cfg: DatasetConfig,
-                    progress: Progress | None) -> pd.DataFrame:
-    """The dataset's index, building the parts it does not hold yet.
-
-    Raises:
-        ValueError: the folder holds a dataset of other grid sizes.
-    """
-    grids = {"n_in": cfg.example.n_in, "n_out": cfg.example.n_out}
-    stamp = out / "grids.json"
-    if stamp.exists() and json.loads(stamp.read_text()) != grids:
-        raise ValueError(f"{out} holds a {json.loads(stamp.read_text())} dataset, not {grids}: "
-                         "train other grid sizes in another workspace")
-    out.mkdir(parents=True, exist_ok=True)
-    stamp.write_text(json.dumps(grids))
-    index_path = out / "index.parquet"
-    old = read_index(index_path) if index_path.exists() else None
-    done = set() if old is None else set(old.loc[old["status"] == "ok", "part_id"])
-    todo = parts[~parts["part_id"].isin(done)]
-    if old is not None and todo.empty:
-        return old
-    new = build_dataset(todo, ws.root, out, splits, cfg, ingest_cfg.limits, progress)
-    merged = new if old is None else pd.concat([old[old["part_id"].isin(done)], new])
-    merged = merged.reset_index(drop=True)
-    write_index(index_path, merged)
-    return merged
+    return ws.root / "datasets" / "corpus"
 
 
 # ---------------------------------------------------------------- training and evaluation
@@ -275,10 +293,10 @@ def write_model_card(ws: Workspace, out_dir: Path, run_dir: Path, command: str,
 @task(name="prepare-corpus")
 def corpus_task(workspace: str, shared: str | None, variants: int, seed: int,
                 workers: int) -> Corpus:
-    """The training corpus: library with variants, shared parts, ingest, dataset."""
+    """The training corpus: library with variants, shared parts, ingest, scenes, shots."""
     ingest_cfg = IngestConfig(limits=Limits(workers=workers, seconds=600))
     return prepare_corpus(Workspace(Path(workspace)), Path(shared) if shared else None,
-                          variants, seed, ingest_cfg, DatasetConfig())
+                          variants, seed, ingest_cfg, CorpusConfig(seed=seed))
 
 
 @task(name="train-model")
