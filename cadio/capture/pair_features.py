@@ -65,6 +65,7 @@ class FeatureConfig:
     plane_normal_deg: float = 30.0
     min_plane: int = 8  # points of the smallest plane kept
     max_planes: int = 12
+    max_seeds: int = 200  # flat points proposing planes
     # A point is in the contact region when the other part is within this many point spacings
     # plus the mate's 1 mm (the faces of a concentric mate are within 1 mm).
     contact_spacings: float = 2.0
@@ -116,25 +117,27 @@ def _extract_planes(pts: FloatArray, normals: FloatArray, flat: npt.NDArray[np.b
     seeds = np.flatnonzero(flat)
     if len(seeds) == 0:
         return np.zeros(len(pts), dtype=bool), ()
+    if len(seeds) > cfg.max_seeds:  # evenly spread proposals: a face gives many alike
+        seeds = seeds[np.linspace(0, len(seeds) - 1, cfg.max_seeds).astype(np.int64)]
     # distance of every point from the plane through each seed along its normal: (S, n)
     offsets = np.abs(pts @ normals[seeds].T - np.einsum("sj,sj->s", normals[seeds], pts[seeds])).T
     holds = (offsets <= eps) & (np.abs(normals[seeds] @ normals.T) >= cos)  # (S, n)
     free = np.ones(len(pts), dtype=bool)
-    alive = np.ones(len(seeds), dtype=bool)
+    counts = holds.sum(axis=1)  # points each proposal holds among the unclaimed ones
     planes: list[tuple[FloatArray, int]] = []
     for _ in range(4 * cfg.max_planes):
-        counts = np.where(alive, (holds & free).sum(axis=1), 0)
         best = int(np.argmax(counts))
         if counts[best] < cfg.min_plane or len(planes) == cfg.max_planes:
             break
         members = holds[best] & free
         normal = normals[seeds[best]]
         if _bends(pts[members], normal, eps):
-            alive &= ~members[seeds]  # no seed on that strip proposes its plane again
-            alive[best] = False
+            counts[members[seeds]] = 0  # no seed on that strip proposes its plane again
+            counts[best] = 0
             continue
         planes.append((normal, int(counts[best])))
         free &= ~members
+        counts -= holds[:, members].sum(axis=1)
     return ~free, tuple(planes)
 
 
