@@ -92,6 +92,7 @@ def test_a_ros2_recording_reads_as_our_own_capture_of_the_same_views(
         assert (b.meta["pose_source"], b.meta["world_frame"], b.meta["gravity_source"]) == (
             "tf", "world", "tf")
         assert b.meta["colour"] == "registered" and b.meta["warnings"] == ()
+        assert b.colour.flags.writeable and b.depth.flags.writeable
     for a, f in zip(back, frames, strict=True):
         assert np.max(np.abs(a.depth - f.depth)) <= (0.0 if encoding == "32FC1" else MM)
     assert read_scene_meta(theirs) == meta
@@ -186,6 +187,32 @@ def test_real_recording_quirks(tmp_path: Path, frames: list[RgbdFrame]) -> None:
         assert np.array_equal(b.world_to_camera[:3, 3], np.zeros(3))
         angle = np.arccos(np.clip(b.world_to_camera[:3, 2] @ f.world_to_camera[:3, 2], -1, 1))
         assert np.degrees(angle) < 1.0
+
+
+def test_without_tf_or_a_support_plane_the_camera_is_taken_level(
+        tmp_path: Path, frames: list[RgbdFrame]) -> None:
+    """A recording that sees no plane (a patch of depth only) and holds no tf: the camera is
+    the world frame, up is the image's up, and both are said."""
+    patch = np.zeros_like(frames[0].depth)
+    patch[100:110, 150:160] = 1.2
+    path = tmp_path / "patch.mcap"
+    fid = "camera_color_optical_frame"
+    with ros2_recording(path) as rec:
+        for f in frames[:2]:
+            ns = f.timestamp_ns
+            rec.put("/camera/color/camera_info", "sensor_msgs/msg/CameraInfo",
+                    camera_info(ns, fid, f), ns)
+            rec.put("/camera/color/image_raw", "sensor_msgs/msg/Image",
+                    image(ns, fid, f.colour, "rgb8"), ns)
+            rec.put("/camera/depth/image_raw", "sensor_msgs/msg/Image",
+                    image(ns, fid, (patch * 1000).astype("<u2"), "16UC1"), ns)
+    back = list(read_capture(path))
+    assert len(back) == 2
+    for b in back:
+        assert b.meta["gravity_source"] == "level camera"
+        assert any("a level camera" in w for w in b.meta["warnings"])
+        # world +Z seen from the camera is the image's up (-y of the optical frame)
+        assert b.world_to_camera[:3, 2] == pytest.approx([0.0, -1.0, 0.0], abs=1e-12)
 
 
 def test_colour_from_another_sensor_is_reprojected_with_the_recorded_extrinsic(

@@ -5,9 +5,11 @@ Both MCAP dialects end here (``cadio.capture.recording``'s records), so the rule
 - **Pairing**: each depth image is paired with the nearest colour image (and instance image)
   within a tolerance; a depth image is settled once the stream has moved a tolerance past it
   (no nearer partner can arrive) or at the end. Depth without colour is skipped.
-- **Calibration**: an image's camera info is the latest one of its size, preferring the same
-  frame id, then the topic sharing the longest namespace (``/camera/color/camera_info`` for
-  ``/camera/color/image_raw``).
+- **Calibration**: an image's camera info is, among the latest message of each camera info
+  topic when the image settles, one of the image's size, preferring the same frame id, then the
+  topic sharing the longest namespace (``/camera/color/camera_info`` for
+  ``/camera/color/image_raw``). Drivers publish camera info with every image, unchanged; a
+  depth image with none of its size waits for one (and the reader fails at the end without).
 - **Pose**: the chain of the transform tree from its root (or a named fixed frame) to the depth
   image's frame id, at the depth image's stamp (``cadio.capture.tf_tree``).
 - **Colour**: taken as is when it is registered to depth (same size and intrinsics); else
