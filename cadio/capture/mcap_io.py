@@ -21,8 +21,9 @@ gravity rules are ``cadio.capture.pairing``'s.
 
 Each frame's ``meta`` says where it came from: ``dialect``, ``depth_topic``, ``colour_topic``,
 ``colour_offset_ns``, ``colour`` (registered / reprojected / left out), ``pose_source`` (tf /
-given / camera), ``world_frame``, ``gravity_source`` (tf / given / support plane / level
-camera) and ``warnings``. Errors name the file and the topic: ``CaptureTopicError`` (a topic
+given / camera), ``world_frame``, ``tf_gap_ns`` (how far the nearest transform stood from the
+stamp, when none bracketed it), ``gravity_source`` (tf / given / support plane / level camera)
+and ``warnings``. Errors name the file and the topic: ``CaptureTopicError`` (a topic
 missing, or holding an unknown schema or encoding) and ``CaptureTruncatedError`` (raised after
 the complete frames before the damage).
 """
@@ -103,7 +104,8 @@ class ReadOptions:
     tolerance_ns: pairing tolerance (20 ms: half a 30 fps frame plus slack).
     depth_scale_m: metres per unit of 16UC1 / mono16 depth (1 mm, the ROS convention).
     depth_topic, colour_topic: pick topics when a recording has several.
-    fixed_frame: the frame poses are given in (None: the root of the depth frame's tree).
+    fixed_frame: the frame poses are given in, taken to be level (None: the root of the depth
+        frame's tree, level when it is ``world``, ``map``, ``odom``, ``earth`` or a robot base).
     """
 
     pose: FloatArray | None = None
