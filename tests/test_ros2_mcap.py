@@ -315,29 +315,42 @@ def test_compressed_images_read(tmp_path: Path, frames: list[RgbdFrame], fmt: st
             rec.put(in_metres, compressed, {"header": header(ns, fid), "format":
                                             "32FC1; compressedDepth png",
                                             "data": _inverse_depth(f.depth)}, ns)
+            rec.put("/camera/depth_png/image_raw/compressed", compressed,
+                    {"header": header(ns, fid), "format": "16UC1; png compressed 16UC1",
+                     "data": _png(mm)}, ns)
     back = list(read_capture(path))
     metres = list(read_capture(path, depth_topic=in_metres))
-    assert len(back) == len(metres) == len(frames)
-    for f, b, m in zip(frames, back, metres, strict=True):
-        assert np.max(np.abs(b.depth - f.depth)) <= MM
+    png = list(read_capture(path, depth_topic="/camera/depth_png/image_raw/compressed"))
+    assert len(back) == len(metres) == len(png) == len(frames)
+    for f, b, m, p in zip(frames, back, metres, png, strict=True):
+        assert np.max(np.abs(b.depth - f.depth)) <= MM and np.array_equal(p.depth, b.depth)
         assert np.max(np.abs(m.depth - f.depth)) <= 0.001 and np.array_equal(m.depth > 0,
                                                                               f.depth > 0)
         diff = np.abs(b.colour.astype(np.int16) - f.colour.astype(np.int16))
         assert np.percentile(diff, 99) <= colour_atol and diff.mean() <= colour_atol / 10
 
 
-def test_compressed_twins_of_raw_topics_are_skipped(tmp_path: Path,
-                                                   frames: list[RgbdFrame]) -> None:
-    def twins(rec: Recording, ns: int, f: RgbdFrame) -> None:
-        rec.put("/camera/color/image_raw/compressed", "sensor_msgs/msg/CompressedImage",
-                {"header": header(ns, "camera_color_optical_frame"), "format": "jpeg",
+def test_compressed_twins_and_undecodable_topics_are_skipped(tmp_path: Path,
+                                                            frames: list[RgbdFrame]) -> None:
+    """The compressed twin of a raw topic, and a topic in a codec the reader lacks (RVL
+    compressed depth) that nobody asked for, are skipped; asked for, the codec is an error."""
+    def others(rec: Recording, ns: int, f: RgbdFrame) -> None:
+        fid, compressed = "camera_color_optical_frame", "sensor_msgs/msg/CompressedImage"
+        rec.put("/camera/color/image_raw/compressed", compressed,
+                {"header": header(ns, fid), "format": "jpeg",
                  "data": _jpeg(np.zeros_like(f.colour))}, ns)
+        rec.put("/camera/depth/rvl", compressed, {"header": header(ns, fid), "format":
+                                                  "16UC1; compressedDepth rvl",
+                                                  "data": b"\0" * 12 + b"RVL"}, ns)
 
     path = tmp_path / "twins.mcap"
-    write_ros2_capture(path, frames[:2], extra=[twins])
+    write_ros2_capture(path, frames[:2], extra=[others])
     back = list(read_capture(path))
     assert {b.meta["colour_topic"] for b in back} == {"/camera/color/image_raw"}
     assert all(np.array_equal(b.colour, f.colour) for b, f in zip(back, frames, strict=False))
+    with pytest.raises(CaptureTopicError) as err:
+        list(read_capture(path, depth_topic="/camera/depth/rvl"))
+    assert err.value.topic == "/camera/depth/rvl" and "cannot decode" in err.value.found
 
 
 def _topics_only(path: Path, frames: list[RgbdFrame], topics: dict[str, tuple[str, Callable]]

@@ -124,12 +124,24 @@ class Channels:
             self.roles[channel.id] = None
             return None
         dialect = DIALECTS[channel.message_encoding]
-        recs = self._convert(dialect, kind, schema, channel, message)
+        try:
+            recs = self._convert(dialect, kind, schema, channel, message)
+        except CaptureTopicError as exc:
+            if role or not self._optional(channel.topic):
+                raise
+            log.info("%s: %s; topic skipped", self.path, exc)  # e.g. RVL compressed depth
+            self.skipped[channel.topic] = f"cannot decode: {exc.found}"
+            self.roles[channel.id] = None
+            return None
         if role == "":
             role = self.roles[channel.id] = self._assign(channel.topic, kind, recs)
             if role is not None:
                 self.dialects[channel.topic] = dialect.name
         return None if role is None else (role, recs)
+
+    def _optional(self, topic: str) -> bool:
+        """Whether a topic may be skipped: not one of our names, not asked for."""
+        return topic not in _KNOWN and topic not in (self.depth_topic, self.colour_topic)
 
     def _check(self, schema: Any, channel: Any) -> str | None:
         """The channel's kind; a known topic name holding something else is an error."""

@@ -114,14 +114,15 @@ class PixelError(ValueError):
 def compressed_encoding(fmt: str) -> tuple[str, str]:
     """(pixel encoding, payload) of a CompressedImage ``format`` string: "16UC1;
     compressedDepth png" -> ("16UC1", "compressedDepth"), "rgb8; jpeg compressed bgr8" ->
-    ("rgb8", "jpeg"), a bare "png" or "jpeg" -> ("rgb8", that): JPEG and PNG decode to RGB."""
+    ("rgb8", "jpeg"), "16UC1; png compressed 16UC1" -> ("16UC1", "png"), a bare "png" or
+    "jpeg" -> ("rgb8", that): JPEG and PNG colour decode to RGB whatever the source order."""
     head, _, rest = (s.strip() for s in fmt.partition(";"))
     if "compresseddepth" in fmt.lower():
         return head or "16UC1", "compressedDepth"
     payload = (rest or head).split()[0].lower() if (rest or head) else ""
     payload = "jpeg" if payload in ("jpg", "jpeg") else payload
-    encoding = head if ";" in fmt and head in COLOUR_ENCODINGS else "rgb8"
-    return encoding, payload
+    known = (*COLOUR_ENCODINGS, *DEPTH_ENCODINGS, *INSTANCE_ENCODINGS)
+    return (head if rest and head in known else "rgb8"), payload
 
 
 def compressed_size(fmt: str, data: bytes) -> tuple[int, int]:
