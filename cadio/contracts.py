@@ -63,7 +63,8 @@ class CaptureSummary:
 
     error: empty when the capture and its inputs are fine, else the reason (the other counts
     say how far it got). seg_mean_iou: segmentation without ids scored against the ids (NaN
-    when the capture has no ids).
+    when the capture has no ids). warnings: what the reader had to assume (a recording without
+    a transform tree, colour left out), from ``RgbdFrame.meta["warnings"]``.
     """
 
     scene_id: str
@@ -74,6 +75,7 @@ class CaptureSummary:
     input_parts: int = 0
     seg_mean_iou: float = math.nan
     error: str = ""
+    warnings: tuple[str, ...] = ()
 
     def to_dict(self) -> dict[str, Any]:
         return asdict(self)

@@ -39,6 +39,32 @@ class CaptureError(InputFileError):
     """A capture (MCAP) file is truncated, corrupt, or has the wrong schema or topics."""
 
 
+class CaptureTopicError(CaptureError):
+    """A recording lacks a topic the reader needs, or a topic holds what it cannot read.
+
+    topic: the topic at fault, or None when none was found; found: what the file holds there;
+    expected: what the reader needs (schemas, encodings).
+    """
+
+    def __init__(self, path: Path | str, topic: str | None, found: str, expected: str) -> None:
+        self.topic = topic
+        self.found = found
+        self.expected = expected
+        where = f"topic {topic}: " if topic else ""
+        super().__init__(path, f"{where}{found}; expected {expected}")
+
+
+class CaptureTruncatedError(CaptureError):
+    """A recording ends early or is damaged after ``messages`` complete messages (the frames
+    before the damage were read); ``detail`` is what the MCAP reader found."""
+
+    def __init__(self, path: Path | str, messages: int, detail: str) -> None:
+        self.messages = messages
+        self.detail = detail
+        super().__init__(path, f"truncated or corrupt after {messages} complete messages "
+                               f"({detail})")
+
+
 class ExportError(InputFileError):
     """An assembly's predicted mates could not be exported (its inputs are missing or changed,
     or a file could not be written)."""

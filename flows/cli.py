@@ -127,10 +127,13 @@ def _parser() -> argparse.ArgumentParser:
                        description="Render RGB-D views (the paper's camera circle) of a STEP "
                        "part or assembly, or of a scene id of WS/scenes.parquet, into "
                        "WS/captures/<name>.mcap.")
-    p.add_argument("target", metavar="STEP_OR_SCENE", help="a STEP file or a scene id")
+    p.add_argument("target", metavar="STEP_OR_SCENE", nargs="?", help="a STEP file or a scene id")
     _workspace_and_tolerances(p, settings)
     p.add_argument("--views", type=int, default=125, help="views to render (default 125)")
     p.add_argument("--noise", action="store_true", help="switch the depth noise model on")
+    p.add_argument("--read", type=Path, metavar="MCAP", default=None,
+                   help="read a recording (ours, Foxglove or ROS 2) instead, and print what was "
+                   "read: frames, topics, camera, pose and gravity sources, warnings")
     p.set_defaults(func=_cmd_capture)
 
     p = sub.add_parser("train", help="train the learned stages (completion, relations)",
@@ -429,8 +432,16 @@ def _cmd_mates(args: argparse.Namespace) -> int:
 
 
 def _cmd_capture(args: argparse.Namespace) -> int:
+    from cadio.capture.mcap_io import summarise_capture
     from cadio.capture.scan import ScanConfig, capture_step
 
+    if args.read is not None:
+        read = summarise_capture(args.read)
+        print(json.dumps(read.to_dict(), indent=1))
+        return 2 if read.error else 0
+    if args.target is None:
+        print("mateqa capture: give STEP_OR_SCENE, or --read MCAP", file=sys.stderr)
+        return 2
     cfg = ScanConfig(views_per_scene=args.views, noise=args.noise, tolerances=args.tolerances)
     try:
         with _progress("capture", args.views) as advance:

@@ -34,7 +34,7 @@ from cadio.capture.mcap_io import (
 )
 from cadio.capture.noise import NoiseConfig
 from cadio.capture.render import CaptureConfig, PlacedPart, render_views, scene_meta
-from cadio.errors import CaptureError
+from cadio.errors import CaptureError, CaptureTopicError
 from cadio.records import Mesh, RgbdFrame
 
 READER_DIR = Path(__file__).parent / "mcap_reader"
@@ -253,8 +253,10 @@ def test_wrong_schema_on_a_known_topic_is_rejected(tmp_path: Path) -> None:
 def test_missing_calibration_is_rejected(tmp_path: Path, frames: list[RgbdFrame]) -> None:
     path = tmp_path / "nocalib.mcap"
     write_foreign_recording(path, frames[:2], calibration=False, depth_topic=DEPTH_TOPIC)
-    with pytest.raises(CaptureError, match=f"CameraCalibration.*{DEPTH_TOPIC}"):
+    with pytest.raises(CaptureTopicError, match=DEPTH_TOPIC) as err:
         list(read_capture(path))
+    assert err.value.topic == DEPTH_TOPIC and "foxglove.CameraCalibration" in err.value.expected
+    assert err.value.path == str(path) and "320x240" in err.value.found
 
 
 def test_foreign_recording_without_ids_or_labels_reads(tmp_path: Path,
@@ -273,7 +275,14 @@ def test_foreign_recording_without_ids_or_labels_reads(tmp_path: Path,
         assert b.meta["depth_topic"] == "/camera/depth/image_rect_raw"
         assert b.meta["colour_offset_ns"] == -4_000_000 and b.meta["pose_source"] == "given"
     assert read_scene_meta(path) is None
-    assert np.array_equal(next(read_capture(path)).world_to_camera, np.eye(4))
+    # Without a pose or a transform, the camera is the world frame (and each frame says so),
+    # turned so that world Z is the table's normal: the up the renderer's world has.
+    own = next(read_capture(path))
+    assert own.meta["pose_source"] == "camera" and own.meta["gravity_source"] == "support plane"
+    assert any("the camera is the world frame" in w for w in own.meta["warnings"])
+    assert np.array_equal(own.world_to_camera[:3, 3], np.zeros(3))
+    up_true = frames[0].world_to_camera[:3, 2]  # world +Z in camera coordinates
+    assert np.degrees(np.arccos(own.world_to_camera[:3, 2] @ up_true)) < 1.0
 
 
 def test_registered_depth_is_preferred_and_infrared_ignored(tmp_path: Path,

@@ -87,6 +87,7 @@ class InputsSummary:
     parts: parts with learning inputs written; examples: completion examples written.
     has_ids: the capture has instance ids. clusters: clusters found without ids.
     seg_mean_iou, seg_ari: those clusters scored against the ids (NaN without ids).
+    warnings: the reader's (``RgbdFrame.meta["warnings"]`` of the last frame).
     """
 
     capture: str
@@ -97,6 +98,7 @@ class InputsSummary:
     examples: int = 0
     seg_mean_iou: float = math.nan
     seg_ari: float = math.nan
+    warnings: tuple[str, ...] = ()
 
 
 def view_indices(cfg: ScanConfig) -> list[int]:
@@ -216,11 +218,17 @@ def capture_assembly(assembly: str, category: str, part_ids: list[str], ws: Work
 
 
 def read_captures(captures_dir: Path, ws: Workspace, cfg: ScanConfig) -> list[CaptureSummary]:
-    """Learning inputs of every capture recorded elsewhere (``*.mcap`` under the folder)."""
+    """Learning inputs of every recording made elsewhere (``*.mcap`` under the folder, in
+    either MCAP dialect: ``cadio.capture.mcap_io``). A recording that cannot be used gets its
+    reason in the summary's ``error`` and the others go on."""
     out = []
     for path in sorted(Path(captures_dir).rglob("*.mcap")):
         summary = CaptureSummary(scene_id=path.stem, path=str(path), bytes=path.stat().st_size)
-        out.append(with_inputs(summary, ws, cfg))
+        try:
+            out.append(with_inputs(summary, ws, cfg))
+        except (ValueError, OSError) as exc:  # e.g. a camera looking straight down
+            log.warning("%s: %s", path, exc)
+            out.append(replace(summary, error=f"{type(exc).__name__}: {exc}"))
     return out
 
 
@@ -231,7 +239,7 @@ def with_inputs(capture: CaptureSummary, ws: Workspace, cfg: ScanConfig) -> Capt
     except CaptureError as exc:
         return replace(capture, error=exc.reason)
     return replace(capture, frames=inputs.frames, input_parts=inputs.parts,
-                   seg_mean_iou=inputs.seg_mean_iou)
+                   seg_mean_iou=inputs.seg_mean_iou, warnings=inputs.warnings)
 
 
 def scan_inputs(path: Path, ws: Workspace, cfg: ScanConfig) -> InputsSummary:
@@ -253,7 +261,8 @@ def scan_inputs(path: Path, ws: Workspace, cfg: ScanConfig) -> InputsSummary:
     clusters = segment_clusters(frames[0])
     summary = InputsSummary(capture=str(path), frames=len(frames), parts=0,
                             has_ids=frames[0].instance is not None,
-                            clusters=int(clusters.max()))
+                            clusters=int(clusters.max()),
+                            warnings=tuple(frames[-1].meta.get("warnings", ())))
     if frames[0].instance is not None:
         score = segmentation_score(clusters, frames[0].instance, frames[0].depth > 0)
         summary = replace(summary, seg_mean_iou=score.mean_iou, seg_ari=score.ari)

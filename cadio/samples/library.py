@@ -124,15 +124,20 @@ def sample_specs(cfg: SampleConfig | None = None) -> list[SampleSpec]:
     return specs
 
 
-def _stamp(cfg: SampleConfig) -> dict[str, Any]:
-    """What the files depend on: a change to any of these regenerates the library."""
+def package_versions() -> dict[str, str]:
+    """Versions of the packages the generated geometry depends on."""
     versions = {}
     for dist in ("build123d", "bd_warehouse", "cadquery-ocp"):
         try:
             versions[dist] = importlib.metadata.version(dist)
         except importlib.metadata.PackageNotFoundError:
             versions[dist] = "unknown"
-    return {"version": LIBRARY_VERSION, "config": asdict(cfg), "packages": versions}
+    return versions
+
+
+def _stamp(cfg: SampleConfig) -> dict[str, Any]:
+    """What the files depend on: a change to any of these regenerates the library."""
+    return {"version": LIBRARY_VERSION, "config": asdict(cfg), "packages": package_versions()}
 
 
 def _labels(shape: bd.Shape[Any]) -> tuple[str, ...]:
