@@ -47,6 +47,7 @@ from cadio.contracts import CaptureSummary
 from cadio.errors import CaptureError, InputFileError
 from cadio.records import FloatArray, Mesh, Relation
 from cadio.tolerances import DEFAULT_TOLERANCES, Tolerances
+from cadio.truth.relations import PairContact
 from cadio.truth.scenes import read_scenes, scene_poses
 from cadio.workspace import Workspace, atomic_write, read_mesh
 
@@ -120,12 +121,14 @@ def placed_parts(scene: dict[str, Any], ws: Workspace, colours: dict[str, str]) 
 
 
 def scene_labels(scene: dict[str, Any]) -> dict[str, Any]:
-    """Ground truth of a scene row: the ten relations of (a, b) seen along +Y (CAD frame)."""
+    """Ground truth of a scene row: the ten relations of (a, b) seen along +Y (CAD frame) and
+    what the pair's face mates say (``contact``: every view's labels need it)."""
     return {
         "view_axis": [0.0, 1.0, 0.0],
         "pair": [scene["part_a"], scene["part_b"]],
         "categories": [scene["category_a"], scene["category_b"]],
         "relations": {r.value: bool(scene[r.value]) for r in Relation},
+        "contact": PairContact.from_dict(scene).to_dict(),
         "intended": scene.get("intended", ""),
         "split": scene.get("split", ""),
     }
@@ -243,7 +246,7 @@ def with_inputs(capture: CaptureSummary, ws: Workspace, cfg: ScanConfig) -> Capt
 
 
 def scan_inputs(path: Path, ws: Workspace, cfg: ScanConfig) -> InputsSummary:
-    """Learning inputs of every part of a capture, written to ``inputs/<capture>/<part>/``.
+    """Learning inputs of every part of a capture, written to ``inputs/<capture>/<instance>/``.
 
     Parts are told apart by the instance ids (our captures) or, in a recording without them,
     by removing the support plane and clustering (scored against the ids when both exist).
@@ -271,15 +274,16 @@ def scan_inputs(path: Path, ws: Workspace, cfg: ScanConfig) -> InputsSummary:
     labels = [f.instance for f in frames if f.instance is not None]
     parts = examples = 0
     for part in meta["parts"]:
-        pid = str(part["part_id"])
-        views = part_views(frames, labels, int(part["instance_id"]))
+        pid, instance = str(part["part_id"]), int(part["instance_id"])
+        views = part_views(frames, labels, instance)
         if not views:
             continue
         written = part_examples(views, read_mesh(ws.mesh(pid)), part_to_world(meta, part), cfg)
+        folder = ws.inputs(path.stem, instance)  # by instance: a scene may show a part twice
         for name, example in written.items():
-            write_example(ws.inputs(path.stem, pid) / f"{name}.npz", example,
-                          {"part_id": pid, "capture": path.stem})
-        _write_points(ws.inputs(path.stem, pid) / "points.npz", views, cfg)
+            write_example(folder / f"{name}.npz", example,
+                          {"part_id": pid, "instance_id": instance, "capture": path.stem})
+        _write_points(folder / "points.npz", views, cfg)
         parts, examples = parts + 1, examples + len(written)
     return replace(summary, parts=parts, examples=examples)
 
