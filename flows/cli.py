@@ -331,9 +331,9 @@ def _cmd_train_relations(args: argparse.Namespace) -> int:
     import torch
 
     from cadio.workspace import Workspace
+    from cadio.sandbox import Limits
     from flows.train_relations import (
         build_dataset,
-        corpus_captures,
         evaluate_relations,
         train_relation_model,
         write_relation_card,
@@ -345,15 +345,14 @@ def _cmd_train_relations(args: argparse.Namespace) -> int:
     ws = Workspace(args.workspace.resolve())
     out = (args.out or SHIPPED_RELATIONS).resolve()
     try:
-        with _progress("corpus scenes", None) as advance:
-            captures = corpus_captures(ws, args.pairs_per_relation, args.seed, advance)
-        with _progress("pair views", len(captures)) as advance:
-            rows = build_dataset(ws, SHIPPED, advance)
+        with _progress("labelled shots", None) as advance:
+            rows = build_dataset(ws, SHIPPED, Limits(workers=args.workers, seconds=600),
+                                 advance)
     except (FileNotFoundError, ValueError) as exc:
         print(f"mateqa train relations: {exc} (run mateqa train completion in this workspace "
               "first)", file=sys.stderr)
         return 2
-    print(f"corpus: {len(captures)} captures, pair views per split {rows}")
+    print(f"pair views per split {rows}")
     for name in args.inputs:
         for method in args.methods or ["ltn", "mlp"]:
             with _progress(f"{method}/{name}", args.steps) as advance:

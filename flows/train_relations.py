@@ -1,21 +1,21 @@
-"""Training the relation networks: corpus scenes, captures, dataset, networks, held-out report.
+"""Training the relation networks: the corpus's labelled pairs, networks, held-out report.
 
 ``mateqa train relations`` runs these steps in the process, after ``mateqa train completion``
 in the same training workspace (it reuses that corpus, its split and the completion network):
 
-1. scenes: pairs of the corpus's single parts placed for each relation (``cadio.truth.scenes``),
-   every part in the split the completion dataset gave it;
-2. captures: each scene rendered from ``views`` cameras around it (``cadio.capture.scan``),
-   with the observed points and single-view completion inputs of each part;
-3. dataset: every pair in every view, labelled for that view's observer, in three inputs
-   (``models.relation_data``);
-4. training of ``ltn`` and ``mlp`` on each input (``models.relations``);
-5. evaluation of ``ltn``, ``mlp`` and ``geometric`` on the test split (parts no network saw),
+1. labels: the pairs of every pair scene and assembly of the corpus, labelled view by view by
+   the truth of placed parts (``cadio.truth.corpus_labels``), one crash-isolated job per shot
+   (kept under the corpus's ``labels/``: a rerun labels only new shots);
+2. dataset: every labelled pair in every view in three inputs, with the pair evidence of each
+   (``models.relation_data``); the completion network completes each part from that view;
+3. training of ``ltn`` and ``mlp`` on each input (``models.relations``);
+4. evaluation of ``ltn``, ``mlp`` and ``geometric`` on the test split (parts no network saw),
    written as a relation report and the model card.
 """
 
 from __future__ import annotations
 
+import json
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -25,70 +25,89 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from cadio.capture.pairs import INPUTS, PairConfig
-from cadio.capture.scan import ScanConfig, capture_batch
+from cadio.capture.corpus import Shot, read_index, read_shots
+from cadio.capture.pair_features import N_PAIR_FEATURES
+from cadio.capture.pairs import INPUTS
 from cadio.catalog import read_catalog
-from cadio.truth.scenes import SceneConfig, build_scenes, read_scenes
-from cadio.workspace import Workspace
+from cadio.sandbox import Limits
+from cadio.truth.corpus_labels import LabelJob, LabelPart, ShotLabels, label_shots
+from cadio.workspace import Workspace, atomic_write
 
 Progress = Callable[[str], None]
-CORPUS_SCAN = ScanConfig(lengths=(), protocols=("observed",))  # single views: all it needs
+
+
+def corpus_dir(ws: Workspace) -> Path:
+    return ws.root / "datasets" / "corpus"
 
 
 def relations_dir(ws: Workspace) -> Path:
     return ws.root / "datasets" / "relations"
 
 
-def completion_splits(ws: Workspace) -> dict[str, str]:
-    """Part id -> split of the completion dataset (``mateqa train completion`` made it).
-
-    Raises:
-        FileNotFoundError: the workspace has no completion dataset yet.
-    """
-    index = pd.read_parquet(ws.root / "datasets" / "completion" / "index.parquet",
-                            columns=["part_id", "split"])
-    return dict(zip(index["part_id"].astype(str), index["split"].astype(str), strict=True))
-
-
-def corpus_captures(ws: Workspace, pairs_per_relation: int, seed: int,
-                    progress: Progress | None = None) -> list[Path]:
-    """The corpus's scenes (reused when the table exists) and their captures (only those
-    missing are rendered); the capture files."""
-    if not ws.scenes.exists():
-        build_scenes(read_catalog(ws.catalog), ws.root,
-                     SceneConfig(seed=seed, pairs_per_relation=pairs_per_relation),
-                     completion_splits(ws))
-    ids = read_scenes(ws.scenes)["scene_id"].astype(str).tolist()
-    todo = [s for s in ids if not ws.capture(s).exists()]
-    for i in range(0, len(todo), 10):
-        for c in capture_batch(todo[i:i + 10], ws, CORPUS_SCAN):
-            if progress is not None:
-                progress(c.error or c.scene_id)
-    return [ws.capture(s) for s in ids if ws.capture(s).exists()]
+def label_jobs(ws: Workspace, shots: list[Shot]) -> list[LabelJob]:
+    """A labelling job for every pair scene and assembly of the corpus (their parts' STEP
+    files from the catalog, each view's forward axis from the shot's views)."""
+    catalog = read_catalog(ws.catalog)
+    where = {str(r.part_id): (str(r.source), int(r.solid_index)) for r in catalog.itertuples()}
+    jobs = []
+    for shot in shots:
+        path = corpus_dir(ws) / "views" / f"{shot.shot_id}.npz"
+        if shot.kind == "alone" or not path.exists():
+            continue
+        with np.load(path) as z:
+            views, first = np.unique(z["view"], return_index=True)
+            forward = [tuple(float(x) for x in z["world_to_camera"][k][2, :3]) for k in first]
+        parts = tuple(LabelPart(p.instance, p.part_id, *where[p.part_id],
+                                str(ws.features(p.part_id)), p.pose_mm) for p in shot.parts)
+        jobs.append(LabelJob(shot.shot_id, shot.kind, parts, tuple(int(v) for v in views),
+                             tuple(forward)))  # type: ignore[arg-type]
+    return jobs
 
 
-def build_dataset(ws: Workspace, completion_models: Path,
+def label_corpus(ws: Workspace, limits: Limits, progress: Progress | None = None
+                 ) -> dict[str, ShotLabels]:
+    """The labels of every labelled shot of the corpus, labelling the shots not yet labelled."""
+    folder = corpus_dir(ws) / "labels"
+    folder.mkdir(parents=True, exist_ok=True)
+    jobs = label_jobs(ws, read_shots(corpus_dir(ws) / "shots.parquet"))
+    todo = [j for j in jobs if not (folder / f"{j.shot}.npz").exists()]
+    for job, labels, reason in label_shots(todo, limits):
+        if labels is not None:
+            with atomic_write(folder / f"{job.shot}.npz") as fh:
+                np.savez(fh, pairs=labels.pairs, views=labels.views, truth=labels.truth,
+                         near=labels.near)
+        if progress is not None:
+            progress(reason or job.shot)
+    out = {}
+    for job in jobs:
+        path = folder / f"{job.shot}.npz"
+        if path.exists():
+            with np.load(path) as z:
+                out[job.shot] = ShotLabels(job.shot, z["pairs"], z["views"], z["truth"],
+                                           z["near"])
+    return out
+
+
+def build_dataset(ws: Workspace, completion_models: Path, limits: Limits,
                   progress: Progress | None = None) -> dict[str, int]:
-    """Pair views of every corpus capture into ``datasets/relations/<split>.npz``; reused when
-    the captures and the completion network are those it was built from."""
-    import json
-
+    """Pair views of every labelled corpus shot into ``datasets/relations/<split>.npz``;
+    reused when the labels and the completion network are those it was built from."""
     from models.evaluate import load_models
     from models.relation_data import build_relation_dataset, read_split
 
-    catalog = read_catalog(ws.catalog)
-    categories = dict(zip(catalog["part_id"].astype(str), catalog["category"].astype(str),
-                          strict=True))
+    labels = label_corpus(ws, limits, progress)
     models = load_models(completion_models)
     key = ("gan_lstm", "observed")
-    captures = sorted(ws.root.glob("captures/*.mcap"))
-    stamp = {"captures": [c.stem for c in captures],
-             "completion": models.cards[key]["code_version"] if key in models.cards else ""}
+    stamp = {"shots": sorted(labels),
+             "completion": models.cards[key]["code_version"] if key in models.cards else "",
+             "completion_step": models.cards[key]["step"] if key in models.cards else -1}
     out = relations_dir(ws)
     if (out / "stamp.json").exists() and json.loads((out / "stamp.json").read_text()) == stamp:
         return {p.stem: len(read_split(p).labels) for p in sorted(out.glob("*.npz"))}
-    rows = build_relation_dataset(captures, ws, categories, completion_splits(ws),
-                                  models.models.get(key), out, PairConfig(), progress)
+    shots = read_shots(corpus_dir(ws) / "shots.parquet")
+    index = read_index(corpus_dir(ws) / "index.parquet")
+    rows = build_relation_dataset(corpus_dir(ws), shots, labels, index, models.models.get(key),
+                                  out, progress=progress)
     (out / "stamp.json").write_text(json.dumps(stamp))
     return rows
 
@@ -115,7 +134,8 @@ def train_relation_model(ws: Workspace, method: str, name: str, steps: int, out_
     from models.relations_train import save_relation_checkpoint, train_relations
 
     train, val = (read_split(relations_dir(ws) / f"{s}.npz") for s in ("train", "val"))
-    cfg = RelationConfig(method=method, steps=steps, **overrides)
+    cfg = RelationConfig(method=method, steps=steps,
+                         **{"pair_features": N_PAIR_FEATURES, **overrides})
     clock = time.perf_counter()
     info = {"input": name, "train_parts": sorted(set(train.meta["part_a"].astype(str))
                                                  | set(train.meta["part_b"].astype(str))),
@@ -147,7 +167,7 @@ def evaluate_relations(ws: Workspace, models_dir: Path, run_dir: Path,
     for name in INPUTS:
         for method in METHODS:
             out = decide(test.inputs[name], mm, method, models.models.get((method, name)),
-                         keys)
+                         keys, test.features[name])
             if out is None:
                 continue
             rows += _rows(meta, test.labels, name, method, *out)

@@ -1,11 +1,18 @@
-"""The relation networks' dataset: pair views of a corpus's captures, split by part.
+"""The relation networks' dataset: the labelled pairs of a corpus's shots, view by view.
 
-``build_relation_dataset`` turns every capture of a training workspace into pair views
-(``cadio.capture.pairs``, with the completion network's shapes for the ``completed`` input) and
-writes one ``<split>.npz`` per split: for each input the points in the observer's frame
-(N, 2, k, 3) float16, the labels (N, 10) bool, and which scene, view, parts and category each
-row is. A scene joins parts of one split only, and the split of every part is the completion
-dataset's, so the completion network never saw a relation test part either.
+The corpus (``cadio.capture.corpus``) holds, for every shot (a pair scene or an assembly as
+placed) and every view, each instance's observed points and camera, and each instance's CAD
+surface samples as placed; its truth (``cadio.truth.corpus_labels``) labels the shot's pairs
+for each view's observer. ``build_relation_dataset`` turns them into one ``<split>.npz`` per
+split: for each input (``truth``: CAD samples; ``partial``: the observed points of that view;
+``completed``: the completion network's shape from that single view, the surface of its solid)
+the two parts' points in the observer's frame (N, 2, k, 3) float32, their pair evidence
+(``cadio.capture.pair_features``, raw, (N, F)), the labels (N, 10), whether the pair sits near
+a tolerance in that view, and which shot, view, parts and category each row is. Points are kept
+in float32: a tenth of a millimetre in a metre-sized scene needs it (float16 rounds it away).
+
+A pair whose parts are not both of the shot's split is left out (a training assembly holding a
+test part does not leak it), as the corpus leaves out their completion examples.
 """
 
 from __future__ import annotations
@@ -20,68 +27,176 @@ import numpy as np
 import numpy.typing as npt
 import pandas as pd
 
-from cadio.capture.pairs import DEFAULT_PAIRS, INPUTS, PairConfig, PairView, capture_pairs
-from cadio.errors import CaptureError
-from cadio.workspace import Workspace, atomic_write
-from models.relate import completions_of
+from cadio.capture.corpus import Shot
+from cadio.capture.examples import read_example
+from cadio.capture.observe import observer_rotation
+from cadio.capture.pair_features import encode_features, pair_features_many
+from cadio.capture.pairs import INPUTS, pair_category
+from cadio.capture.pointcloud import sample_points
+from cadio.truth.corpus_labels import ShotLabels
+from cadio.workspace import atomic_write
 from models.relations_train import RelationData
-from models.train import Model
+from models.train import Model, predict
+from reports.metrics import surface_points
 
 log = logging.getLogger(__name__)
 
-META = ("scene", "view", "part_a", "part_b", "category", "near_boundary", "scale_m_per_mm")
+META = ("scene", "view", "part_a", "part_b", "category", "kind", "near_boundary",
+        "scale_m_per_mm")
+THRESHOLD = 0.5  # a voxel of the completion is solid above this probability
 
 
 @dataclass(frozen=True)
 class RelationSplit:
-    """One split of the dataset: inputs (name -> (N, 2, k, 3) float32 observer frame), labels
-    (N, 10) bool and the rows' provenance (``META`` columns)."""
+    """One split of the dataset: inputs (name -> (N, 2, k, 3) float32 observer frame), raw
+    pair evidence (name -> (N, F) float32), labels (N, 10) bool and the rows' provenance
+    (``META`` columns)."""
 
     inputs: dict[str, npt.NDArray[np.float32]]
+    features: dict[str, npt.NDArray[np.float32]]
     labels: npt.NDArray[np.bool_]
     meta: pd.DataFrame
 
     def data(self, name: str, rows: npt.NDArray[np.bool_] | None = None) -> RelationData:
         keep = np.ones(len(self.labels), dtype=bool) if rows is None else rows
-        return RelationData(points=self.inputs[name][keep], labels=self.labels[keep])
+        mm = 1.0 / self.meta["scale_m_per_mm"].to_numpy(dtype=np.float64)
+        return RelationData(self.inputs[name][keep], self.labels[keep], mm[keep],
+                            encode_features(self.features[name][keep]))
 
 
-def build_relation_dataset(captures: Sequence[Path], ws: Workspace,
-                           categories: Mapping[str, str], splits: Mapping[str, str],
-                           completion: Model | None, out_dir: Path,
-                           cfg: PairConfig = DEFAULT_PAIRS,
+@dataclass
+class _Row:
+    shot: Shot
+    view: int
+    a: int
+    b: int
+    labels: npt.NDArray[np.bool_]
+    near: bool
+    scale: float
+    w2c: npt.NDArray[np.float64]
+    points: dict[str, npt.NDArray[np.float32]]
+
+
+def build_relation_dataset(corpus_dir: Path, shots: Sequence[Shot],
+                           labels: Mapping[str, ShotLabels], index: pd.DataFrame,
+                           completion: Model | None, out_dir: Path, n_points: int = 600,
+                           min_observed: int = 30,
                            progress: Callable[[str], None] | None = None) -> dict[str, int]:
-    """Write ``<split>.npz`` for every split of the captures' pair views; rows per split.
+    """Write ``<split>.npz`` of every split of the shots' labelled pair views; rows per split.
 
-    Pair views missing an input (a part the completion could not place) are left out, so all
-    inputs of a row are the same pair in the same view.
+    Args:
+        corpus_dir: the corpus (its ``views/<shot>.npz`` and examples).
+        shots: the corpus's shots; those without labels are skipped.
+        labels: shot id -> its labelled pairs (``corpus_labels.label_shots``).
+        index: the corpus's example index (the single views the completion network sees).
+        completion: the completion network (``gan_lstm``, observed protocol); without it a pair
+            view has no ``completed`` input and is left out.
+        min_observed: a part seen by fewer points in a view gives no pair view there.
     """
-    by_split: dict[str, list[PairView]] = {}
-    for path in captures:
-        try:
-            views = capture_pairs(path, ws, categories, cfg, completions_of(path, ws, completion))
-        except (OSError, ValueError, KeyError, CaptureError) as exc:
-            log.warning("%s: %s", path.name, exc)
+    singles = _single_views(index)
+    by_split: dict[str, list[_Row]] = {}
+    for shot in shots:
+        if shot.shot_id not in labels:
             continue
-        for v in views:
-            if all(name in v.points for name in INPUTS):
-                by_split.setdefault(splits.get(v.part_a, "test"), []).append(v)
+        try:
+            rows = _shot_rows(corpus_dir, shot, labels[shot.shot_id], singles, completion,
+                              n_points, min_observed)
+        except (OSError, ValueError, KeyError) as exc:
+            log.warning("shot %s: %s", shot.shot_id, exc)
+            continue
+        by_split.setdefault(shot.split, []).extend(rows)
         if progress is not None:
-            progress(path.name)
+            progress(shot.shot_id)
     out_dir.mkdir(parents=True, exist_ok=True)
-    for split, views in by_split.items():
-        write_split(out_dir / f"{split}.npz", views)
-    return {s: len(v) for s, v in sorted(by_split.items())}
+    for split, rows in by_split.items():
+        write_split(out_dir / f"{split}.npz", rows)
+    return {s: len(r) for s, r in sorted(by_split.items())}
 
 
-def write_split(path: Path, views: Sequence[PairView]) -> None:
-    """One split's arrays (points as float16: a millimetre in a metre-sized scene survives)."""
-    arrays: dict[str, Any] = {
-        f"points_{n}": np.stack([v.observer_points(n) for v in views]).astype(np.float16)
-        for n in INPUTS}
-    arrays["labels"] = np.stack([v.labels for v in views])
+def _single_views(index: pd.DataFrame) -> dict[tuple[str, int, int], str]:
+    """(shot, instance, view) -> the file of its single-view observed example."""
+    ok = index[(index["status"] == "ok") & (index["protocol"] == "observed")
+               & (index["n_views"] == 1)]
+    return {(str(r.shot), int(r.instance), int(r.views[0])): str(r.file)
+            for r in ok.itertuples()}
+
+
+def _shot_rows(corpus_dir: Path, shot: Shot, truth: ShotLabels,
+               singles: Mapping[tuple[str, int, int], str], completion: Model | None,
+               n_points: int, min_observed: int) -> list[_Row]:
+    parts = {p.instance: p for p in shot.parts}
+    with np.load(corpus_dir / "views" / f"{shot.shot_id}.npz") as z:
+        seen = {(int(i), int(v)): k for k, (i, v) in enumerate(zip(z["instance"], z["view"],
+                                                                    strict=True))}
+        partial, observed, w2c = z["partial"], z["observed"], z["world_to_camera"]
+        cad = dict(zip(z["truth_instance"].tolist(), z["truth"], strict=True))
+        scale = float(z["scale_m_per_mm"])
+    completed: dict[tuple[int, int], npt.NDArray[np.float32]] = {}
+    rows = []
+    for (a, b), per_view, near in zip(truth.pairs.tolist(), truth.truth, truth.near,
+                                      strict=True):
+        if parts[a].split != shot.split or parts[b].split != shot.split:
+            continue
+        for v, view in enumerate(truth.views.tolist()):
+            ka, kb = seen.get((a, view)), seen.get((b, view))
+            if ka is None or kb is None or min(observed[ka], observed[kb]) < min_observed:
+                continue
+            points = {"truth": np.stack([cad[a], cad[b]]),
+                      "partial": np.stack([partial[ka], partial[kb]])}
+            done_a, done_b = (_completed(corpus_dir, shot.shot_id, k, view, singles,
+                                         completion, completed, n_points) for k in (a, b))
+            if done_a is None or done_b is None:
+                continue
+            points["completed"] = np.stack([done_a, done_b])
+            rows.append(_Row(shot, view, a, b, per_view[v], bool(near[v].any()), scale,
+                             w2c[ka], {k: p.astype(np.float32) for k, p in points.items()}))
+    return rows
+
+
+def _completed(corpus_dir: Path, shot: str, instance: int, view: int,
+               singles: Mapping[tuple[str, int, int], str], model: Model | None,
+               cache: dict[tuple[int, int], npt.NDArray[np.float32]],
+               n_points: int) -> npt.NDArray[np.float32] | None:
+    """The completion of one instance from one view: ``n_points`` of its solid's surface
+    voxels' centres (world metres); the observed points when the solid is empty."""
+    if (instance, view) in cache:
+        return cache[(instance, view)]
+    file = singles.get((shot, instance, view))
+    if model is None or file is None:
+        return None
+    example = read_example(corpus_dir / file)
+    solid = predict(model, [example.inputs], batch_size=1)[0] > THRESHOLD
+    n = solid.shape[-1]
+    pts = surface_points(solid, example.grid.voxel_m(n), example.grid.grid_to_world(n)) \
+        if solid.any() else example.points
+    out = np.asarray(sample_points(np.asarray(pts), n_points, method="random"), np.float32)
+    cache[(instance, view)] = out
+    return out
+
+
+def write_split(path: Path, rows: Sequence[_Row]) -> None:
+    """One split's arrays: per input the observer-frame points and their raw pair evidence."""
+    arrays: dict[str, Any] = {}
+    mm = np.array([1.0 / r.scale for r in rows])
+    keys = [((r.shot.shot_id, r.a, r.view), (r.shot.shot_id, r.b, r.view)) for r in rows]
+    for name in INPUTS:
+        pts = np.stack([r.points[name] @ observer_rotation(r.w2c) for r in rows]
+                       ).astype(np.float32)
+        arrays[f"points_{name}"] = pts
+        arrays[f"features_{name}"] = pair_features_many(
+            pts, mm, [((name, *ka), (name, *kb)) for ka, kb in keys])
+    arrays["labels"] = np.stack([r.labels for r in rows])
+    parts = [{p.instance: p for p in r.shot.parts} for r in rows]
+    meta = {
+        "scene": [r.shot.shot_id for r in rows], "view": [r.view for r in rows],
+        "part_a": [p[r.a].part_id for p, r in zip(parts, rows, strict=True)],
+        "part_b": [p[r.b].part_id for p, r in zip(parts, rows, strict=True)],
+        "category": [pair_category(p[r.a].category, p[r.b].category)
+                     for p, r in zip(parts, rows, strict=True)],
+        "kind": [r.shot.kind for r in rows], "near_boundary": [r.near for r in rows],
+        "scale_m_per_mm": [r.scale for r in rows]}
     for col in META:
-        arrays[col] = np.array([getattr(v, col) for v in views])
+        arrays[col] = np.array(meta[col])
     with atomic_write(path) as fh:
         np.savez(fh, **arrays)
 
@@ -90,5 +205,6 @@ def read_split(path: Path) -> RelationSplit:
     """A split written by ``write_split``."""
     with np.load(path) as z:
         inputs = {n: z[f"points_{n}"].astype(np.float32) for n in INPUTS}
+        features = {n: z[f"features_{n}"].astype(np.float32) for n in INPUTS}
         meta = pd.DataFrame({col: z[col] for col in META})
-        return RelationSplit(inputs, z["labels"].astype(bool), meta)
+        return RelationSplit(inputs, features, z["labels"].astype(bool), meta)

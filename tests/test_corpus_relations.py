@@ -1,0 +1,99 @@
+"""The relation dataset of a corpus: shots labelled view by view by the truth of placed parts."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+
+from cadio.cad.ingest import IngestConfig, ingest
+from cadio.cad.step import write_step
+from cadio.capture.corpus import (
+    CorpusConfig,
+    assembly_shots,
+    build_corpus,
+    read_index,
+    read_shots,
+)
+from cadio.capture.examples import ExampleConfig
+from cadio.capture.pair_features import N_PAIR_FEATURES
+from cadio.catalog import read_catalog
+from cadio.records import Relation
+from cadio.sandbox import Limits
+from cadio.truth.corpus_labels import label_shot
+from cadio.truth.relations import directional_truth
+from cadio.workspace import Workspace, read_features
+from flows.train_relations import label_jobs
+from models.checkpoint import build_model
+from models.relation_data import build_relation_dataset, read_split
+from models.train import config_for
+
+CFG = CorpusConfig(example=ExampleConfig(n_in=16, n_out=32), views=2, lengths=())
+RELATIONS = [r.value for r in Relation]
+
+
+@pytest.fixture(scope="module")
+def corpus(tmp_path_factory: pytest.TempPathFactory) -> tuple[Workspace, Path]:
+    """A pin standing in a holed plate with a block beside it, as one assembly file."""
+    import build123d as bd
+
+    lib = tmp_path_factory.mktemp("lib")
+    (lib / "assemblies").mkdir()
+    plate = bd.Box(60, 40, 4) - bd.Pos(-10, 0, 0) * bd.Cylinder(5, 4)
+    pin = bd.Pos(-10, 0, 10) * bd.Cylinder(5, 24)
+    block = bd.Pos(15, 0, 7) * bd.Box(20, 20, 10)  # resting on the plate
+    write_step(bd.Compound([plate, pin, block]), lib / "assemblies" / "pinned.step")
+    ws = Workspace(tmp_path_factory.mktemp("ws"))
+    ingest(lib, ws.root, IngestConfig(voxel_sizes=(32,), limits=Limits(workers=2)))
+    catalog = read_catalog(ws.catalog)
+    ok = catalog[catalog["status"] == "ok"]
+    splits = dict.fromkeys(ok["part_id"].astype(str), "train")
+    groups = {str(s): "train" for s in ok["source"]}
+    out = ws.root / "datasets" / "corpus"
+    build_corpus(assembly_shots(catalog, splits, groups, ws.mesh), out, CFG, Limits(workers=2))
+    return ws, out
+
+
+def test_an_assembly_is_labelled_by_its_face_mates_view_by_view(corpus) -> None:  # type: ignore[no-untyped-def]
+    ws, out = corpus
+    (job,) = label_jobs(ws, read_shots(out / "shots.parquet"))
+    labels = label_shot(job)
+    assert labels.truth.shape == (len(labels.pairs), 2, 10)
+    pairs = {(int(a), int(b)) for a, b in labels.pairs.tolist()}
+    # plate 1, pin 2, block 3: the pin is in the plate's bore, the block rests on the plate
+    k = {(int(a), int(b)): i for i, (a, b) in enumerate(labels.pairs.tolist())}
+    assert (1, 2) in pairs and (1, 3) in pairs
+    assert labels.truth[k[(1, 2)], :, RELATIONS.index("concentric")].all()
+    assert labels.truth[k[(1, 3)], :, RELATIONS.index("coincident")].all()
+    assert not labels.truth[k[(1, 3)], :, RELATIONS.index("concentric")].any()
+    # the directional relations follow each view's camera (the observer's forward axis)
+    centre = {p.instance: read_features(Path(p.features_path)).centroid for p in job.parts}
+    forward = np.array(job.forward)
+    for (a, b), row in k.items():
+        for v in range(2):
+            side, _ = directional_truth((centre[a] - centre[b])[None], forward[v])
+            assert (labels.truth[row, v, :6] == side[0]).all()
+
+
+def test_the_dataset_holds_every_input_of_every_labelled_pair_view(corpus, tmp_path) -> None:  # type: ignore[no-untyped-def]
+    ws, out = corpus
+    shots = read_shots(out / "shots.parquet")
+    labels = {j.shot: label_shot(j) for j in label_jobs(ws, shots)}
+    torch.manual_seed(0)
+    model = build_model(config_for("ae", n_in=16, n_out=32, width=4))  # untrained: any shape
+    rows = build_relation_dataset(out, shots, labels, read_index(out / "index.parquet"),
+                                  model, tmp_path)
+    assert rows["train"] > 0
+    split = read_split(tmp_path / "train.npz")
+    for name in ("truth", "partial", "completed"):
+        assert split.inputs[name].shape[1:] == (2, 600, 3)
+        assert split.inputs[name].dtype == np.float32
+        assert split.features[name].shape == (rows["train"], N_PAIR_FEATURES)
+        data = split.data(name)
+        assert data.features is not None and np.isfinite(data.features).all()
+    assert set(split.meta["kind"]) == {"assembly"}
+    # truth points of a pair are where the parts are: the pin's samples meet the plate's
+    gaps = split.features["truth"][:, 0]
+    assert gaps.min() < 1.0
