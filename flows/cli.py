@@ -330,8 +330,8 @@ def _cmd_train_relations(args: argparse.Namespace) -> int:
 
     import torch
 
-    from cadio.workspace import Workspace
     from cadio.sandbox import Limits
+    from cadio.workspace import Workspace
     from flows.train_relations import (
         build_dataset,
         evaluate_relations,

@@ -118,10 +118,10 @@ def _mated(contact: object) -> bool:
     return bool(getattr(contact, "coincident", False) or getattr(contact, "concentric", False))
 
 
-def label_shots(jobs: Sequence[LabelJob], limits: Limits = Limits()) -> Iterator[
+def label_shots(jobs: Sequence[LabelJob], limits: Limits | None = None) -> Iterator[
         tuple[LabelJob, ShotLabels | None, str]]:
     """Each job with its labels, or None and the reason it failed, as workers finish."""
-    for outcome in run_isolated(label_shot, [Job(j.shot, j) for j in jobs], limits):
+    for outcome in run_isolated(label_shot, [Job(j.shot, j) for j in jobs], limits or Limits()):
         if outcome.result is not None:
             yield outcome.job.payload, outcome.result, ""
         else:
