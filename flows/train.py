@@ -38,6 +38,7 @@ from cadio.capture.corpus import (
 )
 from cadio.capture.examples import PROTOCOLS
 from cadio.catalog import read_catalog, to_frame, write_catalog
+from cadio.samples.assembly_variants import write_assembly_variants
 from cadio.samples.library import SampleConfig, generate_library
 from cadio.sandbox import Limits
 from cadio.truth.scenes import (
@@ -91,12 +92,16 @@ def corpus_fractions(library: Path, shared: Path | None) -> Callable[[str], tupl
 
 def prepare_corpus(ws: Workspace, shared: Path | None, variants: int, seed: int,
                    ingest_cfg: IngestConfig, corpus_cfg: CorpusConfig,
-                   progress: Progress | None = None, pairs_per_relation: int = 150) -> Corpus:
-    """Library with variants (+ shared parts), ingest, pair scenes, the corpus of shots
-    (``cadio.capture.corpus``). Reruns reuse every step; a stopped build resumes."""
+                   progress: Progress | None = None, pairs_per_relation: int = 150,
+                   assemblies: int = 180) -> Corpus:
+    """Library with variants of its parts and assemblies (+ shared parts), ingest, pair
+    scenes, the corpus of shots (``cadio.capture.corpus``). Reruns reuse every step; a stopped
+    build resumes."""
     clock = time.perf_counter()
     library = corpus_library(ws)
     generate_library(library, SampleConfig(variants=variants, variant_seed=seed))
+    write_assembly_variants(library / "assemblies" / "variants", assemblies, seed,
+                            workers=ingest_cfg.limits.workers)
     found = discover(library) + (discover(shared) if shared is not None else [])
     rows = ingest_files(found, ws.root, ingest_cfg, read_catalog(ws.catalog))
     catalog = to_frame(mark_duplicates(rows))
