@@ -35,7 +35,7 @@ from cadio.capture.pairs import INPUTS, pair_category
 from cadio.capture.pointcloud import sample_points
 from cadio.truth.corpus_labels import ShotLabels
 from cadio.workspace import atomic_write
-from models.relations_train import RelationData
+from models.relations_train import RelationData, nearest_of_pairs
 from models.train import Model, predict
 from reports.metrics import surface_points
 
@@ -54,6 +54,7 @@ class RelationSplit:
 
     inputs: dict[str, npt.NDArray[np.float32]]
     features: dict[str, npt.NDArray[np.float32]]
+    near: dict[str, npt.NDArray[np.float32]]
     labels: npt.NDArray[np.bool_]
     meta: pd.DataFrame
 
@@ -61,7 +62,8 @@ class RelationSplit:
         keep = np.ones(len(self.labels), dtype=bool) if rows is None else rows
         mm = 1.0 / self.meta["scale_m_per_mm"].to_numpy(dtype=np.float64)
         return RelationData(self.inputs[name][keep], self.labels[keep], mm[keep],
-                            encode_features(self.features[name][keep]))
+                            encode_features(self.features[name][keep]),
+                            self.near[name][keep])
 
 
 @dataclass
@@ -175,7 +177,8 @@ def _completed(corpus_dir: Path, shot: str, instance: int, view: int,
 
 
 def write_split(path: Path, rows: Sequence[_Row]) -> None:
-    """One split's arrays: per input the observer-frame points and their raw pair evidence."""
+    """One split's arrays: per input the observer-frame points, their raw pair evidence and
+    each point's distance to the other part (mm)."""
     arrays: dict[str, Any] = {}
     mm = np.array([1.0 / r.scale for r in rows])
     keys = [((r.shot.shot_id, r.a, r.view), (r.shot.shot_id, r.b, r.view)) for r in rows]
@@ -185,6 +188,7 @@ def write_split(path: Path, rows: Sequence[_Row]) -> None:
         arrays[f"points_{name}"] = pts
         arrays[f"features_{name}"] = pair_features_many(
             pts, mm, [((name, *ka), (name, *kb)) for ka, kb in keys])
+        arrays[f"near_{name}"] = nearest_of_pairs(pts, mm)
     arrays["labels"] = np.stack([r.labels for r in rows])
     parts = [{p.instance: p for p in r.shot.parts} for r in rows]
     meta = {
@@ -206,5 +210,6 @@ def read_split(path: Path) -> RelationSplit:
     with np.load(path) as z:
         inputs = {n: z[f"points_{n}"].astype(np.float32) for n in INPUTS}
         features = {n: z[f"features_{n}"].astype(np.float32) for n in INPUTS}
+        near = {n: z[f"near_{n}"].astype(np.float32) for n in INPUTS}
         meta = pd.DataFrame({col: z[col] for col in META})
-        return RelationSplit(inputs, features, z["labels"].astype(bool), meta)
+        return RelationSplit(inputs, features, near, z["labels"].astype(bool), meta)

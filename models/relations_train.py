@@ -69,12 +69,15 @@ class RelationData:
     mm: (N,) millimetres of the parts per unit of ``points`` (default 1: points in mm).
     features: (N, F) float32 encoded pair evidence (``pair_features.encode_features``), or
         None; symmetric in the two parts.
+    near: (N, 2, P) float32, each point's distance to the other part's nearest point in mm;
+        computed here when None.
     """
 
     points: npt.NDArray[np.float32]
     labels: npt.NDArray[np.bool_]
     mm: npt.NDArray[np.float64] | None = None
     features: npt.NDArray[np.float32] | None = None
+    near: npt.NDArray[np.float32] | None = None
 
     def __post_init__(self) -> None:
         points = np.asarray(self.points, dtype=np.float32)
@@ -94,28 +97,49 @@ class RelationData:
         object.__setattr__(self, "points", points)
         object.__setattr__(self, "labels", labels)
         object.__setattr__(self, "mm", mm)
+        near = nearest_of_pairs(points, mm) if self.near is None else np.asarray(
+            self.near, dtype=np.float32)
+        if near.shape != points.shape[:3]:
+            raise ValueError(f"near must be {points.shape[:3]}; got {near.shape}")
+        object.__setattr__(self, "near", near)
 
     def __len__(self) -> int:
         return len(self.points)
 
     def subset(self, rows: npt.NDArray[np.bool_] | npt.NDArray[np.int64]) -> RelationData:
-        return RelationData(self.points[rows], self.labels[rows],
-                            None if self.mm is None else self.mm[rows],
-                            None if self.features is None else self.features[rows])
+        assert self.mm is not None and self.near is not None
+        return RelationData(self.points[rows], self.labels[rows], self.mm[rows],
+                            None if self.features is None else self.features[rows],
+                            self.near[rows])
 
     def swapped(self) -> RelationData:
         """The pairs (b, a), labelled by the rules (the pair evidence is symmetric)."""
+        assert self.near is not None
         return RelationData(self.points[:, ::-1].copy(), swap_decision(self.labels), self.mm,
-                            self.features)
+                            self.features, self.near[:, ::-1].copy())
 
     def tensors(self, rows: slice | npt.NDArray[np.int64]) -> tuple[torch.Tensor, ...]:
-        """(points, mm, features or an empty (B, 0)) of some rows, as the network takes them."""
-        assert self.mm is not None
+        """(points, mm, features or an empty (B, 0), near) of some rows, as the network takes
+        them."""
+        assert self.mm is not None and self.near is not None
         pts = torch.from_numpy(np.ascontiguousarray(self.points[rows]))
         mm = torch.from_numpy(np.ascontiguousarray(self.mm[rows]))
         feats = (torch.zeros(len(pts), 0) if self.features is None
                  else torch.from_numpy(np.ascontiguousarray(self.features[rows])))
-        return pts, mm, feats
+        return pts, mm, feats, torch.from_numpy(np.ascontiguousarray(self.near[rows]))
+
+
+def nearest_of_pairs(points: npt.NDArray[np.float32], mm: npt.NDArray[np.float64]
+                     ) -> npt.NDArray[np.float32]:
+    """(N, 2, P) each point's distance to the other part's nearest point, millimetres."""
+    from scipy.spatial import cKDTree
+
+    out = np.zeros(points.shape[:3], dtype=np.float32)
+    for i in range(len(points)):
+        a, b = points[i, 0].astype(np.float64), points[i, 1].astype(np.float64)
+        out[i, 0] = cKDTree(b).query(a, k=1)[0] * mm[i]
+        out[i, 1] = cKDTree(a).query(b, k=1)[0] * mm[i]
+    return out
 
 
 @dataclass(frozen=True)
@@ -141,8 +165,10 @@ class RelationResult:
 
 
 def training_batch(data: RelationData, cfg: RelationConfig, step: int
-                   ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]:
-    """Step ``step``'s batch: points (B, 2, T, 3), mm (B,), features (B, F) and labels (B, 10).
+                   ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor,
+                              torch.Tensor]:
+    """Step ``step``'s batch: points (B, 2, T, 3), mm (B,), features (B, F), labels (B, 10)
+    and each drawn point's distance to the other part's whole cloud (B, 2, T), mm.
 
     Pairs drawn without replacement (with, when there are fewer than B), ``train_points``
     points per part drawn without replacement, Gaussian jitter of ``jitter_mm`` millimetres,
@@ -153,20 +179,25 @@ def training_batch(data: RelationData, cfg: RelationConfig, step: int
     pts, labels = data.points[idx], data.labels[idx]  # (B, 2, P, 3), (B, 10)
     assert data.mm is not None
     mm = data.mm[idx]
+    assert data.near is not None
+    near = data.near[idx]
     n = pts.shape[2]
     keep = np.argsort(rng.random(pts.shape[:3]), axis=-1)[..., :min(cfg.train_points, n)]
     pts = np.take_along_axis(pts, keep[..., None], axis=2)  # (B, 2, T, 3)
+    near = np.take_along_axis(near, keep, axis=2)  # (B, 2, T)
     noise = rng.standard_normal(pts.shape) * (cfg.jitter_mm / mm[:, None, None, None])
     pts = (pts + noise).astype(np.float32)
     if cfg.swap_augment:
         flip = rng.random(len(idx)) < 0.5
         pts[flip] = pts[flip][:, ::-1]
+        near[flip] = near[flip][:, ::-1]
         labels = np.where(flip[:, None], swap_decision(labels), labels)
     feats = (np.zeros((len(idx), 0), np.float32) if data.features is None
              else data.features[idx])
-    return (torch.from_numpy(pts.astype(np.float32)), torch.from_numpy(mm),
+    return (torch.from_numpy(np.ascontiguousarray(pts)), torch.from_numpy(mm),
             torch.from_numpy(feats.astype(np.float32)),
-            torch.from_numpy(labels.astype(np.float32)))
+            torch.from_numpy(labels.astype(np.float32)),
+            torch.from_numpy(np.ascontiguousarray(near, dtype=np.float32)))
 
 
 def _logit(p: npt.NDArray[np.floating]) -> npt.NDArray[np.float64]:
@@ -233,8 +264,8 @@ def _raw(model: RelationNet, data: RelationData, batch: int
     model.eval()
     outs = []
     for s in range(0, len(data), batch):
-        pts, mm, feats = data.tensors(slice(s, s + batch))
-        outs.append(model(pts, mm, feats if model.cfg.pair_features else None))
+        pts, mm, feats, near = data.tensors(slice(s, s + batch))
+        outs.append(model(pts, mm, feats if model.cfg.pair_features else None, near))
     if not outs:
         empty = np.zeros((0, len(RELATIONS)), np.float32)
         return empty, empty
@@ -462,10 +493,10 @@ def train_relations(cfg: RelationConfig, train: RelationData, val: RelationData 
 
 def _step(model: RelationNet, opt: torch.optim.Optimizer, cfg: RelationConfig,
           points: torch.Tensor, mm: torch.Tensor, features: torch.Tensor,
-          labels: torch.Tensor) -> dict[str, float]:
+          labels: torch.Tensor, near: torch.Tensor) -> dict[str, float]:
     """One Adam step on 1 - sat: the losses and satisfactions."""
     model.train()
-    logits_ab, logits_ba = model(points, mm, features if cfg.pair_features else None)
+    logits_ab, logits_ba = model(points, mm, features if cfg.pair_features else None, near)
     kb = knowledge_base(torch.sigmoid(logits_ab), torch.sigmoid(logits_ba), labels, cfg)
     loss = 1 - kb["sat"]
     opt.zero_grad(set_to_none=True)
