@@ -53,10 +53,11 @@ class Workspace:
     def scenes(self) -> Path:
         return self.root / "scenes.parquet"
 
-    def inputs(self, capture: str, part_id: str) -> Path:
-        """Learning inputs of one part seen in one capture: its completion examples (one
+    def inputs(self, capture: str, instance: int | str) -> Path:
+        """Learning inputs of one part instance seen in one capture (its instance id there: a
+        capture may show one part twice): its completion examples (one
         ``<protocol>-<views>.npz`` each) and ``points.npz`` (600 observed points)."""
-        return self.root / "inputs" / capture / part_id
+        return self.root / "inputs" / capture / str(instance)
 
     def run_dir(self, run_id: str) -> Path:
         return self.root / "runs" / run_id

@@ -87,6 +87,29 @@ def test_a_pair_seen_from_opposite_sides_swaps_left_and_right(ws: Workspace) -> 
             assert sign * (obs[0, :, 0].mean() - obs[1, :, 0].mean()) > 0.02
 
 
+def test_a_part_beside_itself_is_two_instances(ws: Workspace) -> None:
+    """Two instances of one part (a corpus may place a part twice) keep their own inputs and
+    their own truth: the block 80 mm left of its twin is left of it."""
+    scenes = _side_by_side(ws)
+    first = scenes.index[0]
+    block = scenes.at[first, "part_a"]
+    scenes.loc[first, ["part_b", "scene_id"]] = [block, "twins"]
+    pose_b = np.asarray(scenes.at[first, "pose_a"]).reshape(4, 4).copy()
+    pose_b[0, 3] += 80.0
+    scenes.at[first, "pose_b"] = pose_b.ravel().tolist()
+    captured = capture_scenes(scenes, read_catalog(ws.catalog), ws, CFG)
+    assert scan_inputs(Path(captured[0].path), ws, CFG).parts == 2
+    views = capture_pairs(Path(captured[0].path), ws, {}, PairConfig())
+    assert [v.view for v in views] == [0, 1]
+    front, back = views
+    assert front.part_a == front.part_b == block
+    assert front.labels[LEFT] and back.labels[RIGHT]
+    for view, sign in ((front, -1.0), (back, 1.0)):
+        for name in ("truth", "partial"):
+            obs = view.observer_points(name)
+            assert sign * (obs[0, :, 0].mean() - obs[1, :, 0].mean()) > 0.05
+
+
 def test_pair_inputs_are_the_observed_points_and_the_cad_surface(ws: Workspace) -> None:
     captured = capture_scenes(_side_by_side(ws), read_catalog(ws.catalog), ws, CFG)
     scan_inputs(Path(captured[0].path), ws, CFG)

@@ -79,8 +79,8 @@ def test_inputs_are_examples_of_each_part_in_both_protocols(ws: Workspace) -> No
     assert summary.has_ids and summary.parts == 2
     # scored against the ids (segmentation quality itself is tested in test_pointcloud)
     assert 0.0 < summary.seg_mean_iou <= 1.0 and summary.clusters >= 1
-    for pid in (scene["part_a"], scene["part_b"]):
-        folder = ws.inputs(str(scene["scene_id"]), pid)
+    for instance, pid in enumerate((scene["part_a"], scene["part_b"]), start=1):
+        folder = ws.inputs(str(scene["scene_id"]), instance)
         names = sorted(p.stem for p in folder.glob("*-*.npz"))
         assert all(n.startswith(("observed-", "oracle-box-")) for n in names)
         assert len(names) == summary.examples // 2 and names

@@ -125,7 +125,7 @@ def test_same_seed_same_scenes_other_seed_other(parts: list[ScenePart],
     again = generate_scenes(list(reversed(parts)), CFG)  # input order does not matter
     pd.testing.assert_frame_equal(scenes, again)
     other = generate_scenes(parts, replace(CFG, seed=6))
-    assert not np.allclose(np.vstack(other.pose_a), np.vstack(scenes.pose_a))
+    assert other.pose_a.tolist() != scenes.pose_a.tolist()
 
 
 def test_splits_are_by_part(scenes: pd.DataFrame, parts: list[ScenePart]) -> None:
@@ -145,6 +145,18 @@ def test_no_interpenetration_except_coincident_contact(scenes: pd.DataFrame,
                                                        parts: list[ScenePart]) -> None:
     _check_apart(scenes, parts)
     assert (scenes.part_a != scenes.part_b).all()
+
+
+def test_a_part_is_never_paired_with_itself() -> None:
+    """A pool of one part for a relation gives no scene for it (two instances of one part
+    would be one part to every later stage), and no scene pairs a part with itself."""
+    parts = [ScenePart("box", "x", box_features((40.0, 30.0, 5.0))),
+             ScenePart("cyl", "x", cylinder_features(5.0, 30.0))]
+    cfg = replace(CFG, pairs_per_relation=8, val_fraction=0.0, test_fraction=0.0)
+    df = generate_scenes(parts, cfg)
+    assert (df.part_a != df.part_b).all()
+    assert "concentric" not in set(df.intended)  # only the cylinder has an axis
+    assert set(df.intended) >= {r.value for r in Relation if r is not Relation.CONCENTRIC}
 
 
 def test_coincident_side_by_side_when_faces_are_not_extreme() -> None:

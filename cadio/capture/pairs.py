@@ -151,33 +151,63 @@ def capture_pairs(capture: Path, ws: Workspace, categories: Mapping[str, str],
                   ) -> list[PairView]:
     """Every view of every labelled pair of a capture.
 
+    Parts are told apart by their instance in the capture, not their part id: a scene may show
+    one part twice, and each instance has its own pose, points and completion.
+
     Args:
         capture: the MCAP file; its ``/scene`` meta names the parts, their poses and the pairs
-            (``labels.pair`` of a scene, ``labels.pairs`` of an assembly).
+            (``labels.pair`` of a scene, ``labels.pairs`` of an assembly, by part id).
         ws: the workspace holding the parts' features, meshes and the capture's inputs.
         categories: part id -> category.
-        completed: (part id, view) -> (m, 3) world metres, the completion of that view.
+        completed: (instance id as text, view) -> (m, 3) world metres, the completion of that
+            view (the keys of ``ws.inputs(capture, instance)``).
 
     Raises:
-        CaptureError: the capture has no scene meta or its inputs were never derived.
+        CaptureError: the capture has no scene description.
     """
     meta = read_scene_meta(capture)
     if not meta or not meta.get("parts"):
         raise CaptureError(capture, "no scene description: its parts are unknown")
-    pairs = _labelled_pairs(meta)[:cfg.max_pairs]
-    placed = {str(p["part_id"]): p for p in meta["parts"]}
-    needed = sorted({pid for pair in pairs for pid in pair if pid in placed})
-    seen = {pid: read_part_points(ws.inputs(capture.stem, pid) / "points.npz", pid)
-            for pid in needed if (ws.inputs(capture.stem, pid) / "points.npz").exists()}
+    pairs = _instance_pairs(meta)[:cfg.max_pairs]
+    placed = {int(p["instance_id"]): p for p in meta["parts"]}
+    needed = sorted({k for pair in pairs for k in pair})
+    folders = {k: ws.inputs(capture.stem, k) / "points.npz" for k in needed}
+    seen = {k: read_part_points(folders[k], str(placed[k]["part_id"]))
+            for k in needed if folders[k].exists()}
     scale = float(meta["scale_m_per_mm"])
-    parts = {pid: _Placed(pid, placed[pid], ws, scale, cfg.n_points) for pid in seen}
+    parts = {k: _Placed(str(placed[k]["part_id"]), placed[k], ws, scale, cfg.n_points)
+             for k in seen}
     out = []
     for a, b in pairs:
         if a in parts and b in parts:
+            pa, pb = parts[a].part_id, parts[b].part_id
             out += _pair_views(capture.stem, parts[a], parts[b], seen[a], seen[b],
-                               pair_category(categories.get(a, "?"), categories.get(b, "?")),
-                               scale, cfg, completed or {})
+                               pair_category(categories.get(pa, "?"), categories.get(pb, "?")),
+                               scale, cfg, _of_instances(completed or {}, a, b))
     return out
+
+
+def _instance_pairs(meta: dict[str, Any]) -> list[tuple[int, int]]:
+    """The labelled pairs as pairs of instance ids: a part id stands for its instances in order,
+    and a pair naming one part twice is its first two instances."""
+    instances: dict[str, list[int]] = {}
+    for p in meta["parts"]:
+        instances.setdefault(str(p["part_id"]), []).append(int(p["instance_id"]))
+    out = []
+    for a, b in _labelled_pairs(meta):
+        first, second = instances.get(a, []), instances.get(b, [])
+        if a == b:
+            second = second[1:]
+        if first and second:
+            out.append((first[0], second[0]))
+    return out
+
+
+def _of_instances(completed: Mapping[tuple[str, int], FloatArray], a: int, b: int
+                  ) -> dict[tuple[int, int], FloatArray]:
+    """(0 or 1 for part a or b, view) -> completion, from the completions by instance."""
+    return {(k, view): pts for (key, view), pts in completed.items()
+            for k, instance in enumerate((a, b)) if key == str(instance)}
 
 
 def _labelled_pairs(meta: dict[str, Any]) -> list[tuple[str, str]]:
@@ -191,11 +221,12 @@ def _labelled_pairs(meta: dict[str, Any]) -> list[tuple[str, str]]:
 
 
 class _Placed:
-    """A part of the capture: its features in the CAD frame (mm) and its truth samples."""
+    """A part instance of the capture: its features in the CAD frame (mm) and truth samples."""
 
     def __init__(self, part_id: str, meta: dict[str, Any], ws: Workspace, scale: float,
                  k: int) -> None:
         pose = np.asarray(meta["pose_mm"], dtype=np.float64)
+        self.part_id = part_id
         self.features: Features = read_features(ws.features(part_id)).transformed(pose)
         seed = int(hashlib.sha256(part_id.encode()).hexdigest()[:8], 16)
         local = surface_samples(read_mesh(ws.mesh(part_id)), k, seed)
@@ -204,7 +235,8 @@ class _Placed:
 
 def _pair_views(scene: str, a: _Placed, b: _Placed, seen_a: CapturedPart, seen_b: CapturedPart,
                 category: str, scale: float, cfg: PairConfig,
-                completed: Mapping[tuple[str, int], FloatArray]) -> list[PairView]:
+                completed: Mapping[tuple[int, int], FloatArray]) -> list[PairView]:
+    """The views of one pair; ``completed``: (0 for a, 1 for b, view) -> completion."""
     index_b = {int(v): i for i, v in enumerate(seen_b.views)}
     out = []
     for i, view in enumerate(seen_a.views.tolist()):
@@ -215,7 +247,7 @@ def _pair_views(scene: str, a: _Placed, b: _Placed, seen_a: CapturedPart, seen_b
         rr = relate(a.features, b.features, w2c[2, :3], cfg.tolerances)
         points = {"truth": np.stack([a.truth, b.truth]),
                   "partial": np.stack([seen_a.points[i], seen_b.points[j]])}
-        done_a, done_b = (completed.get((p.part_id, view)) for p in (seen_a, seen_b))
+        done_a, done_b = (completed.get((k, view)) for k in (0, 1))
         if done_a is not None and done_b is not None:
             points["completed"] = np.stack([_k_points(done_a, cfg.n_points),
                                             _k_points(done_b, cfg.n_points)])

@@ -243,7 +243,7 @@ def with_inputs(capture: CaptureSummary, ws: Workspace, cfg: ScanConfig) -> Capt
 
 
 def scan_inputs(path: Path, ws: Workspace, cfg: ScanConfig) -> InputsSummary:
-    """Learning inputs of every part of a capture, written to ``inputs/<capture>/<part>/``.
+    """Learning inputs of every part of a capture, written to ``inputs/<capture>/<instance>/``.
 
     Parts are told apart by the instance ids (our captures) or, in a recording without them,
     by removing the support plane and clustering (scored against the ids when both exist).
@@ -271,15 +271,16 @@ def scan_inputs(path: Path, ws: Workspace, cfg: ScanConfig) -> InputsSummary:
     labels = [f.instance for f in frames if f.instance is not None]
     parts = examples = 0
     for part in meta["parts"]:
-        pid = str(part["part_id"])
-        views = part_views(frames, labels, int(part["instance_id"]))
+        pid, instance = str(part["part_id"]), int(part["instance_id"])
+        views = part_views(frames, labels, instance)
         if not views:
             continue
         written = part_examples(views, read_mesh(ws.mesh(pid)), part_to_world(meta, part), cfg)
+        folder = ws.inputs(path.stem, instance)  # by instance: a scene may show a part twice
         for name, example in written.items():
-            write_example(ws.inputs(path.stem, pid) / f"{name}.npz", example,
-                          {"part_id": pid, "capture": path.stem})
-        _write_points(ws.inputs(path.stem, pid) / "points.npz", views, cfg)
+            write_example(folder / f"{name}.npz", example,
+                          {"part_id": pid, "instance_id": instance, "capture": path.stem})
+        _write_points(folder / "points.npz", views, cfg)
         parts, examples = parts + 1, examples + len(written)
     return replace(summary, parts=parts, examples=examples)
 

@@ -148,9 +148,10 @@ def generate_scenes(parts: Sequence[ScenePart], cfg: SceneConfig,
         for r, relation in enumerate(Relation):
             pool = [p for p in members if is_eligible(p, relation, cfg)]
             n = _split_count(cfg, split)
-            if n and not pool:
-                log.warning("no part in split %s fits %s: skipped", split, relation.value)
-            if not (n and pool):
+            if n and len(pool) < 2:  # a part beside itself would be one part to later stages
+                log.warning("fewer than two parts in split %s fit %s: skipped", split,
+                            relation.value)
+            if not (n and len(pool) >= 2):
                 continue
             rng = np.random.default_rng([cfg.seed, s, r])
             rows += [_scene(pool, relation, split, i, n, rng, cfg) for i in range(n)]
@@ -201,7 +202,7 @@ def _scene(pool: Sequence[ScenePart], relation: Relation, split: str, i: int, n:
     near = i < round(n * cfg.near_boundary_fraction)
     side = (INSIDE if i % 2 == 0 else OUTSIDE) if near else ""
     ia = int(rng.integers(len(pool)))
-    ib = (ia + 1 + int(rng.integers(len(pool) - 1))) % len(pool) if len(pool) > 1 else ia
+    ib = (ia + 1 + int(rng.integers(len(pool) - 1))) % len(pool)  # never a part with itself
     a, b = pool[ia], pool[ib]
     pose_a, pose_b = _centred(a.features, b.features,
                               *_place(a.features, b.features, relation, side, rng, cfg))
