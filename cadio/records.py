@@ -10,6 +10,7 @@ part's own coordinates unless a field says otherwise. Timestamps are integer nan
 from __future__ import annotations
 
 import enum
+import math
 from collections.abc import Sequence
 from dataclasses import dataclass, field, replace
 from typing import Any
@@ -77,6 +78,43 @@ def principal_choice(areas: Sequence[float]) -> tuple[int | None, bool]:
     return near[0], len(near) > 1
 
 
+def dominant_choice(planes: Sequence[PlaneGroup], angle_deg: float,
+                    ratio: float) -> tuple[FloatArray | None, float]:
+    """A part's dominant plane direction, from its planar face groups (DESIGN.md, "Relations").
+
+    Groups whose normals lie within ``angle_deg`` of a direction's first group (sign ignored,
+    greedy in group order, so the result does not change when the part moves) are one
+    direction; it carries their total area. The direction carrying the largest area is dominant
+    when that is at least ``ratio`` times the runner-up's.
+
+    Returns:
+        (unit normal (3,) with the canonical sign, or None when no direction is dominant, and
+        the runner-up's area over the largest's, in [0, 1]: 0 with one direction or none).
+    """
+    seeds: list[FloatArray] = []
+    sums: list[FloatArray] = []
+    areas: list[float] = []
+    cos = math.cos(math.radians(angle_deg))
+    for g in planes:
+        for k, seed in enumerate(seeds):
+            dot = float(np.dot(seed, g.normal))
+            if abs(dot) >= cos - 1e-9:  # rounding of angles computed at the tolerance
+                sums[k] = sums[k] + g.area * math.copysign(1.0, dot) * g.normal
+                areas[k] += g.area
+                break
+        else:
+            seeds.append(g.normal)
+            sums.append(g.area * g.normal)
+            areas.append(g.area)
+    if not areas or max(areas) <= 0.0:
+        return None, 0.0
+    order = sorted(range(len(areas)), key=lambda k: -areas[k])
+    runner_up = areas[order[1]] / areas[order[0]] if len(order) > 1 else 0.0
+    if runner_up * ratio > 1.0 + 1e-9:  # values at the ratio count as dominant
+        return None, runner_up
+    return _canonical(sums[order[0]]), runner_up
+
+
 def _vec(values: Any) -> FloatArray:
     return np.asarray(values, dtype=np.float64).reshape(3)
 
@@ -128,6 +166,11 @@ class Features:
     principal_plane: (3,) unit normal direction carrying the largest planar area, or None.
     principal_axis: the cylindrical axis group carrying the largest area, or None.
     *_tie: True when the runner-up carries (within 1%) the same area, so the choice is arbitrary.
+    dominant_plane: (3,) unit normal of the dominant plane direction (``dominant_choice``:
+        normals within ``Tolerances.dominant_group_deg`` as one direction, at least
+        ``dominant_area_ratio`` times the runner-up's area), or None: parallel and
+        perpendicular are decided on it. dominant_runner_up: the runner-up direction's area
+        over the largest's, [0, 1] (0 with one direction or none).
     """
 
     centroid: FloatArray
@@ -143,6 +186,8 @@ class Features:
     principal_axis_tie: bool = False
     n_faces: int = 0
     n_freeform_recognised: int = 0
+    dominant_plane: FloatArray | None = None
+    dominant_runner_up: float = 0.0
 
     def principal_axis_index(self) -> int:
         """Position of ``principal_axis`` in ``axes`` (by identity: records hold arrays)."""
@@ -165,6 +210,7 @@ class Features:
         principal_plane = None
         if self.principal_plane is not None:
             principal_plane = _canonical(rot @ self.principal_plane)
+        dominant = None if self.dominant_plane is None else _canonical(rot @ self.dominant_plane)
         return replace(
             self,
             centroid=apply_pose(pose, self.centroid),
@@ -174,6 +220,7 @@ class Features:
             axes=axes,
             principal_plane=principal_plane,
             principal_axis=principal_axis,
+            dominant_plane=dominant,
         )
 
     def to_dict(self) -> dict[str, Any]:
@@ -203,6 +250,9 @@ class Features:
             "principal_axis_tie": self.principal_axis_tie,
             "n_faces": self.n_faces,
             "n_freeform_recognised": self.n_freeform_recognised,
+            "dominant_plane": None if self.dominant_plane is None
+            else self.dominant_plane.tolist(),
+            "dominant_runner_up": self.dominant_runner_up,
         }
 
     @classmethod
@@ -230,6 +280,9 @@ class Features:
             principal_axis_tie=bool(d.get("principal_axis_tie", False)),
             n_faces=int(d.get("n_faces", 0)),
             n_freeform_recognised=int(d.get("n_freeform_recognised", 0)),
+            dominant_plane=None if d.get("dominant_plane") is None
+            else _vec(d["dominant_plane"]),
+            dominant_runner_up=float(d.get("dominant_runner_up", 0.0)),
         )
 
 
@@ -262,7 +315,8 @@ def _move_plane(g: PlaneGroup, pose: FloatArray) -> PlaneGroup:
     n = _canonical(n_raw)
     sign = 1.0 if np.dot(n, n_raw) > 0 else -1.0
     # plane n_raw . x = d + n_raw . t after the motion; re-express along the canonical normal.
-    offsets = tuple(float(sign * (o + np.dot(n_raw, t))) for o in g.offsets)
+    shift = float(np.dot(n_raw, t))
+    offsets = tuple(sign * (o + shift) for o in g.offsets)
     outward = tuple(int(sign) * o for o in g.outward)
     return replace(g, normal=n, offsets=offsets, outward=outward)
 

@@ -40,12 +40,19 @@ class Tolerances:
     freeform_fit_mm: float = 1e-3
     # Directional relations: centre-to-centre direction within 15 degrees of the axis (paper).
     direction_cone_deg: float = 15.0
-    # Parallel / perpendicular principal plane directions (within 1 degree of 0 or 90).
+    # Parallel / perpendicular dominant plane directions (within 1 degree of 0 or 90).
     parallel_deg: float = 1.0
-    # Concentric principal axes: angle and distance between the axis lines.
+    # A part's dominant plane direction: planar face normals within 1 degree are one direction
+    # (sign ignored), and the one carrying the largest planar area is dominant when it carries at
+    # least 1.5 times the runner-up's (95% of real parts with planar faces have one; a part
+    # whose second direction carries nearly as much has no stable choice).
+    dominant_group_deg: float = 1.0
+    dominant_area_ratio: float = 1.5
+    # Concentric face mates: cylinder and cone axis lines within this angle and distance.
     coaxial_deg: float = 0.5
     coaxial_mm: float = 0.1
-    # Coincident / coplanar faces: offset between the planes.
+    # Coincident estimated without faces (primitives fitted to points have no boundary to
+    # intersect): opposed planes of two touching parts within this offset.
     coplanar_mm: float = 0.1
     # Face-level mates: opposite normals (and the semi-angles of two cones of a fit) within 0.5
     # degree, contact within 0.1 mm.

@@ -76,6 +76,10 @@ def assert_same_features(got: Features, want: Features, tol: float = 1e-6,
         assert got.principal_axis.face_ids == want.principal_axis.face_ids
     assert got.principal_plane_tie == want.principal_plane_tie
     assert got.principal_axis_tie == want.principal_axis_tie
+    assert (got.dominant_plane is None) == (want.dominant_plane is None)
+    if got.dominant_plane is not None:
+        np.testing.assert_allclose(got.dominant_plane, want.dominant_plane, atol=tol)
+    assert got.dominant_runner_up == pytest.approx(want.dominant_runner_up, rel=1e-5)
 
 
 def occt_optimal_box(shape: TopoDS_Shape) -> tuple[float, ...]:
@@ -173,6 +177,27 @@ def test_bspline_surfaces_the_converter_rejects_are_fitted(trimmed_bspline) -> N
     moved_shape, pose = moved(stored, 0.9, (0.3, -0.5, 0.8), (120.0, -35.5, 410.0))
     assert_same_features(without_cone_radii(extract_features(moved_shape)),
                          without_cone_radii(fitted.transformed(pose)))
+
+
+def test_the_dominant_plane_direction_carries_one_and_a_half_times_the_runner_up() -> None:
+    """A 10 x 20 x 30 block: the 20 x 30 faces carry twice the 10 x 30 ones (dominant); a cube
+    has none; a plate with a rib across keeps the plate's normal when the rib's sides stay
+    under 1/1.5 of its faces; two plates 0.8 degrees apart are one direction."""
+    block = extract_features((bd.Rot(10, 20, 30) * bd.Box(10, 20, 30)).wrapped)
+    assert block.dominant_plane is not None and block.principal_plane is not None
+    assert abs(float(block.dominant_plane @ block.principal_plane)) == pytest.approx(1.0)
+    assert block.dominant_runner_up == pytest.approx(0.5)
+    cube = extract_features(bd.Box(10, 10, 10).wrapped)
+    assert cube.dominant_plane is None and cube.dominant_runner_up == pytest.approx(1.0)
+    ribbed = extract_features((bd.Box(60, 40, 4) + bd.Pos(0, 0, 8) * bd.Box(60, 4, 12)).wrapped)
+    assert ribbed.dominant_plane is not None
+    np.testing.assert_allclose(np.abs(ribbed.dominant_plane), [0, 0, 1], atol=1e-12)
+    tall = extract_features((bd.Box(60, 40, 4) + bd.Pos(0, 0, 22) * bd.Box(60, 4, 40)).wrapped)
+    assert tall.dominant_plane is None  # sides 2 x 60 x (40 + 4) against 2 x 60 x 40: no
+    kinked = bd.Box(40, 40, 2) + bd.Pos(45, 0, 0) * bd.Rot(0, 0.8, 0) * bd.Box(40, 40, 2)
+    both = extract_features(kinked.wrapped)
+    assert both.dominant_plane is not None and len(both.planes) > 3
+    assert both.dominant_runner_up < 0.2  # the two plates' faces are one direction
 
 
 def test_ties_are_flagged_and_coaxial_faces_grouped() -> None:

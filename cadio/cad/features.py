@@ -47,6 +47,7 @@ from cadio.records import (
     FloatArray,
     PlaneGroup,
     canonical_direction,
+    dominant_choice,
     principal_choice,
 )
 from cadio.tolerances import DEFAULT_TOLERANCES, Tolerances
@@ -77,8 +78,9 @@ def extract_features(
 
     Args:
         shape: a solid (or compound of solids), mm.
-        tol: ``group_angle_deg`` groups planes, ``coaxial_deg``/``coaxial_mm`` group axes and
-            ``freeform_fit_mm`` bounds the fit of freeform faces.
+        tol: ``group_angle_deg`` groups planes, ``coaxial_deg``/``coaxial_mm`` group axes,
+            ``freeform_fit_mm`` bounds the fit of freeform faces and ``dominant_group_deg``,
+            ``dominant_area_ratio`` pick the dominant plane direction.
         integrals: ``part_integrals(shape, indexed_faces(shape), MASS_PROPS_REL_EPS)`` when
             the caller has them already (they are the costliest part).
 
@@ -86,7 +88,7 @@ def extract_features(
         Features: volume centroid and volume, total area, tight axis-aligned box, plane groups
         and cylinder/cone axis groups (ordered by their first face id, except that the
         principal axis comes first), principal plane normal and principal cylinder axis with
-        tie flags, face counts.
+        tie flags, the dominant plane direction, face counts.
 
     Raises:
         GeometryError: when the shape has no face or no volume.
@@ -108,6 +110,8 @@ def extract_features(
     axis_pick, axis_tie = principal_choice([a.area for a in cylinders])
     if axis_pick is not None:
         axes = _principal_first(axes, cylinders[axis_pick])
+    dominant, runner_up = dominant_choice(planes, tol.dominant_group_deg,
+                                          tol.dominant_area_ratio)
     bbox_min, bbox_max = tight_bbox(shape)
     log.debug("%d faces: %d planes/cylinders/cones, %d of them fitted to freeform surfaces",
               len(faces), len(prims), sum(p.freeform for p in prims))
@@ -118,6 +122,7 @@ def extract_features(
         principal_axis=None if axis_pick is None else cylinders[axis_pick],
         principal_plane_tie=plane_tie, principal_axis_tie=axis_tie,
         n_faces=len(faces), n_freeform_recognised=sum(p.freeform for p in prims),
+        dominant_plane=dominant, dominant_runner_up=runner_up,
     )
 
 

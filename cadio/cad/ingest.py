@@ -42,7 +42,8 @@ STEP_SUFFIXES = (".step", ".stp")
 P = TypeVar("P")
 
 # Bump when the derived artefacts change meaning, so cached rows are recomputed.
-INGEST_VERSION = "3"
+# 4: features carry the dominant plane direction.
+INGEST_VERSION = "4"
 
 
 @dataclass(frozen=True)

@@ -44,6 +44,7 @@ from cadio.records import (
     FloatArray,
     PlaneGroup,
     canonical_direction,
+    dominant_choice,
     principal_choice,
 )
 from cadio.tolerances import DEFAULT_TOLERANCES, Tolerances
@@ -86,12 +87,15 @@ def fit_features(points_mm: FloatArray, cfg: PrimitiveConfig = DEFAULT_PRIMITIVE
     axis_pick, axis_tie = principal_choice([a.area for a in axes])
     if axis_pick is not None:
         axes = (axes[axis_pick], *(a for i, a in enumerate(axes) if i != axis_pick))
+    dominant, runner_up = dominant_choice(planes, DEFAULT_TOLERANCES.dominant_group_deg,
+                                          DEFAULT_TOLERANCES.dominant_area_ratio)
     return Features(
         centroid=centroid, bbox_min=pts.min(axis=0), bbox_max=pts.max(axis=0),
         volume=volume, area=area, planes=planes, axes=axes,
         principal_plane=None if plane_pick is None else planes[plane_pick].normal,
         principal_axis=axes[0] if axis_pick is not None else None,
         principal_plane_tie=plane_tie, principal_axis_tie=axis_tie, n_faces=len(numbered),
+        dominant_plane=dominant, dominant_runner_up=runner_up,
     )
 
 
