@@ -1,4 +1,4 @@
-"""Tests of cadio.truth.contact: per-part geometry, box pruning, the contact test, face overlaps.
+"""Tests of cadio.truth.contact and proximity: part geometry, pruning, contact, face overlaps.
 
 Every contact answer is checked against an exact BRepExtrema distance on built solids (boxes,
 a cylinder, a sphere, a shaft in a bore) at gaps on both sides of ``contact_mm``; pruning and
@@ -24,15 +24,13 @@ from scipy.spatial.transform import Rotation
 from cadio.cad.step import StepSolid
 from cadio.records import SolidInfo
 from cadio.tolerances import DEFAULT_TOLERANCES as TOL
-from cadio.truth.contact import (
-    PartGeometry,
+from cadio.truth.contact import PartGeometry, describe_part, face_overlap
+from cadio.truth.proximity import (
     ProxyCache,
     box_pairs,
     close_faces,
     coaxial_bound,
     contact_proxy,
-    describe_part,
-    face_overlap,
     faces_within,
     in_contact,
 )

@@ -38,7 +38,7 @@ from cadio.records import SolidInfo
 from cadio.tolerances import DEFAULT_TOLERANCES as TOL
 from cadio.truth.joints import CAD_NAMES, Constraint, classify_motion, derive_joint
 from cadio.truth.mates import COLUMNS, extract_mates, read_assembly_mates, read_mates, write_mates
-from cadio.truth.relations import relate
+from cadio.truth.relations import PairContact, relate
 
 GOLDEN = Path(__file__).parent / "golden" / "mates"
 DIRECTIONAL = {"left", "right", "above", "below", "front", "behind"}
@@ -337,16 +337,63 @@ def test_block_in_a_guide_slides_and_in_a_corner_is_fastened() -> None:
     assert (fixed.kinematic, fixed.dof, fixed.onshape) == ("fastened", 0, "Fastened")
 
 
-def test_part_level_rows_are_relate_of_the_features() -> None:
+def assert_part_level_is_face_level(table: pd.DataFrame) -> None:
+    """The part-level concentric / coincident pairs are exactly the pairs with a face mate of
+    that kind: what the relation stage scores against is the CAD's mates."""
+    for relation in ("concentric", "coincident"):
+        pairs = {level: set(zip(*(table[(table.level == level) & (table.relation == relation)]
+                                  [c] for c in ("index_a", "index_b")), strict=True))
+                 for level in ("face", "part")}
+        assert pairs["part"] == pairs["face"], relation
+
+
+def test_part_level_rows_are_the_face_mates_and_the_dominant_directions() -> None:
     solids = bolted()
     table = extract_mates(solids).table
+    assert_part_level_is_face_level(table)
     from cadio.cad.features import extract_features
 
     feats = [extract_features(s.shape) for s in solids]
     for a in range(3):
         for b in range(a + 1, 3):
-            expected = {r.value for r in relate(feats[a], feats[b]).holding()}
-            assert set(rows(table, a, b, "part").relation) == expected
+            part = set(rows(table, a, b, "part").relation)
+            faces = set(rows(table, a, b, "face").relation)
+            contact = PairContact(coincident="coincident" in faces,
+                                  concentric="concentric" in faces)
+            expected = {r.value for r in relate(feats[a], feats[b], contact=contact).holding()}
+            assert part == expected, (a, b)
+    assert table.attrs["near_boundary"] == []  # every contact of the bolted joint is exact
+
+
+def test_a_sample_assembly_is_scored_on_its_face_mates() -> None:
+    """The sleeve coupling: each shaft in the sleeve's bore (a fit), the shafts 2 mm apart
+    end to end (no mate); bearing housing: the shaft through the bearing, the bearing seated."""
+    from cadio.samples.assemblies import assembly_builders
+
+    builders = {name: build for name, _, build in assembly_builders()}
+    for name in ("sleeve-coupling-d10", "bearing-housing-608"):
+        parts = builders[name]()
+        solids = [StepSolid(SolidInfo(k, str(p.label), "", np.eye(4), f"{name}/{p.label}"),
+                            TopoDS.Solid_s(p.wrapped)) for k, p in enumerate(parts)]
+        table = extract_mates(solids, assembly=name).table
+        assert_part_level_is_face_level(table)
+        concentric = table[(table.level == "part") & (table.relation == "concentric")]
+        assert len(concentric) >= 2, name
+    sleeve = extract_mates([StepSolid(SolidInfo(k, str(p.label), "", np.eye(4), str(p.label)),
+                                      TopoDS.Solid_s(p.wrapped))
+                            for k, p in enumerate(builders["sleeve-coupling-d10"]())]).table
+    assert set(rows(sleeve, 0, 1, "part").relation) >= {"concentric"}
+    assert set(rows(sleeve, 0, 2, "part").relation) >= {"concentric"}
+    assert not {"concentric", "coincident"} & set(rows(sleeve, 1, 2, "part").relation)
+
+
+def test_near_misses_are_named_in_the_metadata() -> None:
+    """A cover 0.15 mm above its housing: no coincident mate, but within the margins."""
+    solids = assembly(("housing", box(0, 0, 0, 40, 40, 10)),
+                      ("cover", box(5, 5, 10.15, 20, 20, 2)))
+    result = extract_mates(solids, part_ids={0: "h", 1: "c"})
+    assert "coincident" not in set(result.level("part").relation)
+    assert result.table.attrs["near_boundary"] == [["h", "c", "coincident"]]
 
 
 # ---------------------------------------------------------------- joints from constraints
@@ -553,6 +600,8 @@ def check_golden(golden: dict[str, Any], solids: list[StepSolid], table: pd.Data
             assert abs(float(np.dot(row.axis, e["axis"]))) == pytest.approx(1.0, abs=1e-6), e
     for e in golden.get("part", []):
         assert e["relation"] in set(_pair(table, ids, e, "part").relation), e
+    for e in golden.get("absent_part", []):
+        assert e["relation"] not in set(_pair(table, ids, e, "part").relation), e
     for e in golden["absent"]:
         assert _pair(table, ids, e, "face").empty, e
     for e in golden["absent_joints"]:
@@ -566,7 +615,9 @@ def test_real_assembly_matches_hand_checked_golden(name: str, shared_step_dir: P
     from cadio.cad.step import read_step
 
     solids = read_step(shared_step_dir / golden["file"])
-    check_golden(golden, solids, extract_mates(solids).table)
+    table = extract_mates(solids).table
+    check_golden(golden, solids, table)
+    assert_part_level_is_face_level(table)
 
 
 @pytest.mark.shared

@@ -104,6 +104,8 @@ def test_a_part_beside_itself_is_two_instances(ws: Workspace) -> None:
     front, back = views
     assert front.part_a == front.part_b == block
     assert front.labels[LEFT] and back.labels[RIGHT]
+    coincident = list(Relation).index(Relation.COINCIDENT)
+    assert not front.labels[coincident]  # side by side on one plane: no face faces another
     for view, sign in ((front, -1.0), (back, 1.0)):
         for name in ("truth", "partial"):
             obs = view.observer_points(name)
@@ -153,6 +155,14 @@ def test_an_assembly_capture_labels_its_mated_pairs_in_every_view(ws: Workspace)
     for v in views:  # block on plate: above/below and coincident whatever the camera
         assert v.labels[above] == (names.get(v.part_a) == "block")
         assert v.labels[coincident]
+    part = mates[mates.level == "part"]
+    for v in views:  # the symmetric relations are the mates table's, in every view
+        held = set(part[((part.part_a == v.part_a) & (part.part_b == v.part_b))
+                        | ((part.part_a == v.part_b) & (part.part_b == v.part_a))].relation)
+        for k, r in enumerate(Relation):
+            if r in (Relation.CONCENTRIC, Relation.COINCIDENT, Relation.PARALLEL,
+                     Relation.PERPENDICULAR):
+                assert bool(v.labels[k]) == (r.value in held), r
 
 
 def test_a_capture_without_inputs_gives_no_pair(ws: Workspace, tmp_path: Path) -> None:

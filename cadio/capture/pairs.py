@@ -14,9 +14,10 @@ Inputs, each (2, k, 3) float32 world metres:
   (computed by ``models``, handed in as a mapping).
 
 The truth labels come from ``cadio.truth.relations.relate`` on the B-rep features of the parts
-placed in the CAD frame, with the camera's view axis: one definition for scenes and assemblies.
-The networks see only ``observer_points`` (the points turned into the observer's frame), never
-the poses or the features.
+placed in the CAD frame, with the camera's view axis, and the pair's face mates as the truth
+measured them (the scene's ``labels.contact``, or the assembly's mates table): one definition
+for scenes and assemblies. The networks see only ``observer_points`` (the points turned into
+the observer's frame), never the poses or the features.
 """
 
 from __future__ import annotations
@@ -29,6 +30,7 @@ from typing import Any
 
 import numpy as np
 import numpy.typing as npt
+import pandas as pd
 
 from cadio.capture.mcap_io import read_scene_meta
 from cadio.capture.observe import observer_rotation
@@ -36,7 +38,13 @@ from cadio.capture.pointcloud import sample_points
 from cadio.errors import CaptureError
 from cadio.records import Features, FloatArray, Mesh
 from cadio.tolerances import DEFAULT_TOLERANCES, Tolerances
-from cadio.truth.relations import BoundaryMargins, near_boundary, relate
+from cadio.truth.relations import (
+    NO_CONTACT,
+    BoundaryMargins,
+    PairContact,
+    contacts_of_mates,
+    relate,
+)
 from cadio.workspace import Workspace, read_features, read_mesh
 
 INPUTS = ("truth", "partial", "completed")
@@ -63,8 +71,10 @@ DEFAULT_PAIRS = PairConfig()
 class PairView:
     """One ordered pair of parts in one view.
 
-    labels: (10,) bool in ``Relation`` order, for this view's observer. points: input name ->
-    (2, k, 3) float32 world metres (part a, part b). world_to_camera: (4, 4) the view's camera.
+    labels: (10,) bool in ``Relation`` order, for this view's observer. near: (10,) bool, each
+    relation's answer within the margins of a tolerance (near_boundary: any of them). points:
+    input name -> (2, k, 3) float32 world metres (part a, part b). world_to_camera: (4, 4) the
+    view's camera.
     """
 
     scene: str
@@ -77,6 +87,7 @@ class PairView:
     world_to_camera: FloatArray
     scale_m_per_mm: float
     points: dict[str, Cloud]
+    near: npt.NDArray[np.bool_] = field(default_factory=lambda: np.zeros(10, dtype=bool))
 
     def observer_points(self, name: str) -> Cloud:
         """(2, k, 3) float32: the input's points in the observer frame (right, behind, up),
@@ -163,12 +174,13 @@ def capture_pairs(capture: Path, ws: Workspace, categories: Mapping[str, str],
             view (the keys of ``ws.inputs(capture, instance)``).
 
     Raises:
-        CaptureError: the capture has no scene description.
+        CaptureError: the capture has no scene description, or its pairs no face-mate truth.
     """
     meta = read_scene_meta(capture)
     if not meta or not meta.get("parts"):
         raise CaptureError(capture, "no scene description: its parts are unknown")
     pairs = _instance_pairs(meta)[:cfg.max_pairs]
+    contacts = _contacts(capture, meta, ws) if pairs else {}
     placed = {int(p["instance_id"]): p for p in meta["parts"]}
     needed = sorted({k for pair in pairs for k in pair})
     folders = {k: ws.inputs(capture.stem, k) / "points.npz" for k in needed}
@@ -183,8 +195,31 @@ def capture_pairs(capture: Path, ws: Workspace, categories: Mapping[str, str],
             pa, pb = parts[a].part_id, parts[b].part_id
             out += _pair_views(capture.stem, parts[a], parts[b], seen[a], seen[b],
                                pair_category(categories.get(pa, "?"), categories.get(pb, "?")),
-                               scale, cfg, _of_instances(completed or {}, a, b))
+                               contacts.get((pa, pb), NO_CONTACT), scale, cfg,
+                               _of_instances(completed or {}, a, b))
     return out
+
+
+def _contacts(capture: Path, meta: dict[str, Any], ws: Workspace
+              ) -> dict[tuple[str, str], PairContact]:
+    """(part a, part b) -> the face mates' answer: a scene's ``labels.contact``, or the
+    assembly's mates table (part-level rows and the answers near a boundary).
+
+    Raises:
+        CaptureError: neither is there.
+    """
+    labels = meta.get("labels") or {}
+    if "pair" in labels and "contact" in labels:
+        a, b = (str(p) for p in labels["pair"])
+        contact = PairContact.from_dict(labels["contact"])
+        return {(a, b): contact, (b, a): contact}
+    if "assembly" in labels and ws.mates(str(labels["assembly"])).is_file():
+        table = pd.read_parquet(ws.mates(str(labels["assembly"])),
+                                columns=["part_a", "part_b", "level", "relation"])
+        return contacts_of_mates(table.to_dict("records"),
+                                 table.attrs.get("near_boundary", []))
+    raise CaptureError(capture, "its pairs carry no face-mate truth (a scene without "
+                                "labels.contact, or an assembly without its mates table)")
 
 
 def _instance_pairs(meta: dict[str, Any]) -> list[tuple[int, int]]:
@@ -234,7 +269,7 @@ class _Placed:
 
 
 def _pair_views(scene: str, a: _Placed, b: _Placed, seen_a: CapturedPart, seen_b: CapturedPart,
-                category: str, scale: float, cfg: PairConfig,
+                category: str, contact: PairContact, scale: float, cfg: PairConfig,
                 completed: Mapping[tuple[int, int], FloatArray]) -> list[PairView]:
     """The views of one pair; ``completed``: (0 for a, 1 for b, view) -> completion."""
     index_b = {int(v): i for i, v in enumerate(seen_b.views)}
@@ -244,7 +279,7 @@ def _pair_views(scene: str, a: _Placed, b: _Placed, seen_a: CapturedPart, seen_b
         if j is None or min(seen_a.observed[i], seen_b.observed[j]) < cfg.min_observed:
             continue
         w2c = seen_a.world_to_camera[i]
-        rr = relate(a.features, b.features, w2c[2, :3], cfg.tolerances)
+        rr = relate(a.features, b.features, w2c[2, :3], cfg.tolerances, contact, cfg.margins)
         points = {"truth": np.stack([a.truth, b.truth]),
                   "partial": np.stack([seen_a.points[i], seen_b.points[j]])}
         done_a, done_b = (completed.get((k, view)) for k in (0, 1))
@@ -252,8 +287,8 @@ def _pair_views(scene: str, a: _Placed, b: _Placed, seen_a: CapturedPart, seen_b
             points["completed"] = np.stack([_k_points(done_a, cfg.n_points),
                                             _k_points(done_b, cfg.n_points)])
         out.append(PairView(scene, view, seen_a.part_id, seen_b.part_id, category,
-                            np.array(rr.truth, dtype=bool), near_boundary(rr, cfg.margins),
-                            w2c, scale, points))
+                            np.array(rr.truth, dtype=bool), rr.near_boundary(), w2c, scale,
+                            points, np.array(rr.near, dtype=bool)))
     return out
 
 

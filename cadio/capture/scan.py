@@ -47,6 +47,7 @@ from cadio.contracts import CaptureSummary
 from cadio.errors import CaptureError, InputFileError
 from cadio.records import FloatArray, Mesh, Relation
 from cadio.tolerances import DEFAULT_TOLERANCES, Tolerances
+from cadio.truth.relations import PairContact
 from cadio.truth.scenes import read_scenes, scene_poses
 from cadio.workspace import Workspace, atomic_write, read_mesh
 
@@ -120,12 +121,14 @@ def placed_parts(scene: dict[str, Any], ws: Workspace, colours: dict[str, str]) 
 
 
 def scene_labels(scene: dict[str, Any]) -> dict[str, Any]:
-    """Ground truth of a scene row: the ten relations of (a, b) seen along +Y (CAD frame)."""
+    """Ground truth of a scene row: the ten relations of (a, b) seen along +Y (CAD frame) and
+    what the pair's face mates say (``contact``: every view's labels need it)."""
     return {
         "view_axis": [0.0, 1.0, 0.0],
         "pair": [scene["part_a"], scene["part_b"]],
         "categories": [scene["category_a"], scene["category_b"]],
         "relations": {r.value: bool(scene[r.value]) for r in Relation},
+        "contact": PairContact.from_dict(scene).to_dict(),
         "intended": scene.get("intended", ""),
         "split": scene.get("split", ""),
     }

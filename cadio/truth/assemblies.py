@@ -23,8 +23,10 @@ from cadio.workspace import Workspace
 
 # Bump when the mates change meaning (definitions, tolerances' use), so cached results of
 # earlier runs are recomputed. 2: concentric face mates within 1 mm, fit/clearance, fuzzy
-# coincident overlaps, sampled fits of freeform faces.
-MATES_VERSION = "2"
+# coincident overlaps, sampled fits of freeform faces. 3: part-level concentric and coincident
+# are the face mates, parallel and perpendicular use the dominant plane directions, and the
+# answers near a tolerance are in the metadata.
+MATES_VERSION = "3"
 
 
 @dataclass(frozen=True)

@@ -4,38 +4,36 @@ For every pair of parts (solids already in the assembly frame, mm), one table wi
 MATE, RELATION OR JOINT (``COLUMNS``, schema in ``write_mates``), for index_a < index_b, read
 "a <relation> b":
 
-- level "face": ``concentric``, one row per pair of coaxial cylindrical/conical faces (axes
-  within ``coaxial_deg``, lines within ``coaxial_mm``) whose faces lie within
-  ``concentric_gap_mm`` of each other (exact face-to-face distance): ``fit`` says "fit" when the
-  radii agree within ``fit_radius_mm`` (cones: semi-angles within ``mate_angle_deg`` and radii
-  within ``fit_radius_mm`` at a common axial station) and "clearance" otherwise (a gland beside a
-  shaft across fillets, a bolt in a clearance hole; a cylinder against a cone). ``coincident``
-  between planar faces with opposite outward normals (within ``mate_angle_deg``), planes within
-  ``contact_mm`` and an overlap of more than ``min_overlap_mm2`` (a Boolean common of the two
-  faces laid on one plane, with the fuzzy value ``overlap_fuzzy_mm`` so that exactly touching
-  faces do not come out with nothing in common; touching along an edge is no mate). Pairs in
-  contact also get ``parallel``/``perpendicular`` rows for their largest principal faces.
-- level "part": the ten relations of ``cadio.truth.relations.relate`` (view axis +Y for CAD);
-  the part-level ``concentric`` needs no contact (principal axes coaxial).
+- level "face": the face mates of ``cadio.truth.facemates``: ``concentric``, one row per pair
+  of coaxial cylindrical/conical faces (axes within ``coaxial_deg``, lines within
+  ``coaxial_mm``) whose faces lie within ``concentric_gap_mm`` of each other (exact
+  face-to-face distance): ``fit`` says "fit" when the radii agree within ``fit_radius_mm``
+  (cones: semi-angles within ``mate_angle_deg`` and radii within ``fit_radius_mm`` at a common
+  axial station) and "clearance" otherwise (a gland beside a shaft across fillets, a bolt in a
+  clearance hole; a cylinder against a cone). ``coincident`` between planar faces with opposite
+  outward normals (within ``mate_angle_deg``), planes within ``contact_mm`` and an overlap of
+  more than ``min_overlap_mm2`` (touching along an edge is no mate). Pairs in contact also get
+  ``parallel``/``perpendicular`` rows for the largest faces of their dominant plane directions.
+- level "part": the ten relations of ``cadio.truth.labels.label_placed`` (view axis +Y for
+  CAD), the one truth of scenes and assemblies: a pair is ``concentric`` / ``coincident`` at
+  part level exactly when it has a face mate of that kind.
 - level "joint": the joint a CAD user would set, derived from the pair's coincident contacts and
   shafts in bores (``cadio.truth.joints``): ``relation`` is the suggested joint, ``kinematic``
   the pure degree-of-freedom one, with Onshape / FreeCAD / Fusion 360 names.
 
-Pruning (``cadio.truth.contact``) cannot change under a rigid motion of the whole assembly.
-Coincident mates need contact: boxes enlarged by twice ``contact_mm`` skip only pairs that
-cannot touch, and the mate test itself is exact; pairs "in contact" are within ``contact_mm``
-(exact B-rep distance). Concentric candidates come from matching the axis lines of all parts (a
-test on lines, invariant by construction); each coaxial face pair is then ruled out where a
-lower bound on its distance exceeds ``concentric_gap_mm`` (face boxes, then the faces' extents
-along and around the axis from a coarse mesh with its slack: both hold in any frame) and
-measured exactly (BRepExtrema) otherwise.
+``table.attrs`` holds the tolerances, the view axis and ``near_boundary``: (part_a, part_b,
+relation) of every concentric or coincident answer within the margins of a tolerance.
+
+Pruning cannot change under a rigid motion of the whole assembly (``cadio.truth.proximity``):
+boxes enlarged beyond the tolerances skip only pairs that cannot touch, and the tests after them
+are exact; pairs "in contact" are within ``contact_mm`` (exact B-rep distance).
 """
 
 from __future__ import annotations
 
 import math
 import time
-from collections.abc import Iterator, Mapping, Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -47,23 +45,18 @@ from cadio.cad.faces import CYLINDER
 from cadio.cad.step import StepSolid, read_step
 from cadio.records import DIRECTIONAL, Features, Relation
 from cadio.tolerances import DEFAULT_TOLERANCES, Tolerances
-from cadio.truth.contact import (
-    SLACK,
-    AxisFace,
-    AxisLine,
-    PartGeometry,
-    ProxyCache,
-    box_distances,
-    box_pairs,
-    close_faces,
-    coaxial_bound,
-    contact_pairs,
-    describe_part,
-    face_overlap,
-)
+from cadio.truth.contact import SLACK, AxisFace, PartGeometry, describe_part
+from cadio.truth.facemates import Coincident, Concentric
 from cadio.truth.joints import AXIS, Constraint, derive_joint
 from cadio.truth.joints import PLANE as PLANE_CONTACT
-from cadio.truth.relations import CAD_VIEW_AXIS, RelationResult, relate
+from cadio.truth.labels import label_placed
+from cadio.truth.proximity import PartModel, box_pairs, contact_pairs
+from cadio.truth.relations import (
+    CAD_VIEW_AXIS,
+    DEFAULT_MARGINS,
+    BoundaryMargins,
+    RelationResult,
+)
 from cadio.workspace import atomic_path
 
 COLUMNS = (
@@ -117,16 +110,19 @@ def extract_mates(
     *,
     assembly: str = "",
     part_ids: Mapping[int, str] | None = None,
+    margins: BoundaryMargins = DEFAULT_MARGINS,
 ) -> MatesResult:
     """Face-level mates, part-level relations and joints of every pair of parts.
 
     Args:
         solids: the assembly's solids, in the assembly frame (mm), as ``read_step`` returns them.
         tol: the tolerances (mate angle, contact, coaxial, concentric gap, fit radius,
-            parallel, freeform fit, smallest overlap area and its fuzzy value).
+            parallel, dominant direction, freeform fit, smallest overlap area and its fuzzy
+            value).
         view_axis: (3,) the observer's forward direction for left/right/front/behind (+Y for CAD).
         assembly: the assembly name written in every row.
         part_ids: solid index -> part id (default: the index as text).
+        margins: what counts as near a tolerance (``table.attrs["near_boundary"]``).
 
     Returns:
         A ``MatesResult``: the table (no file is touched), pair counts and seconds per phase.
@@ -136,31 +132,43 @@ def extract_mates(
     """
     clock = _Clock()
     ids = part_ids or {}
-    parts = [describe_part(s, k, ids.get(s.info.index, str(s.info.index)), tol)
-             for k, s in enumerate(solids)]
+    models = [PartModel(describe_part(s, k, ids.get(s.info.index, str(s.info.index)), tol))
+              for k, s in enumerate(solids)]
     clock.lap("features")
-    boxed = box_pairs(parts, 2.0 * tol.contact_mm)
-    proxies = ProxyCache(parts)
-    clock.lap("prune")
-    mates = _concentric_mates(parts, proxies, tol)
-    mates += [m for i, j in boxed for m in _coincident_mates(parts[i], parts[j], tol)]
+    labels = label_placed(models, [np.eye(4)] * len(models), view_axis, tol, margins)
+    parts = labels.parts
+    coincident, concentric = labels.face_mates.mates()
+    mates = [_concentric_mate(c, tol) for c in concentric]
+    mates += [_coincident_mate(parts, c) for c in coincident]
     rows = [m.row for m in mates]
     clock.lap("face_mates")
+    boxed = box_pairs(parts, 2.0 * tol.contact_mm)
     touching = {(m.row["index_a"], m.row["index_b"]) for m in mates if m.touching}
-    contact = contact_pairs(parts, boxed, touching, tol.contact_mm, proxies)
+    contact = contact_pairs(parts, boxed, touching, tol.contact_mm, labels.proxies)
     clock.lap("prune")
-    relations = {(i, j): relate(parts[i].features, parts[j].features, view_axis, tol)
-                 for i in range(len(parts)) for j in range(i + 1, len(parts))}
+    n = len(parts)
+    relations = {(i, j): labels.relation(i, j) for i in range(n) for j in range(i + 1, n)}
     rows += [r for (i, j), rr in relations.items() for r in _part_rows(parts[i], parts[j], rr)]
     rows += [r for i, j in contact
-             for r in _principal_face_rows(parts[i], parts[j], relations[(i, j)])]
+             for r in _dominant_face_rows(parts[i], parts[j], relations[(i, j)], tol)]
     clock.lap("relations")
     rows += _joint_rows(parts, mates, tol)
     clock.lap("joints")
     table = _table(rows, assembly)
-    table.attrs = {"tolerances": tol.as_dict(), "view_axis": [float(v) for v in view_axis]}
-    n = len(parts)
+    table.attrs = {"tolerances": tol.as_dict(), "view_axis": [float(v) for v in view_axis],
+                   "near_boundary": _near_answers(parts, labels.face_mates.contacts)}
     return MatesResult(table, n, n * (n - 1) // 2, len(boxed), len(contact), clock.seconds)
+
+
+def _near_answers(parts: Sequence[PartGeometry], contacts: Mapping[tuple[int, int], Any]
+                  ) -> list[list[str]]:
+    """(part_a, part_b, relation) of the concentric and coincident answers near a boundary."""
+    out = []
+    for (i, j), c in sorted(contacts.items()):
+        for relation in ("concentric", "coincident"):
+            if getattr(c, f"{relation}_near"):
+                out.append([parts[i].part_id, parts[j].part_id, relation])
+    return out
 
 
 def read_assembly_mates(
@@ -205,85 +213,13 @@ def read_mates(path: Path | str) -> pd.DataFrame:
     return pd.read_parquet(Path(path))
 
 
-# ---------------------------------------------------------------- concentric
+# ---------------------------------------------------------------- face mates as rows
 
 
-@dataclass(frozen=True)
-class _Coaxial:
-    """Two coaxial faces of parts a < b on their axis lines; the lines' angle (deg) and gap (mm)."""
-
-    a: PartGeometry
-    line_a: AxisLine
-    face_a: AxisFace
-    b: PartGeometry
-    line_b: AxisLine
-    face_b: AxisFace
-    angle_deg: float
-    gap_mm: float
-
-
-def _concentric_mates(parts: list[PartGeometry], proxies: ProxyCache,
-                      tol: Tolerances) -> list[_FaceMate]:
-    """One mate per pair of coaxial faces of two parts within ``concentric_gap_mm`` (exact)."""
-    by_pair: dict[tuple[int, int], list[_Coaxial]] = {}
-    for c in _coaxial_faces(parts, tol):
-        by_pair.setdefault((c.a.index, c.b.index), []).append(c)
-    mates = []
-    for (i, j), found in sorted(by_pair.items()):
-        near = [c for c in found if _may_be_near(c, proxies, tol.concentric_gap_mm)]
-        if not near:
-            continue
-        ids = [(c.face_a.face_id, c.face_b.face_id) for c in near]
-        dist = close_faces(proxies[i], proxies[j], ids, tol.concentric_gap_mm)
-        mates += [_concentric_mate(c, dist[key], tol)
-                  for c, key in zip(near, ids, strict=True) if key in dist]
-    return mates
-
-
-def _coaxial_faces(parts: list[PartGeometry], tol: Tolerances) -> Iterator[_Coaxial]:
-    """Every pair of faces on coaxial axis lines of two parts (lines within ``coaxial_deg`` and
-    ``coaxial_mm``), part a before part b."""
-    owner = [(p.index, k) for p in parts for k in range(len(p.lines))]
-    if len(owner) < 2:
-        return
-    lines = [parts[i].lines[k] for i, k in owner]
-    d = np.array([ln.direction for ln in lines])
-    mid = np.array([ln.mid for ln in lines])
-    part_of = np.array([i for i, _ in owner])
-    for m in range(len(lines) - 1):
-        n = np.arange(m + 1, len(lines))
-        cross = np.linalg.norm(np.cross(d[m], d[n]), axis=1)
-        angle = np.degrees(np.arctan2(cross, np.abs(d[n] @ d[m])))
-        rel = mid[n] - mid[m]
-        gap_n = np.linalg.norm(rel - np.outer(rel @ d[m], d[m]), axis=1)
-        gap_m = np.linalg.norm(rel - (np.einsum("ij,ij->i", rel, d[n]))[:, None] * d[n], axis=1)
-        gap = np.maximum(gap_m, gap_n)
-        keep = ((part_of[n] != part_of[m]) & (angle <= tol.coaxial_deg + SLACK)
-                & (gap <= tol.coaxial_mm + SLACK))
-        for k in np.nonzero(keep)[0]:
-            (pa, la), (pb, lb) = sorted([(parts[part_of[m]], lines[m]),
-                                         (parts[part_of[n[k]]], lines[n[k]])],
-                                        key=lambda pl: pl[0].index)
-            for fa in la.faces:
-                for fb in lb.faces:
-                    yield _Coaxial(pa, la, fa, pb, lb, fb, float(angle[k]), float(gap[k]))
-
-
-def _may_be_near(c: _Coaxial, proxies: ProxyCache, limit_mm: float) -> bool:
-    """False when lower bounds put the two faces more than ``limit_mm`` apart: their boxes
-    (no mesh needed), then their extents along and around a's axis (a coarse mesh)."""
-    i, j = c.a.index, c.b.index
-    if box_distances(proxies.boxes(i)[c.face_a.face_id],
-                     proxies.boxes(j)[c.face_b.face_id]) > limit_mm:
-        return False
-    bound = coaxial_bound(proxies[i], c.face_a.face_id, proxies[j], c.face_b.face_id,
-                          c.line_a.mid, c.line_a.direction)
-    return bound <= limit_mm
-
-
-def _concentric_mate(c: _Coaxial, distance: float, tol: Tolerances) -> _FaceMate:
-    """The mate of two coaxial faces ``distance`` mm apart, read at their common axial station
+def _concentric_mate(mate: Concentric, tol: Tolerances) -> _FaceMate:
+    """The row of two coaxial faces ``distance`` mm apart, read at their common axial station
     (the middle of their overlap along a's axis, or of the gap between their nearest ends)."""
+    c, distance = mate.coaxial, mate.distance_mm
     d = c.line_a.direction
     ta, tb = c.face_a.ends @ d, c.face_b.ends @ d
     lo, hi = max(ta.min(), tb.min()), min(ta.max(), tb.max())
@@ -336,45 +272,23 @@ def _kind(f: AxisFace) -> str:
     return f"{'shaft' if f.convex else 'hole'} {f.kind}"
 
 
-# ---------------------------------------------------------------- coincident
-
-
-def _coincident_mates(a: PartGeometry, b: PartGeometry, tol: Tolerances) -> list[_FaceMate]:
-    """Planar faces of two parts in contact: opposite normals, planes close, positive overlap."""
-    if not len(a.plane_ids) or not len(b.plane_ids):
-        return []
-    cos = a.normals @ b.normals.T  # (ka, kb)
-    opposed = cos <= -math.cos(math.radians(tol.mate_angle_deg)) + SLACK
-    rel = b.centres[None, :, :] - a.centres[:, None, :]  # (ka, kb, 3)
-    along = np.einsum("ijk,ik->ij", rel, a.normals)
-    offset = np.maximum(np.abs(along), np.abs(np.einsum("ijk,jk->ij", rel, b.normals)))
-    inplane = np.linalg.norm(rel - along[..., None] * a.normals[:, None, :], axis=2)
-    near = inplane <= a.reach[:, None] + b.reach[None, :] + tol.contact_mm
-    mates = []
-    for k, m in zip(*np.nonzero(opposed & (offset <= tol.contact_mm + SLACK) & near),
-                    strict=True):
-        area, centre = face_overlap(a.faces[a.plane_ids[k]], b.faces[b.plane_ids[m]],
-                                    a.normals[k], a.centres[k], b.normals[m], b.centres[m],
-                                    tol.overlap_fuzzy_mm)
-        if area <= tol.min_overlap_mm2:
-            continue
-        angle = math.degrees(math.acos(min(1.0, -float(cos[k, m]))))
-        row = _row(
-            a, b, "face", Relation.COINCIDENT.value, face_a=a.plane_ids[k],
-            face_b=b.plane_ids[m], axis=a.normals[k], origin=centre,
-            distance_mm=float(offset[k, m]), angle_deg=angle, overlap_area_mm2=area,
-            evidence=f"planar faces {a.plane_ids[k]} / {b.plane_ids[m]} face to face, "
-                     f"{offset[k, m]:.4f} mm apart, overlap {area:.3f} mm^2")
-        mates.append(_FaceMate(row, (Constraint(PLANE_CONTACT, a.normals[k], centre),), True))
-    return mates
+def _coincident_mate(parts: Sequence[PartGeometry], c: Coincident) -> _FaceMate:
+    """The row of two planar faces face to face."""
+    row = _row(
+        parts[c.a], parts[c.b], "face", Relation.COINCIDENT.value, face_a=c.face_a,
+        face_b=c.face_b, axis=c.normal, origin=c.centre, distance_mm=c.offset_mm,
+        angle_deg=c.angle_deg, overlap_area_mm2=c.area_mm2,
+        evidence=f"planar faces {c.face_a} / {c.face_b} face to face, "
+                 f"{c.offset_mm:.4f} mm apart, overlap {c.area_mm2:.3f} mm^2")
+    return _FaceMate(row, (Constraint(PLANE_CONTACT, c.normal, c.centre),), True)
 
 
 # ---------------------------------------------------------------- part level
 
 
 def _part_rows(a: PartGeometry, b: PartGeometry, rr: RelationResult) -> list[Row]:
-    """One row per relation of ``relate`` that holds for (a, b). Face ids stay -1: relate's
-    choice among tied coplanar faces is not stable under a rigid motion."""
+    """One row per relation of the truth that holds for (a, b); face ids stay -1 (a pair may
+    have many face mates: the face rows name them)."""
     rows = []
     for rel in rr.holding():
         dist, angle, evidence = _part_evidence(rel, rr)
@@ -386,43 +300,49 @@ def _part_rows(a: PartGeometry, b: PartGeometry, rr: RelationResult) -> list[Row
 def _part_evidence(rel: Relation, rr: RelationResult) -> tuple[float, float, str]:
     """(distance mm, angle deg, text) that decided one part-level relation."""
     nan = float("nan")
-    if rel in (Relation.PARALLEL, Relation.PERPENDICULAR, Relation.COINCIDENT):
-        gap = nan if rr.plane_gap_mm is None else rr.plane_gap_mm
+    if rel in (Relation.PARALLEL, Relation.PERPENDICULAR):
         angle = nan if rr.plane_angle_deg is None else rr.plane_angle_deg
-        return gap, angle, f"principal planes {angle:.3f} deg apart, gap {gap:.4f} mm"
+        return nan, angle, f"dominant plane directions {angle:.3f} deg apart"
+    if rel == Relation.COINCIDENT:
+        gap = rr.contact.coincident_gap_mm
+        return gap, nan, f"coincident face mates, planes {gap:.4f} mm apart at the closest"
     if rel == Relation.CONCENTRIC:
-        dist = nan if rr.axis_distance_mm is None else rr.axis_distance_mm
-        angle = nan if rr.axis_angle_deg is None else rr.axis_angle_deg
-        return dist, angle, f"principal axes {angle:.3f} deg, {dist:.4f} mm apart"
+        gap = rr.contact.concentric_gap_mm
+        return gap, nan, f"concentric face mates, faces {gap:.4f} mm apart at the closest"
     angle = rr.direction_deg[DIRECTIONAL.index(rel)]
     return rr.centre_distance_mm, angle, f"b to a {angle:.2f} deg off the {rel.value} axis"
 
 
-def _principal_face_rows(a: PartGeometry, b: PartGeometry, rr: RelationResult) -> list[Row]:
-    """Face-level parallel / perpendicular rows for the largest principal faces of parts in
-    contact (the part-level truth from ``relate``)."""
-    faces = {"face_a": _largest_principal_face(a.features),
-             "face_b": _largest_principal_face(b.features)}
+def _dominant_face_rows(a: PartGeometry, b: PartGeometry, rr: RelationResult,
+                        tol: Tolerances) -> list[Row]:
+    """Face-level parallel / perpendicular rows for the largest faces of the dominant plane
+    directions of parts in contact (the part-level truth)."""
+    faces = {"face_a": _largest_dominant_face(a.features, tol),
+             "face_b": _largest_dominant_face(b.features, tol)}
     return [_row(a, b, "face", rel.value, angle_deg=rr.plane_angle_deg, **faces,
-                 evidence="largest faces of the principal plane directions")
+                 evidence="largest faces of the dominant plane directions")
             for rel in (Relation.PARALLEL, Relation.PERPENDICULAR) if rr[rel]]
 
 
-def _largest_principal_face(f: Features) -> int:
-    """Id of the largest face of the principal plane direction (near-ties: smallest id)."""
-    principal = f.principal_plane
-    if principal is None or not f.planes:
+def _largest_dominant_face(f: Features, tol: Tolerances) -> int:
+    """Id of the largest face of the dominant plane direction (near-ties: smallest id)."""
+    dominant = f.dominant_plane
+    if dominant is None:
         return -1
-    group = max(f.planes, key=lambda g: abs(float(np.dot(g.normal, principal))))
-    top = max(group.face_areas)
-    return min(i for i, a in zip(group.face_ids, group.face_areas, strict=True)
-               if a >= top * (1.0 - 1e-6))
+    cos = math.cos(math.radians(tol.dominant_group_deg))
+    faces = [(area, i) for g in f.planes if abs(float(np.dot(g.normal, dominant))) >= cos - 1e-9
+             for i, area in zip(g.face_ids, g.face_areas, strict=True)]
+    if not faces:
+        return -1
+    top = max(area for area, _ in faces)
+    return min(i for area, i in faces if area >= top * (1.0 - 1e-6))
 
 
 # ---------------------------------------------------------------- joints and the table
 
 
-def _joint_rows(parts: list[PartGeometry], mates: list[_FaceMate], tol: Tolerances) -> list[Row]:
+def _joint_rows(parts: Sequence[PartGeometry], mates: list[_FaceMate],
+                tol: Tolerances) -> list[Row]:
     """One joint row per pair with at least one coincident contact or shaft in a bore."""
     by_pair: dict[tuple[int, int], list[Constraint]] = {}
     for m in mates:

@@ -1,26 +1,35 @@
-"""The ten spatial relations of an ordered pair of parts, from their geometric features.
+"""The ten spatial relations of an ordered pair of parts (DESIGN.md, "Relations").
 
-One definition (DESIGN.md, "Relations") serves the B-rep ground truth and the geometric
-baseline alike: ``relate`` takes two ``Features`` already placed in one world frame (mm) and
-returns a ``RelationResult`` with the ten truth values, the evidence that decided them and the
-tolerances used.
+One definition serves the ground truth of scenes and assemblies and the geometric baseline:
+``relate`` takes two ``Features`` already placed in one world frame (mm) and what the pair's
+face-level mates say (``PairContact``) and returns a ``RelationResult`` with the ten truth
+values, which of them sit near a tolerance, the evidence and the tolerances used.
 
-Frame: Z is up. The view axis (the camera's forward direction projected on the ground; +Y for
-CAD without a camera) is ``behind``; ``front`` is its opposite; ``right = view x Z`` (so +X when
-the view axis is +Y), ``left`` its opposite; ``above`` = +Z, ``below`` = -Z.
+- Directional (left ... behind): the vector from b's centroid to a's lies within
+  ``direction_cone_deg`` of the axis. Frame: Z is up; the view axis (the camera's forward
+  direction on the ground; +Y for CAD without a camera) is ``behind``, ``front`` its opposite,
+  ``right = view x Z`` (+X when the view axis is +Y), ``left`` its opposite.
+- ``coincident`` / ``concentric``: the pair has a face-level coincident / concentric mate.
+  The truth measures them on the exact faces (``cadio.truth.labels.label_placed``, which
+  shares the computation with the assemblies' mates) and hands them in; without them
+  ``estimate_contact`` reads them off the features alone (primitives fitted to points have no
+  faces to intersect), an estimate that is no truth.
+- ``parallel``: the dominant plane directions (``Features.dominant_plane``) lie within
+  ``parallel_deg`` and the pair is not coincident; ``perpendicular``: they lie at 90 +/-
+  ``parallel_deg``. A part without a dominant direction makes both False and near the boundary.
 
-The paper's logic rules hold by construction: the symmetric relations and all evidence are
-computed on a canonical ordering of the pair, and the directional relations of the swapped
-pair are the converse ones (left <-> right, ...), so ``left(a, b) iff right(b, a)`` exactly.
-Values exactly at a tolerance count as inside (with a 1e-9 relative allowance for rounding).
+The paper's logic rules hold by construction: the directional relations are computed on a
+canonical ordering of the pair and those of the swapped pair are the converse ones, so
+``left(a, b) iff right(b, a)`` exactly; the others are symmetric. Values exactly at a tolerance
+count as inside (with a 1e-9 relative allowance for rounding).
 """
 
 from __future__ import annotations
 
 import json
 import math
-from collections.abc import Sequence
-from dataclasses import dataclass
+from collections.abc import Iterable, Mapping, Sequence
+from dataclasses import asdict, dataclass, field
 from typing import Any
 
 import numpy as np
@@ -43,13 +52,98 @@ CAD_VIEW_AXIS = (0.0, 1.0, 0.0)
 _REL_EPS = 1e-9
 # Evidence columns of ``RelationResult.to_row`` after the ten relation names (NaN = undefined).
 EVIDENCE_COLUMNS = (
-    "centre_distance_mm", "plane_angle_deg", "plane_gap_mm", "axis_angle_deg", "axis_distance_mm",
-    "plane_undefined", "axis_undefined", "direction_undefined", "plane_tie", "axis_tie",
+    "centre_distance_mm", "plane_angle_deg", "coincident_gap_mm", "concentric_gap_mm",
+    "coincident_near", "concentric_near", "plane_undefined", "direction_undefined",
+    "contact_measured",
 )
 # Centroids closer than this (mm) give no direction: the directional relations are undefined.
 _MIN_OFFSET_MM = 1e-9
-# Offsets below this (mm) are exact contact or coaxiality, not a near miss of a tolerance.
-_EXACT_MM = 1e-6
+
+
+@dataclass(frozen=True)
+class BoundaryMargins:
+    """How close to a tolerance a pair is "near the boundary" (the scene generator's margins).
+
+    A near-boundary answer could flip with a hair of noise; reports keep such pairs apart. For
+    the face mates a relation is near when its answer differs between the tolerances loosened
+    and tightened by these margins (``loose_tolerances``, ``tight_tolerances``).
+    """
+
+    direction_deg: float = 1.0  # 14 to 16 degrees around the 15 degree cone
+    plane_deg: float = 0.1  # 0.9 to 1.1 degrees (parallel), 88.9 to 89.1 (perpendicular)
+    mate_deg: float = 0.1  # opposed normals and coaxial lines, 0.4 to 0.6 degrees
+    offset_factor: float = 2.0  # contact offsets and axis-line distances up to twice the limit
+    gap_fraction: float = 0.2  # coaxial faces 0.8 to 1.2 mm apart around the 1 mm limit
+    # Offsets up to this are exact contact or coaxiality (B-rep rounding, freeform fits within
+    # ``freeform_fit_mm``), not near misses.
+    exact_mm: float = 1e-3
+    # A dominant plane direction whose runner-up carries within this fraction of the limit
+    # (1/1.5 of its area, so 0.6 to 0.73) is no stable choice.
+    dominance_fraction: float = 0.1
+
+
+DEFAULT_MARGINS = BoundaryMargins()
+
+
+def loose_tolerances(tol: Tolerances, margins: BoundaryMargins = DEFAULT_MARGINS) -> Tolerances:
+    """The face mates' tolerances widened to the outer edge of the margins."""
+    return tol.with_overrides({
+        "mate_angle_deg": tol.mate_angle_deg + margins.mate_deg,
+        "coaxial_deg": tol.coaxial_deg + margins.mate_deg,
+        "contact_mm": tol.contact_mm * margins.offset_factor,
+        "coaxial_mm": tol.coaxial_mm * margins.offset_factor,
+        "concentric_gap_mm": tol.concentric_gap_mm * (1.0 + margins.gap_fraction)})
+
+
+def tight_tolerances(tol: Tolerances, margins: BoundaryMargins = DEFAULT_MARGINS) -> Tolerances:
+    """The face mates' tolerances narrowed to the inner edge of the margins."""
+    return tol.with_overrides({
+        "mate_angle_deg": max(0.0, tol.mate_angle_deg - margins.mate_deg),
+        "coaxial_deg": max(0.0, tol.coaxial_deg - margins.mate_deg),
+        "contact_mm": min(tol.contact_mm, margins.exact_mm),
+        "coaxial_mm": min(tol.coaxial_mm, margins.exact_mm),
+        "concentric_gap_mm": tol.concentric_gap_mm * (1.0 - margins.gap_fraction)})
+
+
+@dataclass(frozen=True)
+class PairContact:
+    """What the face-level mates of a pair say, as the part relations read them (symmetric).
+
+    coincident, concentric: the pair has a coincident / concentric face mate.
+    *_near: that answer differs between the loosened and the tightened tolerances.
+    coincident_gap_mm: the smallest plane offset of opposed planar faces that overlap (or, for
+        an estimate, of opposed planes), mm; NaN when none was within reach.
+    concentric_gap_mm: the smallest exact distance of two coaxial faces, mm; NaN likewise.
+    measured: decided on the exact faces (the truth), not estimated from features.
+    """
+
+    coincident: bool = False
+    concentric: bool = False
+    coincident_near: bool = False
+    concentric_near: bool = False
+    coincident_gap_mm: float = math.nan
+    concentric_gap_mm: float = math.nan
+    measured: bool = True
+
+    def to_dict(self) -> dict[str, Any]:
+        """JSON-ready (NaN as None); ``from_dict`` inverts it."""
+        return {k: (None if isinstance(v, float) and math.isnan(v) else v)
+                for k, v in asdict(self).items()}
+
+    @classmethod
+    def from_dict(cls, d: Mapping[str, Any]) -> PairContact:
+        """From ``to_dict``, or from a row of a scene table (``to_row``'s columns)."""
+        def gap(key: str) -> float:
+            value = d.get(key)
+            return math.nan if value is None else float(value)
+
+        return cls(bool(d["coincident"]), bool(d["concentric"]),
+                   bool(d.get("coincident_near", False)), bool(d.get("concentric_near", False)),
+                   gap("coincident_gap_mm"), gap("concentric_gap_mm"),
+                   bool(d.get("measured", d.get("contact_measured", True))))
+
+
+NO_CONTACT = PairContact()
 
 
 @dataclass(frozen=True)
@@ -57,39 +151,28 @@ class RelationResult:
     """Truth of the ten relations of the ordered pair (a, b), with the evidence.
 
     truth: one bool per relation, in ``Relation`` order.
+    near: per relation, whether its answer sits within the margins of a tolerance (for this
+        view: the directional ones depend on it).
     direction_deg: angle between the vector from b's centroid to a's and each directional axis,
         in ``DIRECTIONAL`` order, degrees (NaN when the centroids coincide).
     centre_distance_mm: distance between the centroids, mm.
-    plane_angle_deg: angle between the principal plane directions, [0, 90] degrees.
-    plane_gap_mm: smallest offset between a principal face of a and one of b, measured along the
-        normals at the midpoint of the centroids (only when the directions agree within
-        ``parallel_deg``), mm.
-    coplanar_faces: face ids (of a, of b) of that closest pair.
-    coplanar_opposed: their outward normals point at each other or away (face-to-face).
-    axis_angle_deg, axis_distance_mm: angle between the principal axes (degrees) and distance
-        between the axis lines at the midpoint of the centroids (mm).
-    axis_faces: face ids of the principal axis groups (of a, of b).
-    *_undefined: a part lacks the feature (or the centroids coincide), so the relations that need
-        it are False. *_tie: a part's principal choice was a tie (flag from ``Features``).
+    plane_angle_deg: angle between the dominant plane directions, [0, 90] degrees (None when a
+        part has none: ``plane_undefined``).
+    contact: the face mates' answer (measured, or estimated from the features).
+    direction_undefined: the centroids coincide, so the directional relations are False.
     """
 
     truth: tuple[bool, ...]
+    near: tuple[bool, ...]
     direction_deg: tuple[float, ...]
     centre_distance_mm: float
     plane_angle_deg: float | None
-    plane_gap_mm: float | None
-    coplanar_faces: tuple[int, int] | None
-    coplanar_opposed: bool | None
-    axis_angle_deg: float | None
-    axis_distance_mm: float | None
-    axis_faces: tuple[tuple[int, ...], tuple[int, ...]] | None
+    contact: PairContact
     direction_undefined: bool
     plane_undefined: bool
-    axis_undefined: bool
-    plane_tie: bool
-    axis_tie: bool
     view_axis: tuple[float, float, float]
     tolerances: Tolerances
+    margins: BoundaryMargins = field(default=DEFAULT_MARGINS)
 
     def __getitem__(self, relation: Relation | str) -> bool:
         return self.truth[RELATIONS.index(Relation(relation))]
@@ -98,19 +181,22 @@ class RelationResult:
         """The relations that hold, in ``Relation`` order."""
         return tuple(r for r, t in zip(RELATIONS, self.truth, strict=True) if t)
 
+    def near_boundary(self) -> bool:
+        """Whether any relation sits near its boundary."""
+        return any(self.near)
+
     def to_row(self) -> dict[str, Any]:
-        """A flat dict: one bool per relation name, then evidence (NaN where undefined)."""
+        """A flat dict: one bool per relation name, then the evidence (NaN where undefined)."""
         nan = float("nan")
+        c = self.contact
         row: dict[str, Any] = relation_table(self)
         row.update(
             centre_distance_mm=self.centre_distance_mm,
             plane_angle_deg=nan if self.plane_angle_deg is None else self.plane_angle_deg,
-            plane_gap_mm=nan if self.plane_gap_mm is None else self.plane_gap_mm,
-            axis_angle_deg=nan if self.axis_angle_deg is None else self.axis_angle_deg,
-            axis_distance_mm=nan if self.axis_distance_mm is None else self.axis_distance_mm,
-            plane_undefined=self.plane_undefined, axis_undefined=self.axis_undefined,
-            direction_undefined=self.direction_undefined,
-            plane_tie=self.plane_tie, axis_tie=self.axis_tie,
+            coincident_gap_mm=c.coincident_gap_mm, concentric_gap_mm=c.concentric_gap_mm,
+            coincident_near=c.coincident_near, concentric_near=c.concentric_near,
+            plane_undefined=self.plane_undefined, direction_undefined=self.direction_undefined,
+            contact_measured=c.measured,
         )
         assert tuple(row)[len(RELATIONS):] == EVIDENCE_COLUMNS
         return row
@@ -179,6 +265,8 @@ def relate(
     b: Features,
     view_axis: Vector3 = CAD_VIEW_AXIS,
     tol: Tolerances = DEFAULT_TOLERANCES,
+    contact: PairContact | None = None,
+    margins: BoundaryMargins = DEFAULT_MARGINS,
 ) -> RelationResult:
     """The ten relations of the ordered pair (a, b), both placed in the world frame.
 
@@ -186,6 +274,10 @@ def relate(
         a, b: features in one world frame, mm (``Features.transformed(pose)`` of each part).
         view_axis: (3,) the observer's forward direction; +Y for CAD without a camera.
         tol: the tolerances; reported in the result.
+        contact: the pair's face mates as measured on the exact faces (the truth); None
+            estimates them from the features (``estimate_contact``).
+        margins: what counts as near a tolerance (the directional and plane relations; the
+            contact's own flags were set when it was measured).
 
     Returns:
         A ``RelationResult``; ``result[Relation.LEFT]`` is left(a, b).
@@ -202,28 +294,52 @@ def relate(
     if swapped:  # r(a, b) iff converse(r)(b, a): read the canonical pair's converse value
         direction = {r: direction[CONVERSE[r]] for r in DIRECTIONAL}
         angle_by = {r: angle_by[CONVERSE[r]] for r in DIRECTIONAL}
-    plane = _plane_evidence(first, second, tol)
-    axis = _axis_evidence(first, second, tol)
-    if swapped:
-        plane = plane.swapped()
-        axis = axis.swapped()
+    angles = tuple(float(angle_by[r]) for r in DIRECTIONAL)
+    contact = estimate_contact(a, b, tol) if contact is None else contact
+    plane = _plane_angle(a, b)
+    parallel = plane is not None and bool(_inside(plane, tol.parallel_deg)) \
+        and not contact.coincident
+    perpendicular = plane is not None and bool(_inside(90.0 - plane, tol.parallel_deg))
     truth = (*(bool(direction[r]) for r in DIRECTIONAL),
-             plane.parallel, plane.perpendicular, axis.concentric, plane.coincident)
+             parallel, perpendicular, contact.concentric, contact.coincident)
     return RelationResult(
         truth=truth,
-        direction_deg=tuple(float(angle_by[r]) for r in DIRECTIONAL),
+        near=_near(angles, plane, a, b, contact, tol, margins),
+        direction_deg=angles,
         centre_distance_mm=float(np.linalg.norm(first.centroid - second.centroid)),
-        plane_angle_deg=plane.angle_deg, plane_gap_mm=plane.gap_mm,
-        coplanar_faces=plane.faces, coplanar_opposed=plane.opposed,
-        axis_angle_deg=axis.angle_deg, axis_distance_mm=axis.distance_mm, axis_faces=axis.faces,
-        direction_undefined=bool(np.isnan(angles6).all()),
-        plane_undefined=a.principal_plane is None or b.principal_plane is None,
-        axis_undefined=a.principal_axis is None or b.principal_axis is None,
-        plane_tie=a.principal_plane_tie or b.principal_plane_tie,
-        axis_tie=a.principal_axis_tie or b.principal_axis_tie,
+        plane_angle_deg=plane, contact=contact,
+        direction_undefined=bool(np.isnan(angles6).all()), plane_undefined=plane is None,
         view_axis=(float(view_axis[0]), float(view_axis[1]), float(view_axis[2])),
-        tolerances=tol,
+        tolerances=tol, margins=margins,
     )
+
+
+def near_boundary(result: RelationResult) -> bool:
+    """Whether any of the pair's relations sits within the margins of its tolerance."""
+    return result.near_boundary()
+
+
+def _near(angles: tuple[float, ...], plane: float | None, a: Features, b: Features,
+          contact: PairContact, tol: Tolerances, margins: BoundaryMargins) -> tuple[bool, ...]:
+    """Per relation: within the margins of its tolerance."""
+    directional = tuple(math.isfinite(x) and abs(x - tol.direction_cone_deg)
+                        <= margins.direction_deg for x in angles)
+    if plane is None or any(_unstable(f, tol, margins) for f in (a, b)):
+        parallel = perpendicular = True
+    else:
+        parallel = abs(plane - tol.parallel_deg) <= margins.plane_deg or bool(
+            _inside(plane, tol.parallel_deg) and contact.coincident_near)
+        perpendicular = abs(90.0 - plane - tol.parallel_deg) <= margins.plane_deg
+    return (*directional, parallel, perpendicular, contact.concentric_near,
+            contact.coincident_near)
+
+
+def _unstable(f: Features, tol: Tolerances, margins: BoundaryMargins) -> bool:
+    """The part's dominant plane direction is a near thing (its runner-up's share of the
+    largest's area lies within the margin of 1 / ``dominant_area_ratio``)."""
+    limit = 1.0 / tol.dominant_area_ratio
+    return f.dominant_plane is not None and f.dominant_runner_up > 0.0 and \
+        abs(f.dominant_runner_up - limit) <= margins.dominance_fraction * limit
 
 
 def _inside(value: Any, limit: float) -> Any:
@@ -235,6 +351,12 @@ def _line_angle_deg(u: FloatArray, v: FloatArray) -> float:
     """Angle between two undirected lines, [0, 90] degrees (well conditioned near 0 and 90)."""
     cross = float(np.linalg.norm(np.cross(u, v)))
     return math.degrees(math.atan2(cross, abs(float(np.dot(u, v)))))
+
+
+def _plane_angle(a: Features, b: Features) -> float | None:
+    if a.dominant_plane is None or b.dominant_plane is None:
+        return None
+    return _line_angle_deg(a.dominant_plane, b.dominant_plane)
 
 
 def _feature_key(f: Features) -> tuple[float, ...]:
@@ -251,93 +373,53 @@ def _canonical_order(a: Features, b: Features) -> int:
     return (ka > kb) - (ka < kb)
 
 
-@dataclass(frozen=True)
-class _PlaneEvidence:
-    parallel: bool = False
-    perpendicular: bool = False
-    coincident: bool = False
-    angle_deg: float | None = None
-    gap_mm: float | None = None
-    faces: tuple[int, int] | None = None
-    opposed: bool | None = None
-
-    def swapped(self) -> _PlaneEvidence:
-        faces = None if self.faces is None else (self.faces[1], self.faces[0])
-        return _PlaneEvidence(self.parallel, self.perpendicular, self.coincident,
-                              self.angle_deg, self.gap_mm, faces, self.opposed)
+# ---------------------------------------------------------------- the estimate from features
 
 
-@dataclass(frozen=True)
-class _AxisEvidence:
-    concentric: bool = False
-    angle_deg: float | None = None
-    distance_mm: float | None = None
-    faces: tuple[tuple[int, ...], tuple[int, ...]] | None = None
+def estimate_contact(a: Features, b: Features,
+                     tol: Tolerances = DEFAULT_TOLERANCES) -> PairContact:
+    """The face mates of a pair as the features alone suggest them (no faces to measure).
 
-    def swapped(self) -> _AxisEvidence:
-        faces = None if self.faces is None else (self.faces[1], self.faces[0])
-        return _AxisEvidence(self.concentric, self.angle_deg, self.distance_mm, faces)
-
-
-def principal_plane_group(f: Features) -> PlaneGroup | None:
-    """The planar group whose normal is the principal plane direction (None if absent)."""
-    if f.principal_plane is None or not f.planes:
-        return None
-    dots = [abs(float(np.dot(g.normal, f.principal_plane))) for g in f.planes]
-    return f.planes[int(np.argmax(dots))]
-
-
-def _plane_evidence(a: Features, b: Features, tol: Tolerances) -> _PlaneEvidence:
-    """parallel / perpendicular / coincident from the principal plane directions and faces."""
-    if a.principal_plane is None or b.principal_plane is None:
-        return _PlaneEvidence()
-    angle = _line_angle_deg(a.principal_plane, b.principal_plane)
-    perpendicular = bool(_inside(90.0 - angle, tol.parallel_deg))
-    if not _inside(angle, tol.parallel_deg):
-        return _PlaneEvidence(perpendicular=perpendicular, angle_deg=angle)
-    ga, gb = principal_plane_group(a), principal_plane_group(b)
-    if ga is None or gb is None or not ga.offsets or not gb.offsets:
-        # Directions agree but there are no faces to be coplanar: parallel by definition.
-        return _PlaneEvidence(parallel=True, perpendicular=perpendicular, angle_deg=angle)
-    gap, i, j, opposed = _closest_faces(ga, gb, 0.5 * (a.centroid + b.centroid))
-    coincident = bool(_inside(gap, tol.coplanar_mm))
-    return _PlaneEvidence(
-        parallel=not coincident, perpendicular=perpendicular, coincident=coincident,
-        angle_deg=angle, gap_mm=gap, faces=(ga.face_ids[i], gb.face_ids[j]), opposed=opposed,
-    )
-
-
-def _closest_faces(
-    ga: PlaneGroup, gb: PlaneGroup, ref: FloatArray
-) -> tuple[float, int, int, bool]:
-    """Smallest plane-to-plane offset between faces of two nearly parallel groups.
-
-    Each plane's signed distance from the reference point ``ref`` (mm) is taken along its own
-    normal, with b's normal turned to agree with a's; the offset is their difference. For exactly
-    parallel planes this is |d_a - d_b| wherever ``ref`` is; for planes tilted by up to the
-    parallel tolerance it is their separation near the pair, and it is rigid-motion invariant.
-
-    Returns:
-        (offset mm, face index in a, face index in b, outward normals opposed).
+    coincident: the parts' boxes lie within ``contact_mm`` and two opposed planes (outward
+    normals within ``mate_angle_deg`` of opposite) lie within ``coplanar_mm``; concentric: the
+    boxes lie within ``concentric_gap_mm`` and two axis groups are coaxial (``coaxial_deg``,
+    ``coaxial_mm``). Without the faces' extents this over-reads (two planes may face each
+    other beside one another), and the axis-aligned boxes it reads grow when a part turns:
+    the truth measures the faces instead.
     """
+    gap = _box_gap(a, b)
+    ref = 0.5 * (a.centroid + b.centroid)
+    plane_gap = min((_opposed_gap(ga, gb, ref) for ga in a.planes for gb in b.planes
+                     if _line_angle_deg(ga.normal, gb.normal) <= tol.mate_angle_deg
+                     + _REL_EPS), default=math.nan)
+    coincident = bool(gap <= tol.contact_mm and _inside(plane_gap, tol.coplanar_mm))
+    coaxial = any(_coaxial(xa, xb, ref, tol) for xa in a.axes for xb in b.axes)
+    return PairContact(coincident=coincident,
+                       concentric=bool(coaxial and gap <= tol.concentric_gap_mm),
+                       coincident_gap_mm=plane_gap, measured=False)
+
+
+def _box_gap(a: Features, b: Features) -> float:
+    """Distance between the parts' axis-aligned boxes, mm (0 when they overlap)."""
+    sep = np.maximum(b.bbox_min - a.bbox_max, a.bbox_min - b.bbox_max)
+    return float(np.linalg.norm(np.clip(sep, 0.0, None)))
+
+
+def _opposed_gap(ga: PlaneGroup, gb: PlaneGroup, ref: FloatArray) -> float:
+    """Smallest offset (mm) between an a-face and a b-face whose outward normals oppose, each
+    plane's signed distance taken from ``ref`` along its own normal (rigid-motion invariant);
+    NaN when no such pair exists."""
     sign = 1.0 if float(np.dot(ga.normal, gb.normal)) >= 0.0 else -1.0
     sa = float(np.dot(ga.normal, ref)) - np.asarray(ga.offsets, dtype=np.float64)
     sb = sign * (float(np.dot(gb.normal, ref)) - np.asarray(gb.offsets, dtype=np.float64))
-    gaps = np.abs(sa[:, None] - sb[None, :])
-    i, j = np.unravel_index(int(np.argmin(gaps)), gaps.shape)
-    opposed = ga.outward[i] * gb.outward[j] * sign < 0
-    return float(gaps[i, j]), int(i), int(j), bool(opposed)
+    opposed = np.outer(ga.outward, gb.outward) * sign < 0
+    gaps = np.abs(sa[:, None] - sb[None, :])[opposed]
+    return float(gaps.min()) if gaps.size else math.nan
 
 
-def _axis_evidence(a: Features, b: Features, tol: Tolerances) -> _AxisEvidence:
-    """concentric from the principal axes: angle and distance between the axis lines."""
-    if a.principal_axis is None or b.principal_axis is None:
-        return _AxisEvidence()
-    xa, xb = a.principal_axis, b.principal_axis
-    angle = _line_angle_deg(xa.direction, xb.direction)
-    distance = _line_distance(xa, xb, 0.5 * (a.centroid + b.centroid))
-    concentric = bool(_inside(angle, tol.coaxial_deg) and _inside(distance, tol.coaxial_mm))
-    return _AxisEvidence(concentric, angle, distance, (xa.face_ids, xb.face_ids))
+def _coaxial(xa: AxisGroup, xb: AxisGroup, ref: FloatArray, tol: Tolerances) -> bool:
+    return bool(_inside(_line_angle_deg(xa.direction, xb.direction), tol.coaxial_deg)
+                and _inside(_line_distance(xa, xb, ref), tol.coaxial_mm))
 
 
 def _line_distance(xa: AxisGroup, xb: AxisGroup, ref: FloatArray) -> float:
@@ -356,33 +438,34 @@ def _line_distance(xa: AxisGroup, xb: AxisGroup, ref: FloatArray) -> float:
     return float(np.linalg.norm(diff - float(np.dot(diff, mean)) * mean))
 
 
-@dataclass(frozen=True)
-class BoundaryMargins:
-    """How close to a tolerance a pair is "near the boundary" (the scene generator's margins).
+# ---------------------------------------------------------------- stored truth
 
-    A near-boundary pair's truth could flip with a hair of noise; reports keep such pairs apart.
+
+def contacts_of_mates(rows: Iterable[Mapping[str, Any]], near: Iterable[Sequence[str]] = ()
+                      ) -> dict[tuple[str, str], PairContact]:
+    """The face mates' answer per unordered pair of an assembly's mates table.
+
+    Args:
+        rows: the table's rows (part_a, part_b, level, relation); its part-level concentric
+            and coincident rows are the pairs' face mates.
+        near: (part_a, part_b, relation) of the answers near a boundary (the table's
+            ``attrs["near_boundary"]``).
+
+    Returns:
+        (part_a, part_b) and (part_b, part_a) -> PairContact, for every pair with a part-level
+        concentric or coincident row or a near answer; any other pair has ``NO_CONTACT``.
     """
-
-    direction_deg: float = 1.0  # 14 to 16 degrees around the 15 degree cone
-    plane_deg: float = 0.1  # 0.9 to 1.1 degrees (parallel), 88.9 to 89.1 (perpendicular)
-    offset_factor: float = 2.0  # gaps and axis distances up to twice their tolerance
-
-
-def near_boundary(result: RelationResult, margins: BoundaryMargins = BoundaryMargins()) -> bool:
-    """Whether any of the pair's relations sits within ``margins`` of its tolerance."""
-    tol = result.tolerances
-    angles = np.asarray(result.direction_deg, dtype=np.float64)
-    if np.any(np.abs(angles[np.isfinite(angles)] - tol.direction_cone_deg)
-              <= margins.direction_deg):
-        return True
-    plane = result.plane_angle_deg
-    if plane is not None and min(abs(plane - tol.parallel_deg),
-                                 abs(90.0 - plane - tol.parallel_deg)) <= margins.plane_deg:
-        return True
-    gap, distance = result.plane_gap_mm, result.axis_distance_mm
-    offsets = [(gap, tol.coplanar_mm), (distance, tol.coaxial_mm)]
-    if any(v is not None and _EXACT_MM < v <= margins.offset_factor * limit
-           for v, limit in offsets):
-        return True  # (exactly touching or coaxial parts, offsets ~0, are not near)
-    axis = result.axis_angle_deg
-    return axis is not None and abs(axis - tol.coaxial_deg) <= margins.plane_deg
+    found: dict[frozenset[str], dict[str, bool]] = {}
+    for r in rows:
+        if r["level"] == "part" and r["relation"] in ("concentric", "coincident"):
+            found.setdefault(frozenset((str(r["part_a"]), str(r["part_b"]))), {})[
+                str(r["relation"])] = True
+    for a, b, relation in near:
+        found.setdefault(frozenset((str(a), str(b))), {})[f"{relation}_near"] = True
+    out = {}
+    for key, flags in found.items():
+        contact = PairContact(**{k: flags.get(k, False) for k in (
+            "coincident", "concentric", "coincident_near", "concentric_near")})
+        a, b = sorted(key)
+        out[(a, b)] = out[(b, a)] = contact
+    return out

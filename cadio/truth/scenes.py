@@ -1,13 +1,18 @@
 """Scenes: pairs of catalog parts placed so that each of the ten relations holds (the paper).
 
-Following the paper's protocol (III.B), each pair is built for one *intended* relation:
-directional pairs put the centre-to-centre direction within the 15 degree cone of an axis;
-concentric pairs stack two parts with a principal axis on one vertical axis line; parallel,
-perpendicular and coincident pairs take parts with large planar faces and turn their principal
-plane normals vertical (or one horizontal), coincident ones face to face in contact. Every part
-also turns about the vertical axis at random, and gaps are random within a range. The ten labels
-of every pair come from ``relations.relate`` on the placed features, never from the intent, which
-is recorded separately. Near-boundary pairs sit just inside or just outside a tolerance.
+Following the paper's protocol (III.B), each pair is built for one *intended* relation, the way
+assemblies make it (``cadio.truth.placement``): directional pairs put the centre-to-centre
+direction within the 15 degree cone of an axis; concentric pairs stack two parts end to end on
+one axis or nest a shaft in a bore, their cylinder or cone faces within ``concentric_gap_mm``;
+coincident pairs rest a planar face of one part on one of the other; parallel and
+perpendicular pairs turn the parts' dominant plane directions vertical (or one horizontal),
+apart. Every part also turns about the vertical at random, and gaps are random within a range.
+The ten labels of every pair come from the one truth function on the placed parts
+(``cadio.truth.labels.label_placed``: face mates for coincident and concentric), never from
+the intent, which is recorded separately. A part is never paired with itself.
+
+Near-boundary pairs sit just inside or just outside a tolerance (the generator's margins), and
+any pair whose truth lies within the margins of a tolerance is flagged too.
 
 Parts, not pairs, are split into train/val/test (from a hash of the seed and the part id, so a
 part keeps its split when the catalog grows), and pairs only join parts of one split. The table
@@ -29,17 +34,34 @@ import numpy as np
 import pandas as pd
 import pyarrow as pa
 import pyarrow.parquet as pq
+from OCP.TopoDS import TopoDS_Shape
 
 from cadio.contracts import ScenesSummary
 from cadio.records import DIRECTIONAL, Features, FloatArray, Relation
 from cadio.tolerances import DEFAULT_TOLERANCES, Tolerances
+from cadio.truth.labels import PartModel, label_placed, part_model
+from cadio.truth.placement import (
+    Nested,
+    Offers,
+    Stacked,
+    align,
+    coaxial_choices,
+    nest,
+    offers_of,
+    pose,
+    rest_on,
+    rotation,
+    spin,
+    stack,
+    tilt,
+)
 from cadio.truth.relations import (
     CAD_VIEW_AXIS,
+    DEFAULT_MARGINS,
     EVIDENCE_COLUMNS,
+    BoundaryMargins,
     RelationResult,
     direction_axes,
-    principal_plane_group,
-    relate,
 )
 from cadio.workspace import Workspace, atomic_write, read_features
 
@@ -54,13 +76,24 @@ _Z = np.array([0.0, 0.0, 1.0])
 _METADATA_KEY = b"mateqa.scenes"
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, eq=False)
 class ScenePart:
-    """A catalog part offered to the scene generator; features in part coordinates (mm)."""
+    """A catalog part offered to the scene generator, described in its own frame (mm)."""
 
     part_id: str
     category: str
-    features: Features
+    model: PartModel
+
+    @property
+    def features(self) -> Features:
+        return self.model.part.features
+
+
+def scene_part(part_id: str, category: str, shape: TopoDS_Shape,
+               tol: Tolerances = DEFAULT_TOLERANCES,
+               features: Features | None = None) -> ScenePart:
+    """A part for the generator from its solid (and its features where already known)."""
+    return ScenePart(part_id, category, part_model(shape, part_id, tol, features))
 
 
 @dataclass(frozen=True)
@@ -74,13 +107,20 @@ class SceneConfig:
     val_fraction: float = 0.1
     test_fraction: float = 0.2
     view_axis: tuple[float, float, float] = CAD_VIEW_AXIS
-    # "Large flat surfaces" (paper): the principal plane group carries this share of the area.
+    # "Large flat surfaces" (paper): the dominant plane direction carries this share of the area.
     min_plane_area_fraction: float = 0.1
     near_directional_deg: float = 1.0  # 14 vs 16 degrees for the 15 degree cone
     near_plane_deg: float = 0.1  # 0.9 vs 1.1 degrees for parallel, 89.1 vs 88.9 perpendicular
-    near_inside_factor: float = 0.5  # offsets of 0.05 mm (coplanar, coaxial tolerance 0.1 mm)
+    near_inside_factor: float = 0.5  # lifts and axis shifts of 0.05 mm (tolerances 0.1 mm)
     near_outside_factor: float = 2.0  # ... against 0.2 mm
+    # Concentric pairs: ends stacked with radii this share of ``concentric_gap_mm`` apart at
+    # most, shafts this share thinner than their bore at most, and stacked faces this share of
+    # it apart at most: clear of the near-boundary margin (0.8 to 1.2 mm).
+    stack_fraction: float = 0.5
+    nest_fraction: float = 0.7
+    gap_fraction: float = 0.7
     tolerances: Tolerances = field(default=DEFAULT_TOLERANCES)
+    margins: BoundaryMargins = field(default=DEFAULT_MARGINS)
 
     def split_fractions(self) -> dict[str, float]:
         return {"train": 1.0 - self.val_fraction - self.test_fraction,
@@ -98,30 +138,48 @@ def assign_splits(part_ids: Sequence[str], seed: int, val_fraction: float,
     return out
 
 
-def is_eligible(part: ScenePart, relation: Relation, cfg: SceneConfig) -> bool:
-    """Whether a part can take part in a pair built for ``relation`` (paper's selection)."""
+def is_eligible(part: ScenePart, relation: Relation, cfg: SceneConfig,
+                offers: Offers | None = None) -> bool:
+    """Whether a part can take part in a pair built for ``relation``: any part for the
+    directional ones; a dominant plane direction carrying ``min_plane_area_fraction`` of the
+    area for parallel and perpendicular (the paper's "large flat surfaces"); a rest face for
+    coincident and an axial end or cylinder for concentric (``offers``: the part's, where
+    known)."""
     f = part.features
     if relation in DIRECTIONAL:
         return True
-    if relation is Relation.CONCENTRIC:
-        return f.principal_axis is not None
-    group = principal_plane_group(f)
-    return group is not None and bool(group.offsets) and \
-        group.area >= cfg.min_plane_area_fraction * f.area
+    if relation in (Relation.PARALLEL, Relation.PERPENDICULAR):
+        return dominant_area(f, cfg.tolerances) >= cfg.min_plane_area_fraction * f.area > 0.0
+    found = offers_of(part.model) if offers is None else offers
+    if relation is Relation.COINCIDENT:
+        return bool(found.rests)
+    return bool(found.ends or found.bores)
 
 
-def label_pair(a: Features, b: Features, pose_a: FloatArray, pose_b: FloatArray,
+def dominant_area(f: Features, tol: Tolerances) -> float:
+    """The planar area carried by the dominant plane direction, mm^2 (0 without one)."""
+    if f.dominant_plane is None:
+        return 0.0
+    cos = math.cos(math.radians(tol.dominant_group_deg))
+    return float(sum(g.area for g in f.planes
+                     if abs(float(np.dot(g.normal, f.dominant_plane))) >= cos - 1e-9))
+
+
+def label_pair(a: ScenePart, b: ScenePart, pose_a: FloatArray, pose_b: FloatArray,
                cfg: SceneConfig) -> RelationResult:
-    """The relations of a placed pair: ``relate`` on features moved by (4, 4) poses (mm)."""
-    return relate(a.transformed(pose_a), b.transformed(pose_b), cfg.view_axis, cfg.tolerances)
+    """The relations of a placed pair: the truth (``label_placed``) on parts moved by (4, 4)
+    poses (mm)."""
+    labels = label_placed([a.model, b.model], [pose_a, pose_b], cfg.view_axis,
+                          cfg.tolerances, cfg.margins)
+    return labels.relation(0, 1)
 
 
 def generate_scenes(parts: Sequence[ScenePart], cfg: SceneConfig,
                     splits: Mapping[str, str] | None = None) -> pd.DataFrame:
-    """Pairs of parts placed for each relation, with the ten labels from ``relate``.
+    """Pairs of parts placed for each relation, with the ten labels from the truth.
 
     Args:
-        parts: catalog parts with features in part coordinates (mm); ids must be unique.
+        parts: catalog parts described in their own frames (mm); ids must be unique.
         cfg: the generator's knobs; a fixed seed gives identical scenes.
         splits: part id -> split where the caller fixes them (a training corpus whose other
             learned stages split the same parts); default drawn from ``cfg`` per part.
@@ -129,7 +187,7 @@ def generate_scenes(parts: Sequence[ScenePart], cfg: SceneConfig,
     Returns:
         One row per scene: scene_id, split, part_a, part_b, category_a, category_b, pose_a and
         pose_b (16 floats, row-major 4x4 part-to-world, mm), intended, near_boundary, near_side
-        ("inside", "outside" or ""), one bool per relation name, then ``relate``'s evidence.
+        ("inside", "outside" or ""), one bool per relation name, then the truth's evidence.
         ``df.attrs["config"]`` holds the config and tolerances.
 
     Raises:
@@ -142,19 +200,25 @@ def generate_scenes(parts: Sequence[ScenePart], cfg: SceneConfig,
         raise ValueError(f"fractions must lie in [0, 1]: {cfg}")
     drawn = assign_splits(sorted(by_id), cfg.seed, cfg.val_fraction, cfg.test_fraction)
     splits = {pid: (splits or {}).get(pid, drawn[pid]) for pid in by_id}
+    offers: dict[str, Offers] = {}
     rows: list[dict[str, Any]] = []
     for s, split in enumerate(SPLITS):
         members = [by_id[pid] for pid in sorted(by_id) if splits[pid] == split]
         for r, relation in enumerate(Relation):
-            pool = [p for p in members if is_eligible(p, relation, cfg)]
             n = _split_count(cfg, split)
-            if n and len(pool) < 2:  # a part beside itself would be one part to later stages
+            if not n:
+                continue
+            if relation in (Relation.COINCIDENT, Relation.CONCENTRIC):
+                for p in members:
+                    if p.part_id not in offers:
+                        offers[p.part_id] = offers_of(p.model)
+            pool = [p for p in members if is_eligible(p, relation, cfg, offers.get(p.part_id))]
+            if len(pool) < 2:  # a part beside itself would be one part to later stages
                 log.warning("fewer than two parts in split %s fit %s: skipped", split,
                             relation.value)
-            if not (n and len(pool) >= 2):
                 continue
             rng = np.random.default_rng([cfg.seed, s, r])
-            rows += [_scene(pool, relation, split, i, n, rng, cfg) for i in range(n)]
+            rows += [_scene(pool, offers, relation, split, i, n, rng, cfg) for i in range(n)]
     df = pd.DataFrame(rows, columns=list(COLUMNS))
     df.attrs["config"] = json.loads(json.dumps(asdict(cfg)))  # tuples become lists
     return df
@@ -196,36 +260,40 @@ def _split_count(cfg: SceneConfig, split: str) -> int:
     return {"val": val, "test": test, "train": max(0, cfg.pairs_per_relation - val - test)}[split]
 
 
-def _scene(pool: Sequence[ScenePart], relation: Relation, split: str, i: int, n: int,
-           rng: np.random.Generator, cfg: SceneConfig) -> dict[str, Any]:
+def _scene(pool: Sequence[ScenePart], offers: Mapping[str, Offers], relation: Relation,
+           split: str, i: int, n: int, rng: np.random.Generator,
+           cfg: SceneConfig) -> dict[str, Any]:
     """One pair for ``relation``; the first ``near_boundary_fraction`` of them near a boundary."""
     near = i < round(n * cfg.near_boundary_fraction)
     side = (INSIDE if i % 2 == 0 else OUTSIDE) if near else ""
-    ia = int(rng.integers(len(pool)))
-    ib = (ia + 1 + int(rng.integers(len(pool) - 1))) % len(pool)  # never a part with itself
-    a, b = pool[ia], pool[ib]
-    pose_a, pose_b = _centred(a.features, b.features,
-                              *_place(a.features, b.features, relation, side, rng, cfg))
-    result = label_pair(a.features, b.features, pose_a, pose_b, cfg)
+    if relation is Relation.CONCENTRIC:
+        a, b, pose_a, pose_b = _concentric(pool, offers, side, rng, cfg)
+    else:
+        ia = int(rng.integers(len(pool)))
+        ib = (ia + 1 + int(rng.integers(len(pool) - 1))) % len(pool)  # never a part with itself
+        a, b = pool[ia], pool[ib]
+        if relation is Relation.COINCIDENT:
+            lift = _near_factor(side, cfg) * cfg.tolerances.contact_mm
+            pose_a, pose_b = rest_on(offers[a.part_id], offers[b.part_id], lift, rng)
+        elif relation in DIRECTIONAL:
+            pose_a, pose_b = _directional(a.features, b.features, relation, side, rng, cfg)
+        else:
+            pose_a, pose_b = _parallel_or_perpendicular(a.features, b.features, relation,
+                                                        side, rng, cfg)
+    pose_a, pose_b = _centred(a.features, b.features, pose_a, pose_b)
+    result = label_pair(a, b, pose_a, pose_b, cfg)
     return {
         "scene_id": f"s{cfg.seed}-{split}-{relation.value}-{i:05d}", "split": split,
         "part_a": a.part_id, "part_b": b.part_id,
         "category_a": a.category, "category_b": b.category,
         "pose_a": pose_a.ravel().tolist(), "pose_b": pose_b.ravel().tolist(),
-        "intended": relation.value, "near_boundary": near, "near_side": side,
-        **result.to_row(),
+        "intended": relation.value, "near_boundary": near or result.near_boundary(),
+        "near_side": side, **result.to_row(),
     }
 
 
-def _place(a: Features, b: Features, relation: Relation, side: str, rng: np.random.Generator,
-           cfg: SceneConfig) -> tuple[FloatArray, FloatArray]:
-    if relation in DIRECTIONAL:
-        return _directional(a, b, relation, side, rng, cfg)
-    if relation is Relation.CONCENTRIC:
-        return _concentric(a, b, side, rng, cfg)
-    if relation is Relation.COINCIDENT:
-        return _coincident(a, b, side, rng, cfg)
-    return _parallel_or_perpendicular(a, b, relation, side, rng, cfg)
+def _near_factor(side: str, cfg: SceneConfig) -> float:
+    return {"": 0.0, INSIDE: cfg.near_inside_factor, OUTSIDE: cfg.near_outside_factor}[side]
 
 
 def _centred(a: Features, b: Features, pose_a: FloatArray,
@@ -242,146 +310,99 @@ def _centred(a: Features, b: Features, pose_a: FloatArray,
 # ---------------------------------------------------------------- placements
 
 
+def _concentric(pool: Sequence[ScenePart], offers: Mapping[str, Offers], side: str,
+                rng: np.random.Generator, cfg: SceneConfig
+                ) -> tuple[ScenePart, ScenePart, FloatArray, FloatArray]:
+    """Two parts of the pool on one axis: nested (plain pairs, where a shaft fits a bore and
+    the parts do not interfere) or stacked end to end, in random order; near-boundary pairs are
+    stacked with the upper axis shifted just inside or outside ``coaxial_mm``. Where no radii
+    of the pool match, two ends are stacked all the same (the truth says what that makes)."""
+    gap = cfg.tolerances.concentric_gap_mm
+    found = [offers[p.part_id] for p in pool]
+    choice = coaxial_choices(found, cfg.stack_fraction * gap, cfg.nest_fraction * gap, rng,
+                             nests=not side)
+    if isinstance(choice, Nested):
+        placed = nest(found[choice.i], choice.hole, found[choice.j], choice.shaft, rng)
+        if placed is not None:
+            return _ordered(pool[choice.i], pool[choice.j], *placed, rng)
+        choice = None  # the parts interfere however the shaft sits: stack instead
+    if isinstance(choice, Stacked):
+        i, j, end_i, end_j = choice.i, choice.j, choice.first, choice.second
+    else:
+        with_ends = [k for k, o in enumerate(found) if o.ends]
+        if len(with_ends) < 2:
+            i, j = _two(list(range(len(pool))), rng)
+            return _ordered(pool[i], pool[j], *_stacked_apart(pool[i], pool[j], rng, cfg), rng)
+        i, j = _two(with_ends, rng)
+        end_i = found[i].ends[int(rng.integers(len(found[i].ends)))]
+        end_j = found[j].ends[int(rng.integers(len(found[j].ends)))]
+    room = max(0.0, (cfg.gap_fraction * gap) ** 2 - (end_i.radius - end_j.radius) ** 2)
+    lift = 0.0 if side else float(rng.uniform(0.0, math.sqrt(room)))
+    shift = _near_factor(side, cfg) * cfg.tolerances.coaxial_mm
+    return _ordered(pool[i], pool[j], *stack(found[i], end_i, found[j], end_j, lift, shift, rng),
+                    rng)
+
+
+def _two(choices: Sequence[int], rng: np.random.Generator) -> tuple[int, int]:
+    """Two different members of ``choices`` (at least two)."""
+    i = int(rng.integers(len(choices)))
+    j = (i + 1 + int(rng.integers(len(choices) - 1))) % len(choices)
+    return choices[i], choices[j]
+
+
+def _ordered(p: ScenePart, q: ScenePart, pose_p: FloatArray, pose_q: FloatArray,
+             rng: np.random.Generator) -> tuple[ScenePart, ScenePart, FloatArray, FloatArray]:
+    """The pair as (a, b) in random order, so that neither role is always below."""
+    if rng.random() < 0.5:
+        return p, q, pose_p, pose_q
+    return q, p, pose_q, pose_p
+
+
+def _stacked_apart(p: ScenePart, q: ScenePart, rng: np.random.Generator,
+                   cfg: SceneConfig) -> tuple[FloatArray, FloatArray]:
+    za, zb = _stack(p.features, q.features, rng, cfg)
+    return pose(np.eye(3), [0.0, 0.0, za]), pose(np.eye(3), [0.0, 0.0, zb])
+
+
 def _directional(a: Features, b: Features, relation: Relation, side: str,
                  rng: np.random.Generator, cfg: SceneConfig) -> tuple[FloatArray, FloatArray]:
     """a's centroid off b's along a direction at a chosen angle from the relation's axis."""
-    ra, rb = _spin(rng), _spin(rng)
-    a0, b0 = a.transformed(_pose(ra)), b.transformed(_pose(rb))
+    ra, rb = spin(rng), spin(rng)
+    a0, b0 = a.transformed(pose(ra)), b.transformed(pose(rb))
     axis = direction_axes(cfg.view_axis)[DIRECTIONAL.index(relation)]
     cone, margin = cfg.tolerances.direction_cone_deg, cfg.near_directional_deg
     if side:
         theta = cone - margin if side == INSIDE else cone + margin
     else:  # uniform over the spherical cap of half-angle cone - margin
         theta = math.degrees(math.acos(rng.uniform(math.cos(math.radians(cone - margin)), 1)))
-    u = _tilt(axis, theta, rng)
+    u = tilt(axis, theta, rng)
     t = _separation(_rel_box(a0), _rel_box(b0), u) + rng.uniform(*cfg.gap_mm)
-    return _pose(ra, t * u - a0.centroid), _pose(rb, -b0.centroid)
-
-
-def _concentric(a: Features, b: Features, side: str, rng: np.random.Generator,
-                cfg: SceneConfig) -> tuple[FloatArray, FloatArray]:
-    """Principal axes on the world Z line, one part stacked above the other."""
-    assert a.principal_axis is not None and b.principal_axis is not None
-    ra = _spin(rng) @ _align(a.principal_axis.direction, _Z * rng.choice([-1.0, 1.0]))
-    rb = _spin(rng) @ _align(b.principal_axis.direction, _Z * rng.choice([-1.0, 1.0]))
-    a0, b0 = a.transformed(_pose(ra)), b.transformed(_pose(rb))
-    assert a0.principal_axis is not None and b0.principal_axis is not None
-    ta = -a0.principal_axis.point * np.array([1.0, 1.0, 0.0])
-    tb = -b0.principal_axis.point * np.array([1.0, 1.0, 0.0])
-    if side:
-        factor = cfg.near_inside_factor if side == INSIDE else cfg.near_outside_factor
-        ta = ta + _tilt(_Z, 90.0, rng) * factor * cfg.tolerances.coaxial_mm
-    ta[2], tb[2] = _stack(a0, b0, rng, cfg)
-    return _pose(ra, ta), _pose(rb, tb)
+    return pose(ra, t * u - a0.centroid), pose(rb, -b0.centroid)
 
 
 def _parallel_or_perpendicular(a: Features, b: Features, relation: Relation, side: str,
                                rng: np.random.Generator,
                                cfg: SceneConfig) -> tuple[FloatArray, FloatArray]:
-    """a's principal normal vertical; b's vertical (parallel) or horizontal (perpendicular)."""
-    assert a.principal_plane is not None and b.principal_plane is not None
+    """a's dominant normal vertical; b's vertical (parallel) or horizontal (perpendicular)."""
+    assert a.dominant_plane is not None and b.dominant_plane is not None
     near = cfg.tolerances.parallel_deg + (
         -cfg.near_plane_deg if side == INSIDE else cfg.near_plane_deg)
-    ra = _spin(rng) @ _align(a.principal_plane, _Z * rng.choice([-1.0, 1.0]))
+    ra = spin(rng) @ align(a.dominant_plane, _Z * rng.choice([-1.0, 1.0]))
     if relation is Relation.PARALLEL:
-        tilt = _rot(_tilt(_Z, 90.0, rng), near) if side else np.eye(3)
-        rb = _spin(rng) @ tilt @ _align(b.principal_plane, _Z * rng.choice([-1.0, 1.0]))
+        turn = rotation(tilt(_Z, 90.0, rng), near) if side else np.eye(3)
+        rb = spin(rng) @ turn @ align(b.dominant_plane, _Z * rng.choice([-1.0, 1.0]))
     else:  # normal to +X, raised by the near-boundary elevation, then spun about Z
-        raise_ = _rot(np.array([0.0, 1.0, 0.0]), -near) if side else np.eye(3)
-        rb = _spin(rng) @ raise_ @ _align(b.principal_plane, np.array([1.0, 0.0, 0.0]))
-    a0, b0 = a.transformed(_pose(ra)), b.transformed(_pose(rb))
-    if relation is Relation.PARALLEL:  # stacked: disjoint heights, so no face is coplanar
+        raise_ = rotation(np.array([0.0, 1.0, 0.0]), -near) if side else np.eye(3)
+        rb = spin(rng) @ raise_ @ align(b.dominant_plane, np.array([1.0, 0.0, 0.0]))
+    a0, b0 = a.transformed(pose(ra)), b.transformed(pose(rb))
+    if relation is Relation.PARALLEL:  # stacked: disjoint heights, so no face touches
         za, zb = _stack(a0, b0, rng, cfg)
         shift = _lateral(a0, b0, rng)
-        return _pose(ra, np.array([0.0, 0.0, za]) - a0.centroid * [1, 1, 0] + shift), \
-            _pose(rb, np.array([0.0, 0.0, zb]) - b0.centroid * [1, 1, 0])
-    u = _tilt(_Z, math.degrees(math.acos(rng.uniform(-1.0, 1.0))), rng)
+        return pose(ra, np.array([0.0, 0.0, za]) - a0.centroid * [1, 1, 0] + shift), \
+            pose(rb, np.array([0.0, 0.0, zb]) - b0.centroid * [1, 1, 0])
+    u = tilt(_Z, math.degrees(math.acos(rng.uniform(-1.0, 1.0))), rng)
     t = _separation(_rel_box(a0), _rel_box(b0), u) + rng.uniform(*cfg.gap_mm)
-    return _pose(ra, t * u - a0.centroid), _pose(rb, -b0.centroid)
-
-
-def _coincident(a: Features, b: Features, side: str, rng: np.random.Generator,
-                cfg: SceneConfig) -> tuple[FloatArray, FloatArray]:
-    """b's lowest down-facing principal face laid on a's highest up-facing one."""
-    ra, top = _extreme_face(a, +1, rng)
-    rb, bottom = _extreme_face(b, -1, rng)
-    a0, b0 = a.transformed(_pose(ra)), b.transformed(_pose(rb))
-    factor = {"": 0.0, INSIDE: cfg.near_inside_factor, OUTSIDE: cfg.near_outside_factor}[side]
-    tb = np.zeros(3)
-    tb[2] = top - bottom + factor * cfg.tolerances.coplanar_mm
-    # Faces at the box extremes (B-rep boxes carry ~1e-7 mm of slack): stack, in contact.
-    if b0.bbox_min[2] + tb[2] >= a0.bbox_max[2] - 0.01 * cfg.tolerances.coplanar_mm:
-        tb[:2] = rng.uniform(a0.bbox_min[:2], a0.bbox_max[:2]) - b0.centroid[:2]
-    else:  # the boxes would interpenetrate: put the parts side by side on the common plane
-        w = _tilt(_Z, 90.0, rng)
-        box_b = (b0.bbox_min + tb, b0.bbox_max + tb)
-        move = _separation(box_b, (a0.bbox_min, a0.bbox_max), w) + rng.uniform(*cfg.gap_mm)
-        tb[:2] += move * w[:2]
-    return _pose(ra), _pose(rb, tb)
-
-
-def _extreme_face(f: Features, facing: int, rng: np.random.Generator) -> tuple[FloatArray, float]:
-    """A rotation turning the principal normal vertical so that a principal face faces up
-    (facing=+1) or down (-1) at the part's top (bottom), and that face's height (mm)."""
-    assert f.principal_plane is not None
-    best: list[tuple[float, FloatArray, float]] = []
-    for sign in (1.0, -1.0):
-        rot = _spin(rng) @ _align(f.principal_plane, sign * _Z)
-        moved = f.transformed(_pose(rot))
-        group = principal_plane_group(moved)
-        assert group is not None
-        heights = [o for o, w in zip(group.offsets, group.outward, strict=True) if w == facing]
-        if heights:
-            h = max(heights) if facing > 0 else min(heights)
-            edge = moved.bbox_max[2] if facing > 0 else moved.bbox_min[2]
-            best.append((abs(edge - h) + 1e-9 * rng.random(), rot, h))
-    _, rot, height = min(best, key=lambda x: x[0])
-    return rot, height
-
-
-# ---------------------------------------------------------------- geometry helpers
-
-
-def _pose(rot: FloatArray, t: Any = (0.0, 0.0, 0.0)) -> FloatArray:
-    m = np.eye(4)
-    m[:3, :3] = rot
-    m[:3, 3] = t
-    return m
-
-
-def _rot(axis: FloatArray, deg: float) -> FloatArray:
-    """Rotation matrix (3, 3) about a unit axis by ``deg`` degrees (Rodrigues)."""
-    k = np.array([[0, -axis[2], axis[1]], [axis[2], 0, -axis[0]], [-axis[1], axis[0], 0]],
-                 dtype=np.float64)
-    th = math.radians(deg)
-    rot: FloatArray = np.eye(3) + math.sin(th) * k + (1 - math.cos(th)) * (k @ k)
-    return rot
-
-
-def _spin(rng: np.random.Generator) -> FloatArray:
-    return _rot(_Z, rng.uniform(0.0, 360.0))
-
-
-def _align(u: FloatArray, w: FloatArray) -> FloatArray:
-    """The smallest rotation (3, 3) turning unit vector u onto unit vector w."""
-    u = np.asarray(u, dtype=np.float64) / np.linalg.norm(u)
-    axis = np.cross(u, w)
-    s, c = float(np.linalg.norm(axis)), float(np.dot(u, w))
-    if s < 1e-12:  # parallel or opposite: any perpendicular axis serves for the half turn
-        other = np.array([1.0, 0.0, 0.0]) if abs(u[0]) < 0.9 else np.array([0.0, 1.0, 0.0])
-        perp = np.cross(u, other)
-        return np.eye(3) if c > 0 else _rot(perp / np.linalg.norm(perp), 180.0)
-    return _rot(axis / s, math.degrees(math.atan2(s, c)))
-
-
-def _tilt(axis: FloatArray, deg: float, rng: np.random.Generator) -> FloatArray:
-    """A unit vector at ``deg`` degrees from ``axis``, at a random azimuth about it."""
-    other = np.array([1.0, 0.0, 0.0]) if abs(axis[0]) < 0.9 else np.array([0.0, 1.0, 0.0])
-    side = np.cross(axis, other)
-    side = _rot(axis, rng.uniform(0.0, 360.0)) @ (side / np.linalg.norm(side))
-    th = math.radians(deg)
-    tilted: FloatArray = math.cos(th) * axis + math.sin(th) * side
-    return tilted
+    return pose(ra, t * u - a0.centroid), pose(rb, -b0.centroid)
 
 
 def _rel_box(f: Features) -> tuple[FloatArray, FloatArray]:
@@ -416,25 +437,43 @@ def _lateral(a0: Features, b0: Features, rng: np.random.Generator) -> FloatArray
     return np.array([rng.uniform(-half[0], half[0]), rng.uniform(-half[1], half[1]), 0.0])
 
 
+# ---------------------------------------------------------------- the stage
+
+
 def build_scenes(catalog: pd.DataFrame, workspace: Path, cfg: SceneConfig,
                  splits: Mapping[str, str] | None = None) -> ScenesSummary:
     """The scenes stage: scenes of the catalog's single parts, written to ``scenes.parquet``
     (``splits``: part id -> split where the caller fixes them, as ``generate_scenes``)."""
     ws = Workspace(Path(workspace))
-    parts = read_scene_parts(catalog, ws.root)
-    if splits is not None:  # a training corpus: only the parts its other stages split
-        parts = [p for p in parts if p.part_id in splits]
+    parts = read_scene_parts(catalog, ws.root, cfg.tolerances,
+                             None if splits is None else set(splits))
     table = generate_scenes(parts, cfg, splits)
     write_scenes(ws.scenes, table)
     return ScenesSummary(path=str(ws.scenes), scenes=len(table), parts=len(parts))
 
 
-def read_scene_parts(catalog: pd.DataFrame, workspace: Path) -> list[ScenePart]:
-    """Catalog parts usable in scenes: ok solids of single-part files, with their features.
+def read_scene_parts(catalog: pd.DataFrame, workspace: Path,
+                     tol: Tolerances = DEFAULT_TOLERANCES,
+                     only: set[str] | None = None) -> list[ScenePart]:
+    """Catalog parts usable in scenes: ok solids of single-part files, each read again from its
+    STEP file (the truth measures its faces) with its features from the workspace.
 
     Solids of assemblies are left out: they are placed in their assembly, not free parts.
+    ``only``: part ids to keep (default all).
+
+    Raises:
+        StepReadError: a part's file can no longer be read.
     """
+    from cadio.cad.step import read_step
+
     ws = Workspace(Path(workspace))
     rows = catalog[(catalog["status"] == "ok") & (catalog["n_solids"] == 1)]
-    return [ScenePart(str(r.part_id), str(r.category), read_features(ws.features(str(r.part_id))))
-            for r in rows.itertuples()]
+    out = []
+    for r in rows.itertuples():
+        pid = str(r.part_id)
+        if only is not None and pid not in only:
+            continue
+        solid = read_step(Path(str(r.source)))[int(r.solid_index)]
+        out.append(scene_part(pid, str(r.category), solid.shape, tol,
+                              read_features(ws.features(pid))))
+    return out
