@@ -144,6 +144,36 @@ def test_real_parts_with_many_span_faces(shared_step_dir: Path, name: str) -> No
     assert np.allclose(result.centroid, centroid, atol=1e-6)
 
 
+@pytest.mark.shared
+def test_rational_faces_whose_weights_spread_widely_are_integrated_here(
+        shared_step_dir: Path) -> None:
+    """spot_Dogbone face 15, a rational bicubic patch with weights spread 9:1: OpenCascade's
+    adaptive rule at eps 1e-6 gives 135.804835 mm^2, converging on 135.952025 as its eps
+    shrinks (135.946371 at 1e-8, 135.953111 at 1e-10); the part's areas are ours."""
+    path = shared_step_dir / "brakes-clutches-couplings" / "spot_Dogbone.step"
+    shape = read_step(path)[0].shape
+    faces = indexed_faces(shape)
+    assert prefer_numpy(faces[15])
+    area, _ = part_integrals(shape, faces, MASS_PROPS_REL_EPS).face_props[15]
+    assert area == pytest.approx(135.952025, abs=2e-6)
+    assert _occt_terms(faces[15], _vertex_mean(shape), MASS_PROPS_REL_EPS)[AREA] == \
+        pytest.approx(135.804835, abs=2e-6)
+
+
+@pytest.mark.parametrize("build", [lambda: bd.Cylinder(6, 15), lambda: bd.Sphere(5),
+                                   lambda: bd.Torus(10, 3)], ids=["cylinder", "sphere", "torus"])
+def test_rational_faces_with_close_weights_stay_with_opencascade(build) -> None:  # type: ignore[no-untyped-def]
+    """Quadrics as NURBS: rational with few spans, weights spread 2:1 (cylinder), 2.8:1
+    (sphere) and exactly 4:1 (torus: not more than the limit)."""
+    from OCP.BRep import BRep_Tool
+    from OCP.GeomAdaptor import GeomAdaptor_Surface
+
+    faces = indexed_faces(_nurbs(build()))
+    surfaces = [GeomAdaptor_Surface(BRep_Tool.Surface_s(f)) for f in faces]
+    assert any(a.IsURational() or a.IsVRational() for a in surfaces)
+    assert not any(prefer_numpy(f) for f in faces)
+
+
 def test_an_instance_of_a_shared_solid_is_the_first_moved() -> None:
     """Two placements of one B-rep: the second is not integrated again, and its integrals
     are those of integrating it in place."""
