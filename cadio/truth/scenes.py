@@ -325,7 +325,8 @@ def _concentric(pool: Sequence[ScenePart], offers: Mapping[str, Offers], side: s
         placed = nest(found[choice.i], choice.hole, found[choice.j], choice.shaft, rng)
         if placed is not None:
             return _ordered(pool[choice.i], pool[choice.j], *placed, rng)
-        choice = None  # the parts interfere however the shaft sits: stack instead
+        # the parts interfere however the shaft sits: stack two parts instead
+        choice = coaxial_choices(found, cfg.stack_fraction * gap, 0.0, rng, nests=False)
     if isinstance(choice, Stacked):
         i, j, end_i, end_j = choice.i, choice.j, choice.first, choice.second
     else:
