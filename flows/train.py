@@ -12,7 +12,10 @@
    held out whole (``groups.csv`` of the corpus lists each file's split);
 3. training of each learned method and protocol (``models``), checkpoints self-describing;
 4. evaluation on the held-out parts beside the baselines (``models.evaluate``), written as the
-   run's completion report and the model card.
+   run's completion report and the model card;
+5. the relation networks on the same corpus (``flows.train_relations``): labels, the pair
+   dataset completed by the checkpoints of step 3, ``ltn`` and ``mlp`` on each input, their
+   held-out report and card.
 """
 
 from __future__ import annotations
@@ -37,6 +40,7 @@ from cadio.capture.corpus import (
     read_index,
 )
 from cadio.capture.examples import PROTOCOLS
+from cadio.capture.pairs import INPUTS
 from cadio.catalog import read_catalog, to_frame, write_catalog
 from cadio.samples.assembly_variants import write_assembly_variants
 from cadio.samples.library import SampleConfig, generate_library
@@ -50,6 +54,7 @@ from cadio.truth.scenes import (
 )
 from cadio.workspace import Workspace
 from models.evaluate import LEARNED, SHIPPED
+from models.relate import SHIPPED_RELATIONS
 
 log = logging.getLogger(__name__)
 
@@ -317,21 +322,55 @@ def evaluate_task(workspace: str, out: str, run_dir: str) -> str:
     return run_dir
 
 
+@task(name="relation-dataset")
+def relation_dataset_task(workspace: str, completion: str, workers: int) -> dict[str, int]:
+    """Labels of the corpus's pairs and the relation dataset completed by ``completion``."""
+    from flows.train_relations import build_dataset
+
+    return build_dataset(Workspace(Path(workspace)), Path(completion),
+                         Limits(workers=workers, seconds=600))
+
+
+@task(name="train-relation-model")
+def train_relation_task(workspace: str, method: str, name: str, steps: int,
+                        out: str) -> dict[str, Any]:
+    """One relation method on one input; the best checkpoint into ``out``."""
+    from flows.train_relations import train_relation_model
+
+    return asdict(train_relation_model(Workspace(Path(workspace)), method, name, steps,
+                                       Path(out)))
+
+
+@task(name="evaluate-relations")
+def evaluate_relations_task(workspace: str, out: str, run_dir: str, command: str,
+                            config: dict[str, Any]) -> str:
+    """Held-out relation report of every method and input, and the relation model card."""
+    from flows.train_relations import evaluate_relations, write_relation_card
+
+    ws = Workspace(Path(workspace))
+    evaluate_relations(ws, Path(out), Path(run_dir))
+    return str(write_relation_card(ws, Path(out), Path(run_dir), command, config))
+
+
 @flow(name="train")
 def train(workspace: str = "train-workspace", shared: str | None = None, variants: int = 100,
           seed: int = 0, steps: int = 2000, methods: list[str] | None = None,
           protocols: list[str] | None = None, out: str = str(SHIPPED),
-          workers: int = 2) -> dict[str, Any]:
-    """Train the completion checkpoints and write their held-out report and model card.
+          workers: int = 2, relation_steps: int = 1000,
+          relation_out: str = str(SHIPPED_RELATIONS)) -> dict[str, Any]:
+    """Train the completion checkpoints, then the relation checkpoints on the same corpus, and
+    write their held-out reports and model cards.
 
     Args:
         workspace: the training workspace (corpus, dataset, resumable snapshots, runs).
         shared: a folder of real STEP parts added to the corpus (split by part).
         variants: parametric variants per category of the sample library.
-        steps: training steps per model (a rerun resumes unfinished ones).
-        methods, protocols: which checkpoints (default: all three, both protocols).
-        out: where the checkpoints and MODEL_CARD.md go (default: the shipped folder).
+        steps: training steps per completion model (a rerun resumes unfinished ones).
+        methods, protocols: which completion checkpoints (default: all three, both protocols).
+        out: where the completion checkpoints and MODEL_CARD.md go (default: the shipped folder).
         workers: worker processes for the CAD and rendering work.
+        relation_steps: training steps per relation model (0: no relation training).
+        relation_out: where the relation checkpoints and their MODEL_CARD.md go.
     """
     log = get_run_logger()
     ws = Workspace(Path(workspace).resolve())
@@ -342,10 +381,24 @@ def train(workspace: str = "train-workspace", shared: str | None = None, variant
     for t in trained:
         log.info("%s/%s: best val IoU %.3f at step %d (%.0f s)", t.method, t.protocol,
                  t.val_iou, t.step, t.seconds)
-    run_dir = ws.run_dir(datetime.now(UTC).strftime("%Y%m%dT%H%M%SZ"))
+    stamp = datetime.now(UTC).strftime("%Y%m%dT%H%M%SZ")
+    run_dir = ws.run_dir(stamp)
     evaluate_task(str(ws.root), out, str(run_dir))
     card = write_model_card(ws, Path(out), run_dir, f"prefect flow train(workspace={workspace!r}"
                             f", shared={shared!r}, variants={variants}, steps={steps})",
                             {"steps": steps, "variants": variants, "seed": seed})
-    return {"corpus": asdict(corpus), "trained": [asdict(t) for t in trained],
-            "report": str(run_dir), "card": str(card)}
+    result: dict[str, Any] = {"corpus": asdict(corpus), "trained": [asdict(t) for t in trained],
+                              "report": str(run_dir), "card": str(card)}
+    if relation_steps > 0:
+        rows = relation_dataset_task(str(ws.root), out, workers)
+        log.info("relation pair views per split: %s", rows)
+        relations = [train_relation_task(str(ws.root), m, name, relation_steps, relation_out)
+                     for name in INPUTS for m in ("ltn", "mlp")]
+        rel_dir = ws.run_dir(f"relations-{stamp}")
+        result["relations"] = relations
+        result["relation_card"] = evaluate_relations_task(
+            str(ws.root), relation_out, str(rel_dir),
+            f"prefect flow train(workspace={workspace!r}, relation_steps={relation_steps})",
+            {"steps": relation_steps, "seed": seed})
+        result["relation_report"] = str(rel_dir)
+    return result

@@ -221,21 +221,30 @@ def write_relation_card(ws: Workspace, out_dir: Path, run_dir: Path, command: st
                       "MB": round(path.stat().st_size / 1e6, 2),
                       "val_accuracy": round(float(ckpt["metrics"].get("val_accuracy",
                                                                       np.nan)), 4),
+                      "val_f1": round(float(ckpt["metrics"].get("val_f1", np.nan)), 4),
                       "val_ece": round(float(ckpt["metrics"].get("val_ece_calibrated",
                                                                  np.nan)), 4),
                       "code": ckpt["code_version"]})
     text = "\n".join([
         "# Relation checkpoints", "",
-        "The neural-logic relation network `ltn` (a five-layer grounding MLP over 600 points "
-        "per part, one Logic Tensor Network predicate per relation, trained on the labelled "
-        "facts and the fuzzy-logic axioms) and `mlp` (the same network on the facts only), one "
-        "checkpoint per input (`truth`: CAD surface samples, `partial`: the segmented scan, "
-        "`completed`: the completion network's shape). The networks see the points in the "
-        "observer's frame only. Load with `torch.load(weights_only=True)`.", "",
+        "The neural-logic relation network `ltn` (a grounding MLP over each part's points "
+        "with their distance to the other part as a contact channel, beside the pair's "
+        "evidence from fitted primitives (`cadio.capture.pair_features`: contact planes and "
+        "axes, part axes, dominant plane directions), one Logic Tensor Network predicate per "
+        "relation, trained on the labelled facts and the fuzzy-logic axioms) and `mlp` (the "
+        "same network on the facts only), one checkpoint per input (`truth`: CAD surface "
+        "samples, `partial`: the segmented scan, `completed`: the completion network's shape). "
+        "Each relation's decision (threshold and temperature) is fitted on the validation "
+        "split and kept in the checkpoint; the best step is chosen by mean F1 over the "
+        "relations. The networks see the points in the observer's frame only. Load with "
+        "`torch.load(weights_only=True)`.", "",
         "## Checkpoints", "", markdown_table(pd.DataFrame(ckpts)), "",
-        "## Data", "", "Pair scenes of the completion corpus's single parts, every part in the "
-        "split the completion dataset gave it (the nightly's sample parts are never trained "
-        "on); each view relabels the directional relations for its own camera.", "",
+        "## Data", "", "The pairs of the completion corpus's shots (pair scenes and assemblies "
+        "as placed, seeded assembly variants and the training split of the shared multi-part "
+        "files), labelled view by view by the truth of placed parts (face mates for "
+        "coincident and concentric, dominant plane directions for parallel and "
+        "perpendicular); split by part and assembly as the corpus is (the nightly's sample "
+        "parts are never trained on).", "",
         markdown_table(dataset_rows(ws)), "",
         "## Training", "", ", ".join(f"{k} {v}" for k, v in config.items()), "",
         f"Held-out report: `{run_dir.name}` of the training workspace.", "",

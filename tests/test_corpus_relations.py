@@ -97,3 +97,36 @@ def test_the_dataset_holds_every_input_of_every_labelled_pair_view(corpus, tmp_p
     # truth points of a pair are where the parts are: the pin's samples meet the plate's
     gaps = split.features["truth"][:, 0]
     assert gaps.min() < 1.0
+
+
+def test_the_train_flow_trains_and_reports_the_relation_networks(corpus, tmp_path) -> None:  # type: ignore[no-untyped-def]
+    """The Prefect train flow's relation steps, on the corpus: dataset completed by a
+    completion checkpoint, one relation checkpoint, its held-out report and model card."""
+    from flows.train import evaluate_relations_task, relation_dataset_task, train_relation_task
+    from flows.train_relations import relations_dir
+    from models.checkpoint import make_checkpoint, save_checkpoint
+    from models.relations_train import load_relation_model
+
+    ws, _ = corpus
+    torch.manual_seed(0)
+    model = build_model(config_for("gan_lstm", n_in=16, n_out=32, width=4))
+    completion = tmp_path / "completion"
+    save_checkpoint(make_checkpoint(model, 1, {}, {"protocol": "observed"}),
+                    completion / "completion-gan_lstm-observed.pt")
+    rows = relation_dataset_task.fn(str(ws.root), str(completion), 2)
+    assert rows["train"] > 0
+    folder = relations_dir(ws)
+    for split in ("val", "test"):  # the fixture's one assembly is all training
+        (folder / f"{split}.npz").write_bytes((folder / "train.npz").read_bytes())
+    out = tmp_path / "relations"
+    trained = train_relation_task.fn(str(ws.root), "ltn", "completed", 3, str(out))
+    _, _, ckpt = load_relation_model(Path(trained["path"]))
+    assert ckpt["method"] == "ltn" and ckpt["data"]["input"] == "completed"
+    card = Path(evaluate_relations_task.fn(str(ws.root), str(out), str(tmp_path / "run"),
+                                           "train", {"steps": 3}))
+    assert "ltn" in card.read_text() and (tmp_path / "run" / "relations.md").exists()
+    # a rerun with the same labels and completion network reuses the dataset
+    stamp = (folder / "stamp.json").stat().st_mtime_ns
+    assert relation_dataset_task.fn(str(ws.root), str(completion), 2) == {
+        "test": rows["train"], "train": rows["train"], "val": rows["train"]}
+    assert (folder / "stamp.json").stat().st_mtime_ns == stamp
