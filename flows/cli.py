@@ -318,7 +318,7 @@ def _cmd_train(args: argparse.Namespace) -> int:
     command = "mateqa " + shlex.join(args.argv)
     card = write_model_card(ws, out, run_dir, command,
                             {"steps": args.steps, "variants": args.variants, "seed": args.seed,
-                             "threads": args.threads})
+                             "threads": args.threads}, corpus)
     print(Path(run_dir / "completion.md").read_text())
     print(f"model card: {card}")
     return 0

@@ -280,8 +280,17 @@ def origin_table(ws: Workspace, run_dir: Path) -> pd.DataFrame:
                        values="iou").reset_index()
 
 
+def corpus_note(corpus: Corpus) -> str:
+    """One sentence on the corpus: its shots by kind, examples, parts and build time."""
+    kinds = ", ".join(f"{n} {k}" for k, n in sorted(corpus.shots.items()))
+    rate = sum(corpus.shots.values()) / corpus.seconds if corpus.seconds else float("nan")
+    return (f"Corpus: {sum(corpus.shots.values())} shots ({kinds}), {corpus.examples} examples "
+            f"of {corpus.parts} parts (per split {corpus.splits}), built in "
+            f"{corpus.seconds / 60:.0f} min on 2 cores ({rate:.2f} shots/s).")
+
+
 def write_model_card(ws: Workspace, out_dir: Path, run_dir: Path, command: str,
-                     config: dict[str, Any]) -> Path:
+                     config: dict[str, Any], corpus: Corpus | None = None) -> Path:
     """``MODEL_CARD.md`` beside the checkpoints, from the held-out evaluation of ``run_dir``."""
     from models.card import model_card
     from reports.completion import read_completion_categories
@@ -290,6 +299,8 @@ def write_model_card(ws: Workspace, out_dir: Path, run_dir: Path, command: str,
     notes = ["## Held-out IoU (%) by origin of the parts, one view", "",
              markdown_table(origin_table(ws, run_dir)), "",
              f"Held-out report of this training: `{run_dir.name}` of the training workspace."]
+    if corpus is not None:
+        notes = [corpus_note(corpus), "", *notes]
     text = model_card(out_dir, dataset_table(ws), read_completion_categories(run_dir), command,
                       notes=notes, config=config)
     path = out_dir / "MODEL_CARD.md"
@@ -386,7 +397,7 @@ def train(workspace: str = "train-workspace", shared: str | None = None, variant
     evaluate_task(str(ws.root), out, str(run_dir))
     card = write_model_card(ws, Path(out), run_dir, f"prefect flow train(workspace={workspace!r}"
                             f", shared={shared!r}, variants={variants}, steps={steps})",
-                            {"steps": steps, "variants": variants, "seed": seed})
+                            {"steps": steps, "variants": variants, "seed": seed}, corpus)
     result: dict[str, Any] = {"corpus": asdict(corpus), "trained": [asdict(t) for t in trained],
                               "report": str(run_dir), "card": str(card)}
     if relation_steps > 0:
