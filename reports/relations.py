@@ -98,6 +98,19 @@ def assembly_frame(pairs: pd.DataFrame, product: tuple[str, str] = PRODUCT) -> p
     return pd.DataFrame(rows, columns=list(ASSEMBLY_COLUMNS))
 
 
+def assembly_f1_table(pairs: pd.DataFrame) -> pd.DataFrame:
+    """F1 against the CAD mates of every assembly pooled, per relation (rows) and input/method
+    (columns): the product method beside every baseline on the same pair views."""
+    rows = []
+    for (inp, method, rel), g in pairs.groupby(["input", "method", "relation"], sort=True):
+        rows.append({"relation": rel, "column": f"{inp}/{method}",
+                     "f1": scores(g["truth"].to_numpy(), g["predicted"].to_numpy())["f1"]})
+    if not rows:
+        return pd.DataFrame()
+    table = pd.DataFrame(rows).pivot(index="relation", columns="column", values="f1")
+    return table.reindex([r for r in RELATIONS if r in table.index])
+
+
 def joint_frame(pairs: pd.DataFrame, joints: pd.DataFrame,
                 product: tuple[str, str] = PRODUCT) -> pd.DataFrame:
     """Joint-type agreement: for every view of an assembly pair whose CAD mates make a joint
@@ -183,7 +196,8 @@ def violation_table(summary: pd.DataFrame) -> pd.DataFrame:
 
 def relations_markdown(summary: pd.DataFrame, near: pd.DataFrame, assemblies: pd.DataFrame,
                        notes: Sequence[str] = (), joints: pd.DataFrame | None = None,
-                       calibration: pd.DataFrame | None = None) -> str:
+                       calibration: pd.DataFrame | None = None,
+                       assembly_f1: pd.DataFrame | None = None) -> str:
     """The Markdown report: accuracy beside Table III, violations, near-boundary, assemblies."""
     out = ["# Relations", *notes, "",
            "## Accuracy per relation (%, clear pairs), beside the paper's Table III", ""]
@@ -199,6 +213,9 @@ def relations_markdown(summary: pd.DataFrame, near: pd.DataFrame, assemblies: pd
     out += [f"## Against the CAD mates of the assemblies ({PRODUCT[1]} on {PRODUCT[0]} inputs)",
             ""]
     out += [markdown_table(assemblies.round(3)) if len(assemblies) else "no assembly captured"]
+    if assembly_f1 is not None and len(assembly_f1):
+        out += ["", "## F1 against the CAD mates, every method and input (all assemblies)", "",
+                markdown_table(assembly_f1.round(3).reset_index())]
     if joints is not None and len(joints):
         agree = joints.groupby(["assembly", "cad_joint"]).agg(
             n=("agree", "size"), agreement=("agree", "mean")).reset_index()
@@ -219,7 +236,8 @@ def write_relation_report(out: Path, pairs: pd.DataFrame, notes: Sequence[str] =
         pairs.to_parquet(tmp, index=False)
     clear, near = pairs[~pairs["near_boundary"]], pairs[pairs["near_boundary"]]
     summary, near_summary = summary_frame(clear), summary_frame(near)
-    assemblies = assembly_frame(pairs[pairs["scene"].astype(str).str.startswith("assembly-")])
+    in_assemblies = pairs[pairs["scene"].astype(str).str.startswith("assembly-")]
+    assemblies = assembly_frame(in_assemblies)
     agreement = joint_frame(pairs, joints if joints is not None else pd.DataFrame())
     for name, frame in (("relations_summary.csv", summary),
                         ("relations_near_boundary.csv", near_summary),
@@ -229,7 +247,7 @@ def write_relation_report(out: Path, pairs: pd.DataFrame, notes: Sequence[str] =
     path = out / "relations.md"
     with atomic_write(path, "w") as fh:
         fh.write(relations_markdown(summary, near_summary, assemblies, notes, agreement,
-                                    calibration_table(clear)))
+                                    calibration_table(clear), assembly_f1_table(in_assemblies)))
     return path
 
 

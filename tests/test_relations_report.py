@@ -93,3 +93,14 @@ def test_calibration_error_is_zero_when_confidence_matches_accuracy() -> None:
     conf = np.full(10_000, 0.8)
     assert expected_calibration_error(conf, rng.random(10_000) < 0.8) < 0.02
     assert abs(expected_calibration_error(conf, np.zeros(10_000, bool)) - 0.8) < 1e-9
+
+
+def test_f1_against_the_cad_mates_puts_every_method_beside_the_product() -> None:
+    from reports.relations import assembly_f1_table
+
+    rows = (_rows("assembly-a", "ltn", [True, True, False], [True, False, False])
+            + _rows("assembly-a", "geometric", [True, True, False], [True, True, True]))
+    table = assembly_f1_table(pairs_frame(rows))
+    assert table.loc["left", "completed/ltn"] == 2 / 3  # precision 1, recall 1/2
+    assert table.loc["left", "completed/geometric"] == 0.8  # precision 2/3, recall 1
+    assert assembly_f1_table(pairs_frame([])).empty
