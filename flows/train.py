@@ -221,14 +221,20 @@ def train_model(ws: Workspace, method: str, protocol: str, steps: int, out_dir: 
 
 
 def evaluate_models(ws: Workspace, models_dir: Path, run_dir: Path,
-                    progress: Progress | None = None) -> pd.DataFrame:
-    """Every held-out example of the training dataset, completed by every method and scored;
-    the completion report and the registration table are written into ``run_dir``."""
+                    progress: Progress | None = None, per_group: int | None = None,
+                    seed: int = 0) -> pd.DataFrame:
+    """Every held-out example of the training dataset (or, with ``per_group``, a seeded draw of
+    at most that many per kind of shot, category and number of views), completed by every
+    method and scored; the completion report and the registration table are written into
+    ``run_dir``."""
     from models.evaluate import load_models, score_files
     from reports.completion import parts_frame, write_completion
 
     index = read_index(dataset_dir(ws) / "index.parquet")
     test = index[(index["status"] == "ok") & (index["split"] == "test")]
+    if per_group is not None:
+        test = test.groupby(["kind", "category", "n_views"], group_keys=False).apply(
+            lambda g: g.sample(min(len(g), per_group), random_state=seed))
     category = dict(zip(test["part_id"], test["category"], strict=False))
     models = load_models(models_dir)
     scores = score_files([dataset_dir(ws) / f for f in test["file"]], models,

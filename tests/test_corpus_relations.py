@@ -130,3 +130,24 @@ def test_the_train_flow_trains_and_reports_the_relation_networks(corpus, tmp_pat
     assert relation_dataset_task.fn(str(ws.root), str(completion), 2) == {
         "test": rows["train"], "train": rows["train"], "val": rows["train"]}
     assert (folder / "stamp.json").stat().st_mtime_ns == stamp
+
+
+def test_an_assembly_shot_labels_its_distant_pairs_too() -> None:
+    """The nightly scores every pair of an assembly, most of them apart: training sees the
+    mated pairs first, then every other pair nearest first, up to the budget."""
+    from types import SimpleNamespace
+
+    from cadio.truth.corpus_labels import LabelJob, LabelPart, _pairs
+
+    parts = tuple(LabelPart(i, f"p{i}", "x.step", i, "", (0.0,) * 16) for i in range(5))
+    job = LabelJob("s", "assembly", parts, (0,), ((0.0, 1.0, 0.0),), max_pairs=9)
+    centroids = [np.array([100.0 * i, 0.0, 0.0]) for i in range(5)]
+
+    def contact(i: int, j: int) -> object:
+        return SimpleNamespace(coincident=(i, j) == (0, 4), concentric=False)
+
+    pairs = _pairs(job, contact, centroids)
+    assert pairs[0] == (0, 4)  # the mated pair first, however far its centroids are
+    assert len(pairs) == 9 and len(set(pairs)) == 9  # then the others, up to the budget
+    gaps = [abs(i - j) for i, j in pairs[1:]]
+    assert gaps == sorted(gaps) and gaps[-1] == 3  # nearest first, distant ones included

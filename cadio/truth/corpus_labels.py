@@ -8,9 +8,11 @@ that view's camera (the observer's forward axis on the ground is "behind"), exac
 nightly's pairs are. One crash-isolated worker job per shot reads the parts' solids from
 their STEP files; a shot that fails is left out with its reason.
 
-Pairs of a shot: the pair of a pair scene; in an assembly, every pair with a face mate and as
-many others again, nearest first (an assembly's distant pairs teach nothing its near ones do
-not), at most ``max_pairs``.
+Pairs of a shot: the pair of a pair scene; in an assembly, every pair with a face mate, then
+the others nearest first, at most ``max_pairs``: the nightly scores every pair of an
+assembly, most of them apart, so training sees them as often as they come (with only as many
+unmated pairs as mated ones, the networks learned a prior of one mate in two and answered
+concentric and coincident for distant pairs of real assemblies).
 """
 
 from __future__ import annotations
@@ -111,7 +113,7 @@ def _pairs(job: LabelJob, contact: Callable[[int, int], object],
     mated = [p for p in unordered if _mated(contact(*p))]
     rest = sorted((p for p in unordered if p not in set(mated)),
                   key=lambda p: float(np.linalg.norm(centroids[p[0]] - centroids[p[1]])))
-    return (mated + rest[:max(len(mated), 1)])[:job.max_pairs]
+    return (mated + rest)[:job.max_pairs]
 
 
 def _mated(contact: object) -> bool:
