@@ -20,11 +20,12 @@ import logging
 import os
 import sys
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, NoReturn
 
-from cadio.tolerances import DEFAULT_TOLERANCES, Tolerances, read_tolerances
+from cadio.tolerances import DEFAULT_TOLERANCES
 from flows.cli_cad import cmd_capture, cmd_export, cmd_ingest, cmd_mates, cmd_samples
 from flows.cli_nightly import cmd_nightly, cmd_serve
+from flows.cli_options import allowed, bounded, config_of, tolerances_of
 from flows.cli_train import cmd_train
 
 if TYPE_CHECKING:
@@ -34,16 +35,31 @@ if TYPE_CHECKING:
 _CHATTY = ("httpx", "build123d")
 
 
+class _Parser(argparse.ArgumentParser):
+    """argparse, except that a bad option is one line (the command, the option, the reason)
+    rather than the usage block."""
+
+    def error(self, message: str) -> NoReturn:
+        self.exit(2, f"{self.prog}: {message} (see {self.prog} --help)\n")
+
+
 def main(argv: list[str] | None = None) -> int:
     """Entry point of the ``mateqa`` command."""
-    parser = _parser()
+    from flows.settings import SettingsError
+
+    try:
+        parser = _parser()
+    except SettingsError as exc:
+        print(f"mateqa: environment: {exc}", file=sys.stderr)
+        return 2
     args = parser.parse_args(argv)
     args.argv = list(sys.argv[1:] if argv is None else argv)
     logging.basicConfig(level=logging.INFO, format="%(levelname)s %(name)s: %(message)s")
     for name in _CHATTY:
         logging.getLogger(name).setLevel(logging.WARNING)
-    try:
-        args.tolerances = _tolerances(args)
+    try:  # every option and settings file, before any work
+        args.tolerances = tolerances_of(args)
+        args.config = config_of(args)
     except (ValueError, OSError) as exc:
         print(f"mateqa {args.command}: {exc}", file=sys.stderr)
         return 2
@@ -56,11 +72,11 @@ def main(argv: list[str] | None = None) -> int:
 def _parser() -> argparse.ArgumentParser:
     # Imported here, not at the top: the CAD workers that ``ingest`` spawns import this module
     # afresh (multiprocessing re-runs the main module), and need neither pydantic nor pandas.
-    from flows.settings import Settings
+    from flows.settings import load_settings
 
-    parser = argparse.ArgumentParser(prog="mateqa", description=__doc__.splitlines()[0])
+    parser = _Parser(prog="mateqa", description=__doc__.splitlines()[0])
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
-    settings = Settings()
+    settings = load_settings()
 
     p = sub.add_parser("ingest", help="read STEP files into a workspace catalog (no Prefect)",
                        description="Read every STEP file under DIR into the workspace: "
@@ -81,18 +97,25 @@ def _parser() -> argparse.ArgumentParser:
     p.add_argument("--thresholds", type=Path, default=None,
                    help="per-category thresholds (TOML; default: reports/thresholds.toml)")
     p.add_argument("--history", type=int, default=7,
-                   help="earlier runs the trends compare with (default 7)")
+                   help="earlier runs the trends compare with (default 7)"
+                   + allowed("thresholds.history"))
     p.add_argument("--no-fail-on-threshold", dest="fail_on_threshold", action="store_false",
                    help="exit 0 even when a threshold fails (the report still says so)")
     p.add_argument("--dask-address", default=None,
                    help="run the tasks on this Dask scheduler (tcp://host:8786)")
     p.add_argument("--pairs-per-relation", type=int, default=4,
-                   help="scenes generated per relation (default 4)")
+                   help="scenes generated per relation (default 4)"
+                   + allowed("capture.pairs_per_relation"))
     p.add_argument("--views-per-scene", type=int, default=8,
-                   help="views rendered per scene, spread over the 125-view circle (default 8)")
+                   help="views rendered per scene, spread over the 125-view circle (default 8)"
+                   + allowed("capture.views_per_scene"))
     p.add_argument("--noise", action="store_true", help="switch the depth noise model on")
+    p.add_argument("--seed", type=int, default=0,
+                   help="seed of the scene generator (default 0)" + allowed("capture.seed"))
+    p.add_argument("--batch-size", type=int, default=12,
+                   help="files per ingest task (default 12)" + allowed("library.batch_size"))
     p.add_argument("--captures", type=Path, default=None,
-                   help="folder of MCAP captures to read instead of rendering (real logs)")
+                   help="folder of MCAP recordings to read instead of rendering (real logs)")
     p.add_argument("--completion-models", type=Path, default=None,
                    help="folder of completion checkpoints (default: the shipped ones)")
     p.add_argument("--relation-models", type=Path, default=None,
@@ -107,7 +130,7 @@ def _parser() -> argparse.ArgumentParser:
                        "prefect.yaml; then `prefect deployment run 'nightly/nightly' --watch` "
                        "works. Runs until interrupted (Ctrl-C or SIGTERM), then stops "
                        "everything it started.")
-    p.add_argument("--port", type=int, default=settings.server_port,
+    p.add_argument("--port", type=bounded(int, 1, 65535), default=settings.server_port,
                    help=f"server port (default {settings.server_port})")
     p.add_argument("--home", type=Path, default=settings.prefect_home,
                    help=f"Prefect home: database, logs (default {settings.prefect_home})")
@@ -126,7 +149,8 @@ def _parser() -> argparse.ArgumentParser:
                        "WS/captures/<name>.mcap.")
     p.add_argument("target", metavar="STEP_OR_SCENE", nargs="?", help="a STEP file or a scene id")
     _workspace_and_tolerances(p, settings)
-    p.add_argument("--views", type=int, default=125, help="views to render (default 125)")
+    p.add_argument("--views", type=int, default=125, help="views to render (default 125)"
+                   + allowed("capture.views_per_scene"))
     p.add_argument("--noise", action="store_true", help="switch the depth noise model on")
     p.add_argument("--read", type=Path, metavar="MCAP", default=None,
                    help="read a recording (ours, Foxglove or ROS 2) instead, and print what was "
@@ -144,31 +168,34 @@ def _parser() -> argparse.ArgumentParser:
                    help="training workspace: corpus, dataset, snapshots, reports")
     p.add_argument("--shared", type=Path, default=None,
                    help="folder of real STEP parts to add to the corpus (split by part)")
-    p.add_argument("--variants", type=int, default=100,
+    p.add_argument("--variants", type=bounded(int, 0, 100_000), default=100,
                    help="parametric variants per category of the sample library")
-    p.add_argument("--seed", type=int, default=0, help="seed of variants and splits")
-    p.add_argument("--steps", type=int, default=2000, help="training steps per model")
+    p.add_argument("--seed", type=bounded(int, 0, 2**32 - 1), default=0,
+                   help="seed of variants and splits")
+    p.add_argument("--steps", type=bounded(int, 1, 10_000_000), default=2000,
+                   help="training steps per model")
     p.add_argument("--methods", nargs="+", default=None,
                    help="learned methods to train (default: gan_lstm ae r2n2 for completion, "
                    "ltn mlp for relations)")
     p.add_argument("--inputs", nargs="+", default=["truth", "partial", "completed"],
                    help="relations: the inputs to train a network for")
-    p.add_argument("--pairs-per-relation", type=int, default=80,
+    p.add_argument("--pairs-per-relation", type=bounded(int, 1, 100_000), default=80,
                    help="relations: corpus scenes per relation (split by part)")
     p.add_argument("--protocols", nargs="+", default=["observed", "oracle-box"],
                    help="input protocols to train for")
     p.add_argument("--out", type=Path, default=None,
                    help="checkpoint folder (default: the shipped models/checkpoints/<stage>)")
-    p.add_argument("--workers", type=int, default=os.cpu_count() or 1,
+    p.add_argument("--workers", type=bounded(int, 1, 256), default=os.cpu_count() or 1,
                    help="worker processes for CAD work and rendering")
-    p.add_argument("--grids", type=int, nargs=2, default=[32, 64], metavar=("N_IN", "N_OUT"),
+    p.add_argument("--grids", type=bounded(int, 8, 512), nargs=2, default=[32, 64],
+                   metavar=("N_IN", "N_OUT"),
                    help="input and output grid sides (default 32 64; the paper's 64 256 is for "
                    "a GPU, in its own workspace)")
-    p.add_argument("--lr", type=float, default=1e-3,
+    p.add_argument("--lr", type=bounded(float, 1e-9, 1.0), default=1e-3,
                    help="Adam learning rate of the networks (the paper's 1e-4 suits long GPU runs)")
-    p.add_argument("--lr-critic", type=float, default=1e-4,
+    p.add_argument("--lr-critic", type=bounded(float, 1e-9, 1.0), default=1e-4,
                    help="Adam learning rate of gan_lstm's critic")
-    p.add_argument("--threads", type=int, default=1,
+    p.add_argument("--threads", type=bounded(int, 1, 256), default=1,
                    help="torch threads (one is fastest on a busy 2-core machine)")
     p.set_defaults(func=cmd_train, tol=[], tolerances_file=None)
 
@@ -189,7 +216,8 @@ def _parser() -> argparse.ArgumentParser:
     p.add_argument("--completion-models", type=Path, default=None,
                    help="completion checkpoints the run used (default: the shipped ones)")
     p.add_argument("--workers", type=int, default=settings.workers,
-                   help="parallel CAD worker processes (0 = one per core)")
+                   help="parallel CAD worker processes (0 = one per core)"
+                   + allowed("runtime.workers"))
     p.set_defaults(func=cmd_export, tol=[], tolerances_file=None)
 
     p = sub.add_parser("samples", help="generate the built-in sample library",
@@ -213,27 +241,18 @@ def _workspace_and_tolerances(p: argparse.ArgumentParser, settings: Settings) ->
 def _common(p: argparse.ArgumentParser, settings: Settings) -> None:
     _workspace_and_tolerances(p, settings)
     p.add_argument("--voxel-sizes", type=int, nargs="+", default=None,
-                   help="occupancy grid sizes (default 32 64)")
+                   help="occupancy grid sizes (default 32 64)" + allowed("library.voxel_sizes"))
     p.add_argument("--workers", type=int, default=settings.workers,
-                   help="parallel CAD worker processes (0 = one per core)")
+                   help="parallel CAD worker processes (ingest: 0 = one per core; nightly: "
+                   "per task, 0 = one)" + allowed("runtime.workers"))
     p.add_argument("--timeout", type=float, default=settings.file_timeout_s,
-                   help="seconds allowed per file before its worker is killed")
+                   help="seconds allowed per file before its worker is killed"
+                   + allowed("runtime.file_timeout_s"))
     p.add_argument("--memory-mb", type=int, default=settings.file_memory_mb,
-                   help="address-space limit of each worker process, MB")
+                   help="address-space limit of each worker process, MB"
+                   + allowed("runtime.file_memory_mb"))
     p.add_argument("--max-file-mb", type=float, default=settings.max_file_mb,
-                   help="files larger than this are skipped, MB")
-
-
-def _tolerances(args: argparse.Namespace) -> Tolerances:
-    """The run's tolerances: the defaults, then ``--tolerances FILE``, then each ``--tol``."""
-    tol = read_tolerances(args.tolerances_file) if args.tolerances_file else DEFAULT_TOLERANCES
-    overrides = {}
-    for item in args.tol:
-        name, sep, value = item.partition("=")
-        if not sep:
-            raise ValueError(f"--tol takes NAME=VALUE, got {item!r}")
-        overrides[name.strip()] = value.strip()
-    return tol.with_overrides(overrides)
+                   help="files larger than this are skipped, MB" + allowed("runtime.max_file_mb"))
 
 
 if __name__ == "__main__":

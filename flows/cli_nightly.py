@@ -18,7 +18,7 @@ _PREFECT_QUIET = {"PREFECT_LOGGING_LOGGERS_PREFECT_TASK_RUNS_LEVEL": "WARNING"}
 
 def cmd_nightly(args: argparse.Namespace) -> int:
     from flows.server import server_env, start_server, stop_server
-    from flows.settings import Settings
+    from flows.settings import load_settings
     from reports.trends import DEFAULT_THRESHOLDS, ThresholdsError, read_thresholds
 
     try:  # a bad thresholds file is a bad argument: say so before any work
@@ -27,7 +27,7 @@ def cmd_nightly(args: argparse.Namespace) -> int:
         print(f"mateqa nightly: {exc}", file=sys.stderr)
         return 2
 
-    settings = Settings()
+    settings = load_settings()
     proc = None
     for key, value in _PREFECT_QUIET.items():
         os.environ.setdefault(key, value)
@@ -42,7 +42,6 @@ def cmd_nightly(args: argparse.Namespace) -> int:
     finally:
         if args.stop_server:
             stop_server(proc)
-
 
 
 def cmd_serve(args: argparse.Namespace) -> int:
@@ -96,28 +95,7 @@ def cmd_serve(args: argparse.Namespace) -> int:
 def _run_nightly(args: argparse.Namespace) -> int:
     from flows.nightly import ThresholdFailure, nightly
 
-    state = nightly(
-        library=str(args.library) if args.library else None,
-        workspace=str(args.workspace),
-        tolerances=args.tolerances,
-        voxel_sizes=args.voxel_sizes,
-        pairs_per_relation=args.pairs_per_relation,
-        views_per_scene=args.views_per_scene,
-        noise=args.noise,
-        captures=str(args.captures) if args.captures else None,
-        completion_models=str(args.completion_models) if args.completion_models else None,
-        relation_models=str(args.relation_models) if args.relation_models else None,
-        categories=args.categories,
-        thresholds=str(args.thresholds) if args.thresholds else None,
-        history=args.history,
-        fail_on_threshold=args.fail_on_threshold,
-        dask_address=args.dask_address,
-        workers=args.workers or 1,
-        file_timeout_s=args.timeout,
-        file_memory_mb=args.memory_mb,
-        max_file_mb=args.max_file_mb,
-        return_state=True,
-    )
+    state = nightly(config=args.config, return_state=True)
     if not state.is_completed():
         failure = state.result(raise_on_failure=False)
         if isinstance(failure, ThresholdFailure):

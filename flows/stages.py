@@ -21,7 +21,8 @@ from cadio.export.job import model_digests
 from cadio.tolerances import DEFAULT_TOLERANCES, Tolerances
 from cadio.truth.scenes import SceneConfig
 from cadio.workspace import Workspace
-from flows.settings import Settings, ingest_config
+from flows.config import Count, Views, VoxelSide
+from flows.settings import ingest_config, load_settings
 from flows.tasks import (
     Run,
     assembly_stage,
@@ -42,8 +43,9 @@ from reports.render import build_ingest_report, write_ingest_report
 @flow(name="ingest", task_runner=ThreadPoolTaskRunner(max_workers=2))  # type: ignore[arg-type]
 def ingest(library: str | None = None, workspace: str = "workspace",
            categories: list[str] | None = None,
-           tolerances: Tolerances = DEFAULT_TOLERANCES, voxel_sizes: list[int] | None = None,
-           batch_size: int = 12) -> dict[str, Any]:
+           tolerances: Tolerances = DEFAULT_TOLERANCES,
+           voxel_sizes: list[VoxelSide] | None = None,
+           batch_size: Count = 12) -> dict[str, Any]:
     """Read the library's STEP files into the workspace catalog and extract the mates of its
     assemblies; ``ingest.md`` goes into a run folder.
 
@@ -59,7 +61,7 @@ def ingest(library: str | None = None, workspace: str = "workspace",
     Returns:
         The ingest totals, the number of assemblies and failed ones, and the run folder.
     """
-    cfg = ingest_config(Settings(), voxel_sizes, tolerances)
+    cfg = ingest_config(load_settings(), voxel_sizes, tolerances)
     run = start_run(workspace, tolerances)
     lib = library or generate_library_task(run.workspace)
     catalog = ingest_stage(lib, run, cfg, batch_size, categories)
@@ -75,7 +77,7 @@ def ingest(library: str | None = None, workspace: str = "workspace",
 
 @flow(name="capture", task_runner=ThreadPoolTaskRunner(max_workers=2))  # type: ignore[arg-type]
 def capture(workspace: str = "workspace", tolerances: Tolerances = DEFAULT_TOLERANCES,
-            pairs_per_relation: int = 4, views_per_scene: int = 8, noise: bool = False,
+            pairs_per_relation: Count = 4, views_per_scene: Views = 8, noise: bool = False,
             seed: int = 0) -> dict[str, Any]:
     """Generate the scenes of an ingested workspace and capture them and its assemblies.
 
@@ -100,7 +102,7 @@ def capture(workspace: str = "workspace", tolerances: Tolerances = DEFAULT_TOLER
     scan_cfg = ScanConfig(views_per_scene=views_per_scene, noise=noise, tolerances=tolerances)
     captured = capture_stage(scenes, run, scan_cfg, None)
     mates = mates_stage(str(ws.catalog), run, tolerances,  # cached: the ingest's own results
-                        ingest_config(Settings(), None, tolerances).limits)
+                        ingest_config(load_settings(), None, tolerances).limits)
     captured += assembly_stage(str(ws.catalog), mates, run, scan_cfg)
     return {"scenes": scenes.scenes, "captures": len(captured),
             "failed": sum(bool(c.error) for c in captured),
@@ -131,7 +133,7 @@ def export(workspace: str = "workspace", run: str = "latest", out: str | None = 
                  epoch=workspace_epoch(ws))
     models = model_digests({"relations": Path(relation_models or SHIPPED_RELATIONS),
                             "completion": Path(completion_models or SHIPPED)})
-    limits = ingest_config(Settings(), None, DEFAULT_TOLERANCES).limits
+    limits = ingest_config(load_settings(), None, DEFAULT_TOLERANCES).limits
     index, summaries = export_stage(source, models, limits, out)
     status: dict[str, int] = {}
     for s in summaries:

@@ -25,6 +25,7 @@ def harness() -> object:
 
 def test_nightly_ingests_reports_and_caches(harness: object, tmp_path: Path,
                                             box_step: Path) -> None:
+    from flows.config import night_config
     from flows.nightly import nightly
 
     lib = tmp_path / "lib"
@@ -34,8 +35,10 @@ def test_nightly_ingests_reports_and_caches(harness: object, tmp_path: Path,
     (lib / "casters-wheels-trolleys" / "broken.stp").write_bytes(b"ISO-10303-21;\nHEADER;")
     ws = tmp_path / "ws"
 
-    first = nightly(library=str(lib), workspace=str(ws), voxel_sizes=[16], batch_size=1,
-                    views_per_scene=2)
+    config = night_config({"library": {"path": str(lib), "voxel_sizes": [16], "batch_size": 1},
+                           "runtime": {"workspace": str(ws)},
+                           "capture": {"views_per_scene": 2}})
+    first = nightly(config)
     assert first.ingest.files == 2
     assert first.ingest.ok == 1 and first.ingest.failed == 1
     report = Path(first.ingest_report).read_text()
@@ -70,8 +73,8 @@ def test_nightly_ingests_reports_and_caches(harness: object, tmp_path: Path,
 
     meshes = sorted((ws / "meshes").glob("*.ply"))
     stamps = [m.stat().st_mtime_ns for m in meshes]
-    second = nightly(library=str(lib), workspace=str(ws), voxel_sizes=[16], batch_size=1,
-                     views_per_scene=2, captures=str(ws / "captures"))
+    second = nightly(config.model_copy(update={"capture": config.capture.model_copy(
+        update={"recordings": str(ws / "captures")})}))
     # unchanged files: the ingest tasks are cached on content hashes, nothing is rewritten
     assert second.ingest == first.ingest
     assert [m.stat().st_mtime_ns for m in meshes] == stamps and meshes
