@@ -25,7 +25,7 @@ from typing import TYPE_CHECKING, NoReturn
 from cadio.tolerances import DEFAULT_TOLERANCES
 from flows.cli_cad import cmd_capture, cmd_export, cmd_ingest, cmd_mates, cmd_samples
 from flows.cli_nightly import cmd_nightly, cmd_serve
-from flows.cli_options import allowed, bounded, config_of, tolerances_of
+from flows.cli_options import allowed, bounded, check_inputs, config_of, tolerances_of
 from flows.cli_train import cmd_train
 
 if TYPE_CHECKING:
@@ -60,9 +60,12 @@ def main(argv: list[str] | None = None) -> int:
     try:  # every option and settings file, before any work
         args.tolerances = tolerances_of(args)
         args.config = config_of(args)
+        warnings = check_inputs(args)
     except (ValueError, OSError) as exc:
         print(f"mateqa {args.command}: {exc}", file=sys.stderr)
         return 2
+    for warning in warnings:
+        print(f"mateqa {args.command}: warning: {warning}", file=sys.stderr)
     try:
         return int(args.func(args))
     except KeyboardInterrupt:
@@ -93,7 +96,7 @@ def _parser() -> argparse.ArgumentParser:
                    "columns path,category (default: generate the built-in sample library)")
     _common(p, settings)
     p.add_argument("--categories", nargs="+", default=None,
-                   help="only these categories of the library")
+                   help="only these categories of the library (each must be one it has)")
     p.add_argument("--thresholds", type=Path, default=None,
                    help="per-category thresholds (TOML; default: reports/thresholds.toml)")
     p.add_argument("--history", type=int, default=7,
@@ -115,11 +118,14 @@ def _parser() -> argparse.ArgumentParser:
     p.add_argument("--batch-size", type=int, default=12,
                    help="files per ingest task (default 12)" + allowed("library.batch_size"))
     p.add_argument("--captures", type=Path, default=None,
-                   help="folder of MCAP recordings to read instead of rendering (real logs)")
+                   help="folder of MCAP recordings to read instead of rendering (real logs); "
+                   "it must hold at least one")
     p.add_argument("--completion-models", type=Path, default=None,
-                   help="folder of completion checkpoints (default: the shipped ones)")
+                   help="folder of completion checkpoints, each loaded before the night starts "
+                   "(default: the shipped ones)")
     p.add_argument("--relation-models", type=Path, default=None,
-                   help="folder of relation checkpoints (default: the shipped ones)")
+                   help="folder of relation checkpoints, each loaded before the night starts "
+                   "(default: the shipped ones)")
     p.add_argument("--stop-server", action="store_true",
                    help="stop the local Prefect server this command started when done")
     p.set_defaults(func=cmd_nightly)

@@ -10,8 +10,14 @@ import sys
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from cadio.errors import InputFileError
+
+if TYPE_CHECKING:
+    from cadio.capture.scan import ScanConfig
+    from cadio.contracts import CaptureSummary
+    from cadio.sandbox import Limits
 
 
 @contextmanager
@@ -51,27 +57,32 @@ def cmd_ingest(args: argparse.Namespace) -> int:
 
 
 def cmd_mates(args: argparse.Namespace) -> int:
-    from cadio.truth.mates import read_assembly_mates, write_mates
-    from cadio.workspace import Workspace
+    from cadio.truth.assemblies import AssemblyJob, extract_assembly_mates
+    from cadio.truth.mates import read_mates
 
-    try:
-        result = read_assembly_mates(args.step, args.tolerances)
-    except InputFileError as exc:
-        print(f"mateqa mates: {exc}", file=sys.stderr)
+    job = AssemblyJob(path=str(args.step), assembly=args.step.stem, category="",
+                      workspace=str(args.workspace), part_ids={}, tolerances=args.tolerances)
+    with progress("mates", None):  # in a CAD worker, as ingest reads: a crash is an error
+        (summary,) = extract_assembly_mates([job], _limits())
+    if not summary.ok:
+        print(f"mateqa mates: {args.step}: {summary.error}", file=sys.stderr)
         return 2
-    out = Workspace(args.workspace).mates(args.step.stem)
-    write_mates(out, result.table)
-    counts = result.table.groupby(["level", "relation"]).size()
-    print(f"{result.n_parts} parts, {result.n_pairs} pairs, {result.n_contact_pairs} in contact")
-    print(counts.to_string())
-    print(f"mates: {out}")
+    print(f"{summary.n_parts} parts, {summary.n_pairs} pairs, {summary.n_contact_pairs} in "
+          "contact")
+    table = read_mates(Path(summary.path))
+    if table.empty:
+        print("no mates or relations: one part has no pair" if summary.n_parts < 2 else
+              "no mates or relations between its parts")
+    else:
+        print(table.groupby(["level", "relation"]).size().to_string())
+    print(f"mates: {summary.path}")
     return 0
-
 
 
 def cmd_capture(args: argparse.Namespace) -> int:
     from cadio.capture.mcap_io import summarise_capture
-    from cadio.capture.scan import ScanConfig, capture_step
+    from cadio.capture.scan import ScanConfig
+    from cadio.sandbox import Job, run_isolated
 
     if args.read is not None:
         read = summarise_capture(args.read)
@@ -81,15 +92,29 @@ def cmd_capture(args: argparse.Namespace) -> int:
         print("mateqa capture: give STEP_OR_SCENE, or --read MCAP", file=sys.stderr)
         return 2
     cfg = ScanConfig(views_per_scene=args.views, noise=args.noise, tolerances=args.tolerances)
-    try:
-        with progress("capture", args.views) as advance:
-            summary = capture_step(args.target, args.workspace, cfg, on_frame=advance)
-    except InputFileError as exc:
-        print(f"mateqa capture: {exc}", file=sys.stderr)
+    job = Job(str(args.target), (str(args.target), str(args.workspace), cfg))
+    with progress(f"capture, {args.views} views", None):
+        (outcome,) = run_isolated(capture_job, [job], _limits())
+    if outcome.error is not None or outcome.result is None:
+        print(f"mateqa capture: {outcome.error}", file=sys.stderr)
         return 2
-    print(json.dumps(summary.to_dict(), indent=1))
+    print(json.dumps(outcome.result.to_dict(), indent=1))
     return 0
 
+
+def capture_job(payload: tuple[str, str, ScanConfig]) -> CaptureSummary:
+    """``capture_step`` in a CAD worker (spawned: it travels by this qualified name)."""
+    from cadio.capture.scan import capture_step
+
+    target, workspace, cfg = payload
+    return capture_step(target, Path(workspace), cfg)
+
+
+def _limits() -> Limits:
+    """One CAD worker with the environment's per-file limits."""
+    from flows.settings import load_settings
+
+    return load_settings().limits(default_workers=1)
 
 
 def cmd_export(args: argparse.Namespace) -> int:

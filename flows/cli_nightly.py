@@ -19,13 +19,6 @@ _PREFECT_QUIET = {"PREFECT_LOGGING_LOGGERS_PREFECT_TASK_RUNS_LEVEL": "WARNING"}
 def cmd_nightly(args: argparse.Namespace) -> int:
     from flows.server import server_env, start_server, stop_server
     from flows.settings import load_settings
-    from reports.trends import DEFAULT_THRESHOLDS, ThresholdsError, read_thresholds
-
-    try:  # a bad thresholds file is a bad argument: say so before any work
-        read_thresholds(args.thresholds or DEFAULT_THRESHOLDS)
-    except ThresholdsError as exc:
-        print(f"mateqa nightly: {exc}", file=sys.stderr)
-        return 2
 
     settings = load_settings()
     proc = None

@@ -1,7 +1,7 @@
 """The command line's options checked before any work: each maps onto a field of the night's
-configuration (``flows.config.NightConfig``) and is held to that field's range, and the
-tolerances file is read. A problem is one line naming the option, the field and the reason
-(exit 2).
+configuration (``flows.config.NightConfig``) and is held to that field's range; the settings
+files (``--tolerances``, ``--thresholds``, a library CSV) are read; folders named by options
+must be folders. A problem is one line naming the option, the field and the reason (exit 2).
 """
 
 from __future__ import annotations
@@ -102,3 +102,43 @@ def _option(field: str, args: argparse.Namespace) -> str:
                 "--" + dest.replace("_", "-")
             return f"{flag} ({field})"
     return field
+
+
+def check_inputs(args: argparse.Namespace) -> list[str]:
+    """The folders and files the options name: a workspace or output that is a file, a STEP
+    argument that is missing or a folder, a run that does not exist or did not complete; for
+    ``nightly``, everything ``flows.preflight.check_night`` checks. Returns its warnings.
+
+    Raises:
+        ValueError: every problem, each naming the option and the path.
+    """
+    from flows.config import ConfigError
+    from flows.preflight import check_finished_run, check_night, check_workspace
+
+    problems: list[tuple[str, str]] = []
+    if hasattr(args, "workspace") and args.command != "export":
+        check_workspace(args.workspace, "--workspace", problems)
+    if getattr(args, "out", None) is not None:
+        check_workspace(args.out, "OUT" if args.command == "samples" else "--out", problems)
+    if args.command == "mates":
+        _regular_file(args.step, "STEP", problems)
+    if args.command == "export":
+        found: list[tuple[str, str]] = []
+        check_finished_run(args.workspace, args.run, found)
+        problems += [(f"--{where}", reason) for where, reason in found]
+    warnings: list[str] = []
+    if args.command == "nightly" and not problems:
+        try:
+            warnings = check_night(args.config)
+        except ConfigError as exc:
+            problems += [(_option(field, args), reason) for field, reason in exc.problems]
+    if problems:
+        raise ValueError("; ".join(f"{where}: {reason}" for where, reason in problems))
+    return warnings
+
+
+def _regular_file(path: Path, where: str, problems: list[tuple[str, str]]) -> None:
+    if not path.exists():
+        problems.append((where, f"{path} does not exist"))
+    elif not path.is_file():
+        problems.append((where, f"{path} is not a file"))

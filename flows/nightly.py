@@ -30,6 +30,7 @@ from cadio.export.job import model_digests
 from cadio.truth.scenes import SceneConfig, read_scenes
 from cadio.workspace import Workspace, write_json
 from flows.config import DEFAULT_NIGHT, NightConfig, RuntimeOptions
+from flows.preflight import check_night
 from flows.settings import Settings, ingest_config, load_settings
 from flows.tasks import (
     Run,
@@ -173,11 +174,13 @@ def nightly(config: NightConfig = DEFAULT_NIGHT) -> NightlySummary:
         The run id, the paths of the report files, the totals and the seconds of each stage.
 
     Raises:
+        ConfigError: the configuration names files that cannot be used, or a night that
+            would check nothing (no file, no category, no model); raised before any work.
         ThresholdFailure: a threshold failed (with ``fail_on_threshold``); the run's report
             and ``summary.json`` are complete, and the flow run ends Failed.
     """
-    read_thresholds(Path(config.thresholds.file) if config.thresholds.file
-                    else DEFAULT_THRESHOLDS)  # a bad file fails now
+    for warning in check_night(config):
+        get_run_logger().warning("%s", warning)
     address = config.runtime.dask_address
     address = load_settings().dask_address if address is None else address
     stages = run_stages if not address else run_stages.with_options(

@@ -21,7 +21,8 @@ from cadio.export.job import model_digests
 from cadio.tolerances import DEFAULT_TOLERANCES, Tolerances
 from cadio.truth.scenes import SceneConfig
 from cadio.workspace import Workspace
-from flows.config import Count, Views, VoxelSide
+from flows.config import ConfigError, Count, Views, VoxelSide
+from flows.preflight import check_finished_run
 from flows.settings import ingest_config, load_settings
 from flows.tasks import (
     Run,
@@ -127,6 +128,10 @@ def export(workspace: str = "workspace", run: str = "latest", out: str | None = 
     Returns:
         The path of ``index.csv`` and the number of assemblies per status.
     """
+    problems: list[tuple[str, str]] = []
+    check_finished_run(workspace, run, problems)
+    if problems:
+        raise ConfigError(problems)
     ws = Workspace(Path(workspace).resolve())
     run_dir = ws.run_dir(run).resolve()
     source = Run(run_id=run_dir.name, workspace=str(ws.root), run_dir=str(run_dir),

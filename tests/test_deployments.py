@@ -131,7 +131,7 @@ def test_inspect_shows_every_field_of_the_night_with_its_description_and_range(
     assert set(shown["Tolerances"]["properties"]) == set(DEFAULT_TOLERANCES.as_dict())
 
 
-def test_a_parameter_out_of_range_fails_before_any_work(
+def test_a_parameter_out_of_range_or_naming_nothing_fails_before_any_work(
         served: dict[str, str], small_library: Path, tmp_path: Path) -> None:
     ws = tmp_path / "ws"
     out_of_range = _deployment_run(served, {"library": {"path": str(small_library)},
@@ -139,6 +139,13 @@ def test_a_parameter_out_of_range_fails_before_any_work(
                                             "capture": {"views_per_scene": 0}})
     said = out_of_range.stdout + out_of_range.stderr
     assert out_of_range.returncode != 0 and "views_per_scene" in said, said[-3000:]
+    empty = tmp_path / "empty-library"
+    empty.mkdir()
+    nothing = _deployment_run(served, {"library": {"path": str(empty)},
+                                       "runtime": {"workspace": str(ws)}})
+    said = nothing.stdout + nothing.stderr
+    assert nothing.returncode != 0 and "Failed" in said, said[-3000:]
+    assert "library.path" in said and "the night would check nothing" in said, said[-3000:]
     assert not ws.exists()  # no run folder, no catalog: nothing was done
 
 
