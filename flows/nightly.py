@@ -32,6 +32,7 @@ from cadio.workspace import Workspace, write_json
 from flows.config import DEFAULT_NIGHT, NightConfig, RuntimeOptions
 from flows.preflight import check_night
 from flows.settings import Settings, ingest_config, load_settings
+from flows.stopping import stop_on_signal
 from flows.tasks import (
     Run,
     assembly_stage,
@@ -179,13 +180,14 @@ def nightly(config: NightConfig = DEFAULT_NIGHT) -> NightlySummary:
         ThresholdFailure: a threshold failed (with ``fail_on_threshold``); the run's report
             and ``summary.json`` are complete, and the flow run ends Failed.
     """
-    for warning in check_night(config):
-        get_run_logger().warning("%s", warning)
-    address = config.runtime.dask_address
-    address = load_settings().dask_address if address is None else address
-    stages = run_stages if not address else run_stages.with_options(
-        task_runner=_dask_runner(address))
-    summary = stages(config)
+    with stop_on_signal():
+        for warning in check_night(config):
+            get_run_logger().warning("%s", warning)
+        address = config.runtime.dask_address
+        address = load_settings().dask_address if address is None else address
+        stages = run_stages if not address else run_stages.with_options(
+            task_runner=_dask_runner(address))
+        summary = stages(config)
     if config.thresholds.fail_on_threshold and summary.failed_checks:
         raise ThresholdFailure(summary.run_dir, summary.failed_checks)
     return summary
@@ -212,7 +214,8 @@ def runtime_settings(runtime: RuntimeOptions) -> Settings:
 def run_stages(config: NightConfig) -> NightlySummary:
     """Every stage of the nightly in order (one log line each): a subflow, so that its task
     runner can be a Dask cluster's while the code stays the same."""
-    return stages_of(config)
+    with stop_on_signal():
+        return stages_of(config)
 
 
 def stages_of(config: NightConfig) -> NightlySummary:

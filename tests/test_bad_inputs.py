@@ -5,17 +5,23 @@ work (exit 2, no workspace made) with one line naming the option or file and the
 tests after it hold the inputs a night must survive: named pipes, devices, names that are not
 UTF-8 or hold a newline, a CSV that lists a file twice, a file that crashes OpenCascade under
 ``mates`` and ``capture``, recordings that are folders or of another library, damaged
-checkpoints, and the modes of the files written.
+checkpoints, a SIGTERM mid-night, and the modes of the files written.
 """
 
 from __future__ import annotations
 
+import asyncio
+import json
 import os
 import re
 import shutil
+import signal
 import subprocess
 import sys
+import time
+from collections.abc import Callable
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pandas as pd
@@ -273,3 +279,71 @@ def test_files_are_written_as_the_umask_says(tmp_path: Path, box_step: Path) -> 
     written = [p for p in (tmp_path / "ws").rglob("*") if p.is_file()]
     assert len(written) >= 4  # catalog, mesh, features, voxels
     assert {oct(p.stat().st_mode & 0o777) for p in written} == {oct(0o640)}
+
+
+# ---------------------------------------------------------------- SIGTERM mid-night
+
+
+def _flow_runs(env: dict[str, str], workspace: Path) -> list[Any]:
+    from prefect.client.orchestration import get_client
+    from prefect.settings import PREFECT_API_URL, temporary_settings
+
+    async def read() -> list[Any]:
+        async with get_client() as client:
+            return list(await client.read_flow_runs())
+
+    with temporary_settings({PREFECT_API_URL: env["PREFECT_API_URL"]}):
+        runs = asyncio.run(read())
+    return [r for r in runs if json.dumps(r.parameters).count(str(workspace))]
+
+
+def _session(pid: int) -> list[int]:
+    """Processes left in the session ``pid`` led."""
+    left = []
+    for entry in Path("/proc").iterdir():
+        try:
+            if entry.name.isdigit() and os.getsid(int(entry.name)) == pid:
+                left.append(int(entry.name))
+        except OSError:  # gone while listed
+            continue
+    return left
+
+
+def _wait(condition: Callable[[], bool], what: str, limit_s: float = 600) -> None:
+    """Poll until ``condition`` (a guard against a hang, not a speed check)."""
+    deadline = time.monotonic() + limit_s
+    while not condition():
+        assert time.monotonic() < deadline, what
+        time.sleep(0.2)
+
+
+@pytest.mark.server
+def test_the_first_sigterm_stops_a_night_at_once_and_marks_its_runs(
+        shared_step_dir: Path, prefect_api: dict[str, str], tmp_path: Path) -> None:
+    lib = tmp_path / "lib" / "assemblies"
+    lib.mkdir(parents=True)
+    pump = shared_step_dir / "assemblies" / "occt_pm4_rotor-pump-assembly.stp"
+    shutil.copy(pump, lib)  # 32 solids: its CAD worker is busy for many seconds
+    ws = tmp_path / "ws"
+    log = tmp_path / "night.log"
+    with log.open("wb") as out:
+        night = subprocess.Popen(
+            [sys.executable, "-m", "flows.cli", "nightly", "--library", str(lib.parent),
+             "--workspace", str(ws), "--views-per-scene", "1", "--pairs-per-relation", "1",
+             "--workers", "1", "--no-fail-on-threshold"], cwd=ROOT, stdout=out,
+            stderr=subprocess.STDOUT, start_new_session=True,
+            env={**prefect_api, "OMP_NUM_THREADS": "1"})
+    meshes = ws / "meshes"
+    _wait(lambda: night.poll() is not None or any(meshes.glob("*.ply")), "no mesh written")
+    assert night.poll() is None, log.read_text()[-3000:]
+    night.send_signal(signal.SIGTERM)  # the one signal: no second one, no SIGKILL
+    _wait(lambda: night.poll() is not None, "the night ignored SIGTERM")
+    assert night.returncode == 128 + signal.SIGTERM, log.read_text()[-3000:]
+    # the pump's worker was stopped mid-file, not waited for
+    assert len(list(meshes.glob("*.ply"))) < 32
+    _wait(lambda: not _session(night.pid), "a CAD worker outlived the night")
+    runs = _flow_runs(prefect_api, ws)
+    assert len(runs) == 2  # nightly and its stages
+    for run in runs:
+        assert run.state.name == "Crashed" and "SIGTERM" in run.state.message
+    assert not list(ws.glob("runs/*/summary.json"))
