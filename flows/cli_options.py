@@ -9,9 +9,12 @@ from __future__ import annotations
 import argparse
 from collections.abc import Callable
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from cadio.tolerances import DEFAULT_TOLERANCES, Tolerances, read_tolerances
+
+if TYPE_CHECKING:  # pydantic is imported when a command runs, not when workers import this
+    from flows.config import NightConfig
 
 # Option (argparse dest) -> the field of NightConfig it sets.
 OPTION_FIELDS = {
@@ -69,7 +72,7 @@ def tolerances_of(args: argparse.Namespace) -> Tolerances:
     return tol.with_overrides(overrides)
 
 
-def config_of(args: argparse.Namespace) -> Any:
+def config_of(args: argparse.Namespace) -> NightConfig | None:
     """The ``NightConfig`` of the command's options (None for commands with their own).
 
     Raises:

@@ -29,7 +29,7 @@ from cadio.contracts import CaptureSummary, MatesSummary
 from cadio.export.job import model_digests
 from cadio.truth.scenes import SceneConfig, read_scenes
 from cadio.workspace import Workspace, write_json
-from flows.config import DEFAULT_NIGHT, NightConfig, RuntimeOptions
+from flows.config import DEFAULT_NIGHT, ConfigError, NightConfig, RuntimeOptions
 from flows.preflight import check_night
 from flows.settings import Settings, ingest_config, load_settings
 from flows.stopping import stop_on_signal
@@ -176,7 +176,8 @@ def nightly(config: NightConfig = DEFAULT_NIGHT) -> NightlySummary:
 
     Raises:
         ConfigError: the configuration names files that cannot be used, or a night that
-            would check nothing (no file, no category, no model); raised before any work.
+            would check nothing (no file, no category, no model); raised before any work,
+            or after the captures when not one of the recordings could be used.
         ThresholdFailure: a threshold failed (with ``fail_on_threshold``); the run's report
             and ``summary.json`` are complete, and the flow run ends Failed.
     """
@@ -244,6 +245,10 @@ def stages_of(config: NightConfig) -> NightlySummary:
     captured = capture_stage(scenes, run, scan_cfg, cap.recordings)
     if not cap.recordings:  # recordings stand on their own; a rendered run captures the assemblies
         captured += assembly_stage(catalog, mates, run, scan_cfg)
+    elif all(c.error for c in captured):  # each one's reason is in the report; the night is empty
+        raise ConfigError([("capture.recordings", f"none of the {len(captured)} recording(s) "
+                            "could be used, the night would check nothing: " + "; ".join(
+                                f"{c.path}: {c.error}" for c in captured[:3]))])
     log.info("captures: %d, %d failed, %d frames (%.1f s)", len(captured),
              sum(bool(c.error) for c in captured), sum(c.frames for c in captured),
              clock.lap("captures"))

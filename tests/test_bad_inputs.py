@@ -338,9 +338,9 @@ def test_the_first_sigterm_stops_a_night_at_once_and_marks_its_runs(
     assert night.poll() is None, log.read_text()[-3000:]
     night.send_signal(signal.SIGTERM)  # the one signal: no second one, no SIGKILL
     _wait(lambda: night.poll() is not None, "the night ignored SIGTERM")
-    assert night.returncode == 128 + signal.SIGTERM, log.read_text()[-3000:]
     # the pump's worker was stopped mid-file, not waited for
-    assert len(list(meshes.glob("*.ply"))) < 32
+    assert len(list(meshes.glob("*.ply"))) < 32, log.read_text()[-3000:]
+    assert night.returncode in (-signal.SIGTERM, 128 + signal.SIGTERM)
     _wait(lambda: not _session(night.pid), "a CAD worker outlived the night")
     runs = _flow_runs(prefect_api, ws)
     assert len(runs) == 2  # nightly and its stages
