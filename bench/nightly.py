@@ -2,7 +2,7 @@
 
 The same stages run twice on fresh workspaces, each in its own process:
 - ``flow``: the ``nightly`` Prefect flow against a local Prefect server on SQLite (started here);
-- ``direct``: the very same stage code (``flows.nightly.run_stages``) with every task called as
+- ``direct``: the very same stage code (``flows.nightly.stages_of``) with every task called as
   a plain function on a two-thread pool, as the flow's task runner does, and no Prefect at all.
 Prefect's share is flow / direct wall time (goal: at most 1.05). A third run repeats the flow
 on the flow's workspace: the unchanged library must only be reported (the cache at work).
@@ -24,7 +24,6 @@ from __future__ import annotations
 
 import argparse
 import contextlib
-import inspect
 import json
 import logging
 import os
@@ -73,19 +72,24 @@ def run_direct(params: dict[str, Any]) -> dict[str, Any]:
                 setattr(module, name, Direct(value, pool))
     nightly_module.get_run_logger = lambda: logging.getLogger("nightly")  # type: ignore[assignment]
     nightly_module.publish = lambda *a, **k: None  # type: ignore[attr-defined]
-    from cadio.tolerances import DEFAULT_TOLERANCES
+    from flows.config import night_config
 
-    stages = nightly_module.run_stages.fn
-    wanted = inspect.signature(stages).parameters
-    params = {"tolerances": DEFAULT_TOLERANCES, **params}
-    summary = stages(**{k: v for k, v in params.items() if k in wanted})
-    return summary.stage_seconds
+    return nightly_module.stages_of(night_config(params)).stage_seconds
 
 
 def run_flow(params: dict[str, Any]) -> dict[str, Any]:
+    from flows.config import night_config
     from flows.nightly import nightly
 
-    return nightly(**params).stage_seconds
+    return nightly(night_config(params)).stage_seconds
+
+
+def merged(config: dict[str, Any], **groups: dict[str, Any]) -> dict[str, Any]:
+    """A night's configuration (nested, as ``NightConfig`` takes it) with groups updated."""
+    out = {name: dict(values) for name, values in config.items()}
+    for name, values in groups.items():
+        out.setdefault(name, {}).update(values)
+    return out
 
 
 def child(mode: str, params: dict[str, Any]) -> None:
@@ -189,18 +193,18 @@ def scaling(args: argparse.Namespace, root: Path, base: dict[str, Any],
     rows = []
     for k in args.scale:
         library = scaled_library(source, k, root / f"library-x{k}", args.categories)
-        params = {**base, "library": str(library), "pairs_per_relation": args.pairs * k,
-                  "categories": None}
+        params = merged(base, library={"path": str(library), "categories": None},
+                        capture={"pairs_per_relation": args.pairs * k})
         for runner in args.runners:
             ws = root / f"ws-{runner}-x{k}"
             if runner == "dask":
                 with dask_cluster(root / "dask.log") as address:
-                    run = measure("flow", {**params, "workspace": str(ws),
-                                           "dask_address": address}, env)
+                    run = measure("flow", merged(params, runtime={
+                        "workspace": str(ws), "dask_address": address}), env)
                     run["peak_dask_worker_mb"] = _dask_peak_mb(address)
             else:
-                run = measure("flow", {**params, "workspace": str(ws), "dask_address": ""},
-                              env)
+                run = measure("flow", merged(params, runtime={
+                    "workspace": str(ws), "dask_address": ""}), env)
             run.update(scale=k, runner=runner)
             rows.append(run)
             print(json.dumps(run), flush=True)
@@ -234,7 +238,6 @@ def main() -> None:
     if args.child:
         child(args.child, json.loads(args.params))
         return
-    from flows.nightly import nightly
     from flows.server import server_env, start_server, stop_server
 
     root = Path(tempfile.mkdtemp(prefix="bench-nightly-"))
@@ -242,11 +245,9 @@ def main() -> None:
            "PREFECT_LOGGING_LEVEL": "WARNING"}
     os.environ.update(env)
     server = start_server(root / "prefect", 4250)
-    base = {name: p.default for name, p in inspect.signature(nightly.fn).parameters.items()}
-    base.update(library=str(args.library.resolve()) if args.library else None,
-                views_per_scene=args.views, pairs_per_relation=args.pairs,
-                fail_on_threshold=False)
-    base.pop("tolerances")  # the default object; JSON carries plain values only
+    base = {"library": {"path": str(args.library.resolve()) if args.library else None},
+            "capture": {"views_per_scene": args.views, "pairs_per_relation": args.pairs},
+            "thresholds": {"fail_on_threshold": False}}
     if args.scale:
         try:
             scaling(args, root, base, env)
@@ -254,9 +255,10 @@ def main() -> None:
             stop_server(server)
         return
     try:
-        flow = measure("flow", {**base, "workspace": str(root / "flow")}, env)
-        direct = measure("direct", {**base, "workspace": str(root / "direct")}, env)
-        again = measure("flow", {**base, "workspace": str(root / "flow")}, env)
+        flow = measure("flow", merged(base, runtime={"workspace": str(root / "flow")}), env)
+        direct = measure("direct", merged(base, runtime={"workspace": str(root / "direct")}),
+                         env)
+        again = measure("flow", merged(base, runtime={"workspace": str(root / "flow")}), env)
     finally:
         stop_server(server)
     report(args, flow, direct, again)

@@ -14,6 +14,8 @@ from collections.abc import Mapping
 from dataclasses import asdict, dataclass, fields, replace
 from pathlib import Path
 
+from cadio.errors import InputFileError
+from cadio.inputs import read_text
 from cadio.workspace import write_json
 
 
@@ -95,7 +97,7 @@ class Tolerances:
                 raise ValueError(f"unknown tolerance {name!r}; known: {', '.join(sorted(known))}")
             try:
                 value = float(raw)
-            except ValueError:
+            except (TypeError, ValueError):
                 raise ValueError(f"tolerance {name} must be a number, got {raw!r}") from None
             if not value >= 0.0 or value == float("inf"):
                 raise ValueError(f"tolerance {name} must be finite and >= 0, got {raw!r}")
@@ -110,12 +112,21 @@ def read_tolerances(path: Path) -> Tolerances:
     """Tolerances from a JSON object of overrides (a ``tolerances.json`` of a run reads back).
 
     Raises:
-        ValueError: the file is not a JSON object, or names an unknown tolerance.
+        ValueError: the file cannot be read, is not a JSON object, or names an unknown
+            tolerance or a value that is no finite number >= 0; the message names the file.
     """
-    data = json.loads(Path(path).read_text())
+    try:
+        data = json.loads(read_text(path, "tolerances file", max_bytes=1 << 20))
+    except InputFileError as exc:
+        raise ValueError(str(exc)) from None
+    except json.JSONDecodeError as exc:
+        raise ValueError(f"{path}: tolerances file is not JSON: {exc}") from None
     if not isinstance(data, dict):
         raise ValueError(f"{path}: expected a JSON object of tolerance names to values")
-    return DEFAULT_TOLERANCES.with_overrides(data)
+    try:
+        return DEFAULT_TOLERANCES.with_overrides(data)
+    except ValueError as exc:
+        raise ValueError(f"{path}: {exc}") from None
 
 
 def write_tolerances(path: Path, tol: Tolerances) -> None:

@@ -5,14 +5,15 @@ Layout (see DESIGN.md): ``catalog.parquet``, ``meshes/<part_id>.ply``,
 ``scenes.parquet``, ``captures/<scene>.mcap``, ``inputs/<capture>/<part_id>.npz``,
 ``runs/<run_id>/``, ``library/`` (the generated sample library).
 Every write goes to a temporary file in the same folder and is renamed into place, so a crash
-never leaves a half-written artefact that a rerun would trust.
+never leaves a half-written artefact that a rerun would trust; files get the mode the umask
+gives, so a shared workspace is readable by whom the umask allows.
 """
 
 from __future__ import annotations
 
 import json
 import os
-import tempfile
+import secrets
 from collections.abc import Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass
@@ -79,11 +80,28 @@ class Workspace:
         return self.root / "library"
 
 
+def create_beside(path: Path, suffix: str = ".tmp") -> tuple[int, str]:
+    """A new, empty, hidden file next to ``path`` for writing: (open descriptor, its path).
+
+    Its mode is what the umask gives (0666 & ~umask), as for any file the user writes; the
+    0600 of ``tempfile.mkstemp`` would survive the rename and keep every artefact from the
+    other users of a shared workspace (a Dask worker's account, a QA engineer's).
+    """
+    for _ in range(100):
+        tmp = path.parent / f".{path.name}.{secrets.token_hex(6)}{suffix}"
+        try:
+            return os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL | os.O_CLOEXEC, 0o666), \
+                str(tmp)
+        except FileExistsError:
+            continue
+    raise FileExistsError(f"{path.parent}: no free temporary name beside {path.name}")
+
+
 @contextmanager
 def atomic_write(path: Path, mode: str = "wb") -> Iterator[IO[Any]]:
     """Open a temporary file next to ``path``; rename it onto ``path`` only on success."""
     path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
+    fd, tmp = create_beside(path)
     try:
         with os.fdopen(fd, mode) as fh:
             yield fh
@@ -97,7 +115,7 @@ def atomic_write(path: Path, mode: str = "wb") -> Iterator[IO[Any]]:
 def atomic_path(path: Path) -> Iterator[Path]:
     """Like ``atomic_write`` but yields a temporary path for libraries that want a filename."""
     path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.stem}.", suffix=path.suffix)
+    fd, tmp = create_beside(path, path.suffix)  # libraries that check the suffix see it
     os.close(fd)
     try:
         yield Path(tmp)

@@ -27,10 +27,12 @@ from cadio.capture.scan import ScanConfig
 from cadio.catalog import read_catalog
 from cadio.contracts import CaptureSummary, MatesSummary
 from cadio.export.job import model_digests
-from cadio.tolerances import DEFAULT_TOLERANCES, Tolerances
 from cadio.truth.scenes import SceneConfig, read_scenes
 from cadio.workspace import Workspace, write_json
-from flows.settings import Settings, ingest_config
+from flows.config import DEFAULT_NIGHT, ConfigError, NightConfig, RuntimeOptions
+from flows.preflight import check_night
+from flows.settings import Settings, ingest_config, load_settings
+from flows.stopping import stop_on_signal
 from flows.tasks import (
     Run,
     assembly_stage,
@@ -160,72 +162,34 @@ class _Stopwatch:
 
 
 @flow(name="nightly", task_runner=ThreadPoolTaskRunner(max_workers=2))  # type: ignore[arg-type]
-def nightly(
-    library: str | None = None,
-    workspace: str = "workspace",
-    categories: list[str] | None = None,
-    tolerances: Tolerances = DEFAULT_TOLERANCES,
-    voxel_sizes: list[int] | None = None,
-    batch_size: int = 12,
-    pairs_per_relation: int = 4,
-    views_per_scene: int = 8,
-    noise: bool = False,
-    captures: str | None = None,
-    completion_models: str | None = None,
-    relation_models: str | None = None,
-    thresholds: str | None = None,
-    history: int = 7,
-    fail_on_threshold: bool = True,
-    dask_address: str | None = None,
-    seed: int = 0,
-    workers: int | None = None,
-    file_timeout_s: float | None = None,
-    file_memory_mb: int | None = None,
-    max_file_mb: float | None = None,
-) -> NightlySummary:
+def nightly(config: NightConfig = DEFAULT_NIGHT) -> NightlySummary:
     """Ingest the library, extract assembly mates, generate scenes, capture them, complete the
     parts, relate the pairs, and report against the CAD, the paper and the previous nights.
 
     Args:
-        library: folder of STEP files (categories are its sub-folders) or a CSV listing them
-            (columns path, category); None = the built-in samples.
-        workspace: the workspace folder.
-        categories: only these categories of the library (None: all).
-        tolerances: every geometric tolerance of the run (written to ``tolerances.json``).
-        voxel_sizes: occupancy grid sizes to write (default 32 and 64).
-        batch_size: files per ingest task.
-        pairs_per_relation: scenes per relation (over all splits).
-        views_per_scene: rendered views per scene (spread over the paper's 125-view circle).
-        noise: switch the depth sensor noise model on.
-        captures: folder of MCAP captures to read instead of rendering (real logs).
-        completion_models: folder of completion checkpoints, the model version (default: the
-            shipped ones).
-        relation_models: folder of relation checkpoints (default: the shipped ones).
-        thresholds: per-category thresholds file (TOML; default: the shipped one).
-        history: earlier runs the trends compare with.
-        fail_on_threshold: end in a Failed state when a threshold fails or a metric regressed.
-        dask_address: a Dask scheduler (``tcp://host:8786``) to run the tasks on, through
-            prefect-dask (None: the ``MATEQA_DASK_ADDRESS`` setting; empty: this machine).
-        seed: seed of the scene generator.
-        workers, file_timeout_s, file_memory_mb, max_file_mb: CAD worker processes per task
-            and per-file limits (None: the ``MATEQA_*`` settings).
+        config: everything the night runs with, grouped as library, capture, models,
+            thresholds, runtime and tolerances (``flows.config.NightConfig``: every field
+            with its description and allowed range).
 
     Returns:
         The run id, the paths of the report files, the totals and the seconds of each stage.
 
     Raises:
+        ConfigError: the configuration names files that cannot be used, or a night that
+            would check nothing (no file, no category, no model); raised before any work,
+            or after the captures when not one of the recordings could be used.
         ThresholdFailure: a threshold failed (with ``fail_on_threshold``); the run's report
             and ``summary.json`` are complete, and the flow run ends Failed.
     """
-    read_thresholds(Path(thresholds) if thresholds else DEFAULT_THRESHOLDS)  # a bad file fails now
-    address = Settings().dask_address if dask_address is None else dask_address
-    stages = run_stages if not address else run_stages.with_options(
-        task_runner=_dask_runner(address))
-    summary = stages(library, workspace, categories, tolerances, voxel_sizes, batch_size,
-                         pairs_per_relation, views_per_scene, noise, captures,
-                         completion_models, relation_models, seed, workers, file_timeout_s,
-                         file_memory_mb, max_file_mb, thresholds, history)
-    if fail_on_threshold and summary.failed_checks:
+    with stop_on_signal():
+        for warning in check_night(config):
+            get_run_logger().warning("%s", warning)
+        address = config.runtime.dask_address
+        address = load_settings().dask_address if address is None else address
+        stages = run_stages if not address else run_stages.with_options(
+            task_runner=_dask_runner(address))
+        summary = stages(config)
+    if config.thresholds.fail_on_threshold and summary.failed_checks:
         raise ThresholdFailure(summary.run_dir, summary.failed_checks)
     return summary
 
@@ -237,69 +201,79 @@ def _dask_runner(address: str) -> Any:
     return DaskTaskRunner(address=address)
 
 
+def runtime_settings(runtime: RuntimeOptions) -> Settings:
+    """The environment's settings with the night's runtime options on top."""
+    env = load_settings()
+    return env.model_copy(update={
+        "workers": env.workers if runtime.workers is None else runtime.workers,
+        "file_timeout_s": runtime.file_timeout_s or env.file_timeout_s,
+        "file_memory_mb": runtime.file_memory_mb or env.file_memory_mb,
+        "max_file_mb": runtime.max_file_mb or env.max_file_mb})
+
+
 @flow(name="nightly-stages", task_runner=ThreadPoolTaskRunner(max_workers=2))  # type: ignore[arg-type]
-def run_stages(library: str | None, workspace: str, categories: list[str] | None,
-               tolerances: Tolerances, voxel_sizes: list[int] | None, batch_size: int,
-               pairs_per_relation: int, views_per_scene: int, noise: bool,
-               captures: str | None, completion_models: str | None,
-               relation_models: str | None, seed: int, workers: int | None,
-               file_timeout_s: float | None, file_memory_mb: int | None,
-               max_file_mb: float | None, thresholds: str | None = None,
-               history: int = 7) -> NightlySummary:
+def run_stages(config: NightConfig) -> NightlySummary:
     """Every stage of the nightly in order (one log line each): a subflow, so that its task
     runner can be a Dask cluster's while the code stays the same."""
+    with stop_on_signal():
+        return stages_of(config)
+
+
+def stages_of(config: NightConfig) -> NightlySummary:
+    """The body of ``run_stages`` (``bench/nightly.py`` runs it without Prefect)."""
+    lib_cfg, cap, models, limits = config.library, config.capture, config.models, config.thresholds
+    tolerances = config.tolerances
     log, clock = get_run_logger(), _Stopwatch()
-    env = Settings()
-    settings = env.model_copy(update={
-        "workers": env.workers if workers is None else workers,
-        "file_timeout_s": file_timeout_s or env.file_timeout_s,
-        "file_memory_mb": file_memory_mb or env.file_memory_mb,
-        "max_file_mb": max_file_mb or env.max_file_mb})
-    cfg = ingest_config(settings, voxel_sizes, tolerances)
-    run = start_run(workspace, tolerances)
-    lib = library or generate_library_task(run.workspace)
+    cfg = ingest_config(runtime_settings(config.runtime), lib_cfg.voxel_sizes, tolerances)
+    run = start_run(config.runtime.workspace, tolerances)
+    lib = lib_cfg.path or generate_library_task(run.workspace)
     log.info("library: %s (%.1f s)", lib, clock.lap("library"))
-    catalog = ingest_stage(lib, run, cfg, batch_size, categories)
+    catalog = ingest_stage(lib, run, cfg, lib_cfg.batch_size, lib_cfg.categories)
     t = build_ingest_report(read_catalog(Path(catalog))).totals
     log.info("ingest: %d files (%d ok, %d failed, %d skipped), %d parts, %d reused (%.1f s)",
              t.files, t.ok, t.failed, t.skipped, t.parts, t.cached, clock.lap("ingest"))
     mates = mates_stage(catalog, run, tolerances, cfg.limits)
     log.info("mates: %d assemblies, %d failed, %d face mates (%.1f s)", len(mates),
              sum(not m.ok for m in mates), sum(m.face_mates for m in mates), clock.lap("mates"))
-    scene_cfg = SceneConfig(seed=seed, pairs_per_relation=pairs_per_relation,
+    scene_cfg = SceneConfig(seed=cap.seed, pairs_per_relation=cap.pairs_per_relation,
                             tolerances=tolerances)
     scenes = scenes_task(catalog, run.workspace, scene_cfg)
     log.info("scenes: %d from %d parts (%.1f s)", scenes.scenes, scenes.parts,
              clock.lap("scenes"))
-    scan_cfg = ScanConfig(views_per_scene=views_per_scene, noise=noise, tolerances=tolerances)
-    captured = capture_stage(scenes, run, scan_cfg, captures)
-    if not captures:  # recordings stand on their own; a rendered run captures the assemblies
+    scan_cfg = ScanConfig(views_per_scene=cap.views_per_scene, noise=cap.noise,
+                          tolerances=tolerances)
+    captured = capture_stage(scenes, run, scan_cfg, cap.recordings)
+    if not cap.recordings:  # recordings stand on their own; a rendered run captures the assemblies
         captured += assembly_stage(catalog, mates, run, scan_cfg)
+    elif all(c.error for c in captured):  # each one's reason is in the report; the night is empty
+        raise ConfigError([("capture.recordings", f"none of the {len(captured)} recording(s) "
+                            "could be used, the night would check nothing: " + "; ".join(
+                                f"{c.path}: {c.error}" for c in captured[:3]))])
     log.info("captures: %d, %d failed, %d frames (%.1f s)", len(captured),
              sum(bool(c.error) for c in captured), sum(c.frames for c in captured),
              clock.lap("captures"))
-    completion_dir = completion_models or str(SHIPPED)
+    completion_dir = models.completion or str(SHIPPED)
+    relations_dir = models.relations or str(SHIPPED_RELATIONS)
     scores = complete_stage(captured, run, completion_dir)
     completion = completion_report_task(run, scores)
     log.info("completion: %d scores of %d examples, %d failed (%.1f s)",
              sum(len(s.parts) for s in scores), sum(len(s.registration) for s in scores),
              sum(len(s.failed) for s in scores), clock.lap("completion"))
-    batches = relate_stage(captured, run, relation_models or str(SHIPPED_RELATIONS),
-                           completion_dir)
+    batches = relate_stage(captured, run, relations_dir, completion_dir)
     relations = relations_report_task(run, batches)
     log.info("relations: %d pair views, %d rows, %d captures failed (%.1f s)",
              sum(b.pair_views for b in batches), sum(b.rows for b in batches),
              sum(len(b.failed) for b in batches), clock.lap("relations"))
     ingest, stages = report_task(run, catalog, mates, scenes.path, captured)
-    facts = {"library": str(lib), "thresholds": thresholds or str(DEFAULT_THRESHOLDS),
+    facts = {"library": str(lib), "thresholds": limits.file or str(DEFAULT_THRESHOLDS),
              **{f"{k} seconds": v for k, v in clock.seconds.items()}}
-    report = run_report_task(run, thresholds, history, facts)
+    report = run_report_task(run, limits.file, limits.history, facts)
     publish(report)
     log.info("report: %s, %d threshold checks failed (%.1f s)", report.html,
              len(report.failed), clock.lap("report"))
-    models = model_digests({"relations": Path(relation_models or SHIPPED_RELATIONS),
-                            "completion": Path(completion_dir)})
-    exports, exported = export_stage(run, models, cfg.limits)
+    digests = model_digests({"relations": Path(relations_dir),
+                             "completion": Path(completion_dir)})
+    exports, exported = export_stage(run, digests, cfg.limits)
     status = dict(Counter(e.status for e in exported))
     log.info("export: %d assemblies (%s) (%.1f s)", len(exported),
              ", ".join(f"{n} {k}" for k, n in sorted(status.items())) or "none",

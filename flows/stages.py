@@ -21,7 +21,10 @@ from cadio.export.job import model_digests
 from cadio.tolerances import DEFAULT_TOLERANCES, Tolerances
 from cadio.truth.scenes import SceneConfig
 from cadio.workspace import Workspace
-from flows.settings import Settings, ingest_config
+from flows.config import ConfigError, Count, Views, VoxelSide
+from flows.preflight import check_finished_run
+from flows.settings import ingest_config, load_settings
+from flows.stopping import stop_on_signal
 from flows.tasks import (
     Run,
     assembly_stage,
@@ -42,8 +45,9 @@ from reports.render import build_ingest_report, write_ingest_report
 @flow(name="ingest", task_runner=ThreadPoolTaskRunner(max_workers=2))  # type: ignore[arg-type]
 def ingest(library: str | None = None, workspace: str = "workspace",
            categories: list[str] | None = None,
-           tolerances: Tolerances = DEFAULT_TOLERANCES, voxel_sizes: list[int] | None = None,
-           batch_size: int = 12) -> dict[str, Any]:
+           tolerances: Tolerances = DEFAULT_TOLERANCES,
+           voxel_sizes: list[VoxelSide] | None = None,
+           batch_size: Count = 12) -> dict[str, Any]:
     """Read the library's STEP files into the workspace catalog and extract the mates of its
     assemblies; ``ingest.md`` goes into a run folder.
 
@@ -59,23 +63,24 @@ def ingest(library: str | None = None, workspace: str = "workspace",
     Returns:
         The ingest totals, the number of assemblies and failed ones, and the run folder.
     """
-    cfg = ingest_config(Settings(), voxel_sizes, tolerances)
-    run = start_run(workspace, tolerances)
-    lib = library or generate_library_task(run.workspace)
-    catalog = ingest_stage(lib, run, cfg, batch_size, categories)
-    mates = mates_stage(catalog, run, tolerances, cfg.limits)
-    report = build_ingest_report(read_catalog(Path(catalog)))
-    write_ingest_report(Path(run.run_dir), report)
-    get_run_logger().info("ingest: %d files, %d ok, %d assemblies (%d failed)",
-                          report.totals.files, report.totals.ok, len(mates),
-                          sum(not m.ok for m in mates))
-    return {"run_dir": run.run_dir, "ingest": asdict(report.totals), "assemblies": len(mates),
-            "assemblies_failed": sum(not m.ok for m in mates)}
+    with stop_on_signal():
+        cfg = ingest_config(load_settings(), voxel_sizes, tolerances)
+        run = start_run(workspace, tolerances)
+        lib = library or generate_library_task(run.workspace)
+        catalog = ingest_stage(lib, run, cfg, batch_size, categories)
+        mates = mates_stage(catalog, run, tolerances, cfg.limits)
+        report = build_ingest_report(read_catalog(Path(catalog)))
+        write_ingest_report(Path(run.run_dir), report)
+        get_run_logger().info("ingest: %d files, %d ok, %d assemblies (%d failed)",
+                              report.totals.files, report.totals.ok, len(mates),
+                              sum(not m.ok for m in mates))
+        return {"run_dir": run.run_dir, "ingest": asdict(report.totals), "assemblies": len(mates),
+                "assemblies_failed": sum(not m.ok for m in mates)}
 
 
 @flow(name="capture", task_runner=ThreadPoolTaskRunner(max_workers=2))  # type: ignore[arg-type]
 def capture(workspace: str = "workspace", tolerances: Tolerances = DEFAULT_TOLERANCES,
-            pairs_per_relation: int = 4, views_per_scene: int = 8, noise: bool = False,
+            pairs_per_relation: Count = 4, views_per_scene: Views = 8, noise: bool = False,
             seed: int = 0) -> dict[str, Any]:
     """Generate the scenes of an ingested workspace and capture them and its assemblies.
 
@@ -90,21 +95,22 @@ def capture(workspace: str = "workspace", tolerances: Tolerances = DEFAULT_TOLER
     Returns:
         Counts of scenes, captures, failed captures and frames.
     """
-    run = start_run(workspace, tolerances)
-    ws = Workspace(Path(run.workspace))
-    if not ws.catalog.exists():
-        raise FileNotFoundError(f"{ws.catalog}: no catalog; run the ingest flow first")
-    scene_cfg = SceneConfig(seed=seed, pairs_per_relation=pairs_per_relation,
-                            tolerances=tolerances)
-    scenes = scenes_task(str(ws.catalog), run.workspace, scene_cfg)
-    scan_cfg = ScanConfig(views_per_scene=views_per_scene, noise=noise, tolerances=tolerances)
-    captured = capture_stage(scenes, run, scan_cfg, None)
-    mates = mates_stage(str(ws.catalog), run, tolerances,  # cached: the ingest's own results
-                        ingest_config(Settings(), None, tolerances).limits)
-    captured += assembly_stage(str(ws.catalog), mates, run, scan_cfg)
-    return {"scenes": scenes.scenes, "captures": len(captured),
-            "failed": sum(bool(c.error) for c in captured),
-            "frames": sum(c.frames for c in captured)}
+    with stop_on_signal():
+        run = start_run(workspace, tolerances)
+        ws = Workspace(Path(run.workspace))
+        if not ws.catalog.exists():
+            raise FileNotFoundError(f"{ws.catalog}: no catalog; run the ingest flow first")
+        scene_cfg = SceneConfig(seed=seed, pairs_per_relation=pairs_per_relation,
+                                tolerances=tolerances)
+        scenes = scenes_task(str(ws.catalog), run.workspace, scene_cfg)
+        scan_cfg = ScanConfig(views_per_scene=views_per_scene, noise=noise, tolerances=tolerances)
+        captured = capture_stage(scenes, run, scan_cfg, None)
+        mates = mates_stage(str(ws.catalog), run, tolerances,  # cached: the ingest's own results
+                            ingest_config(load_settings(), None, tolerances).limits)
+        captured += assembly_stage(str(ws.catalog), mates, run, scan_cfg)
+        return {"scenes": scenes.scenes, "captures": len(captured),
+                "failed": sum(bool(c.error) for c in captured),
+                "frames": sum(c.frames for c in captured)}
 
 
 
@@ -125,16 +131,21 @@ def export(workspace: str = "workspace", run: str = "latest", out: str | None = 
     Returns:
         The path of ``index.csv`` and the number of assemblies per status.
     """
-    ws = Workspace(Path(workspace).resolve())
-    run_dir = ws.run_dir(run).resolve()
-    source = Run(run_id=run_dir.name, workspace=str(ws.root), run_dir=str(run_dir),
-                 epoch=workspace_epoch(ws))
-    models = model_digests({"relations": Path(relation_models or SHIPPED_RELATIONS),
-                            "completion": Path(completion_models or SHIPPED)})
-    limits = ingest_config(Settings(), None, DEFAULT_TOLERANCES).limits
-    index, summaries = export_stage(source, models, limits, out)
-    status: dict[str, int] = {}
-    for s in summaries:
-        status[s.status] = status.get(s.status, 0) + 1
-    get_run_logger().info("export: %d assemblies %s: %s", len(summaries), status, index)
-    return {"index": index, "assemblies": len(summaries), "status": status}
+    with stop_on_signal():
+        problems: list[tuple[str, str]] = []
+        check_finished_run(workspace, run, problems)
+        if problems:
+            raise ConfigError(problems)
+        ws = Workspace(Path(workspace).resolve())
+        run_dir = ws.run_dir(run).resolve()
+        source = Run(run_id=run_dir.name, workspace=str(ws.root), run_dir=str(run_dir),
+                     epoch=workspace_epoch(ws))
+        models = model_digests({"relations": Path(relation_models or SHIPPED_RELATIONS),
+                                "completion": Path(completion_models or SHIPPED)})
+        limits = ingest_config(load_settings(), None, DEFAULT_TOLERANCES).limits
+        index, summaries = export_stage(source, models, limits, out)
+        status: dict[str, int] = {}
+        for s in summaries:
+            status[s.status] = status.get(s.status, 0) + 1
+        get_run_logger().info("export: %d assemblies %s: %s", len(summaries), status, index)
+        return {"index": index, "assemblies": len(summaries), "status": status}

@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import hashlib
 import json
+import os
 from collections.abc import Iterable
 from dataclasses import asdict, dataclass, is_dataclass
 from datetime import UTC, datetime
@@ -107,7 +108,7 @@ def content_digest(files: Iterable[Path | str], **values: Any) -> str:
     """SHA-256 of the named files' bytes (a missing file counts as such) and of ``values``."""
     digest = hashlib.sha256(json.dumps(values, sort_keys=True, default=_plain).encode())
     for path in map(Path, files):
-        digest.update(f"{path}\0".encode())
+        digest.update(os.fsencode(path) + b"\0")  # names need not be UTF-8
         digest.update(file_sha256(path).encode() if path.is_file() else b"not-a-file")
     return digest.hexdigest()
 

@@ -25,7 +25,7 @@ import hashlib
 import json
 import os
 import pickle
-import tempfile
+import re
 from collections.abc import Mapping
 from datetime import UTC, datetime
 from importlib import metadata
@@ -35,6 +35,9 @@ from typing import Any
 import torch
 from torch import nn
 
+from cadio.errors import InputFileError
+from cadio.inputs import open_regular
+from cadio.workspace import create_beside
 from models.baselines import R2N2, R2N2Config
 from models.completion import CompletionConfig, Generator
 from models.errors import CheckpointError
@@ -140,10 +143,9 @@ def save_checkpoint(ckpt: Mapping[str, Any], path: Path | str) -> Path:
     """Write atomically (temp file + rename) and return the path."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, suffix=".pt.tmp")
+    fd, tmp = create_beside(path, ".pt.tmp")  # mode as the umask gives, like any written file
     with os.fdopen(fd, "wb") as f:
         torch.save(dict(ckpt), f)
-    os.chmod(tmp, 0o644)  # mkstemp makes it private; a shipped checkpoint is read by all
     os.replace(tmp, path)
     return path
 
@@ -155,15 +157,34 @@ def load_checkpoint(path: Path | str) -> Checkpoint:
         CheckpointError: unreadable, not loadable as weights only, or another format.
     """
     try:
-        ckpt = torch.load(path, map_location="cpu", weights_only=True)
-    except (OSError, RuntimeError, EOFError, pickle.UnpicklingError) as exc:
-        raise CheckpointError(path, f"cannot be read as a weights-only checkpoint: {exc}") from exc
+        with open_regular(path) as fh:
+            ckpt = torch.load(fh, map_location="cpu", weights_only=True)
+    except InputFileError as exc:
+        raise CheckpointError(path, exc.reason) from None
+    except OSError as exc:
+        raise CheckpointError(path, f"cannot be read: {exc.strerror or exc}") from None
+    except Exception as exc:  # bytes that are no checkpoint: torch's unpickler raises anything
+        raise CheckpointError(path, f"not a checkpoint (damaged, or not weights and plain "
+                              f"values only: {_unpickling_reason(exc)})") from None
     if not isinstance(ckpt, dict) or ckpt.get("format") != FORMAT:
         raise CheckpointError(path, f"not a {FORMAT} checkpoint")
     missing = [k for k in KEYS if k not in ckpt]
     if missing:
         raise CheckpointError(path, f"missing keys {missing}")
     return ckpt
+
+
+def _unpickling_reason(exc: Exception) -> str:
+    """The reason of a failed weights-only load, without torch's advice to load the file
+    with ``weights_only=False`` (which would run the code a hostile file holds)."""
+    text = str(exc)
+    found = re.search(r"WeightsUnpickler error:\s*(.+?)\s*(?:\n\n|$)", text, re.S)
+    if found:  # e.g. "Unsupported global: GLOBAL numpy...", without how to allow it
+        return found.group(1).splitlines()[0].split(" was not an allowed global")[0]
+    if isinstance(exc, pickle.UnpicklingError) or "weights_only" in text:
+        return "its pickle holds more than tensors and plain values"
+    first = text.splitlines()[0] if text else ""
+    return f"{type(exc).__name__}: {first}" if first else type(exc).__name__
 
 
 def model_card(ckpt: Mapping[str, Any], command: str = "") -> str:

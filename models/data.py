@@ -14,7 +14,6 @@ from __future__ import annotations
 
 import json
 import os
-import tempfile
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -26,6 +25,7 @@ import torch
 from torch import Tensor
 from torch.utils.data import Dataset
 
+from cadio.workspace import create_beside
 from models.errors import ShardError
 
 MAX_VIEWS = 8  # the contract's upper bound on V
@@ -101,7 +101,7 @@ def write_shard(path: Path | str, example: Example) -> None:
     if example.depth is None:
         raise ValueError("a shard needs the depth views")
     path = Path(path)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, suffix=".npz")
+    fd, tmp = create_beside(path, ".npz")
     with os.fdopen(fd, "wb") as f:
         np.savez_compressed(f, inputs=example.inputs, depth=example.depth,
                             target=example.target, meta=np.array(json.dumps(example.meta)))

@@ -15,11 +15,18 @@ from cadio.contracts import CaptureSummary, MatesSummary
 
 def markdown_table(frame: pd.DataFrame) -> str:
     """A GitHub-flavoured Markdown table (no optional dependency on tabulate)."""
-    cols = [str(c) for c in frame.columns]
+    cols = [_cell(c) for c in frame.columns]
     out = ["| " + " | ".join(cols) + " |", "|" + "---|" * len(cols)]
     for row in frame.itertuples(index=False):
-        out.append("| " + " | ".join(str(v).replace("|", "/") for v in row) + " |")
+        out.append("| " + " | ".join(_cell(v) for v in row) + " |")
     return "\n".join(out)
+
+
+def _cell(value: object) -> str:
+    """One table cell: a pipe escaped and line breaks shown as ``\\n`` (a file name may hold
+    both; either would break the row)."""
+    text = str(value).replace("|", "\\|")
+    return text.replace("\r", "\\r").replace("\n", "\\n")
 
 
 def files_table(catalog: pd.DataFrame) -> pd.DataFrame:

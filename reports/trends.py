@@ -18,6 +18,8 @@ from pathlib import Path
 
 import pandas as pd
 
+from cadio.errors import InputFileError
+from cadio.inputs import read_text
 from cadio.workspace import atomic_write
 
 DEFAULT_THRESHOLDS = Path(__file__).with_name("thresholds.toml")
@@ -69,11 +71,15 @@ def read_thresholds(path: Path) -> Thresholds:
     """The thresholds of a TOML file (see ``reports/thresholds.toml`` for the format).
 
     Raises:
-        ThresholdsError: unreadable TOML, an unknown metric, or a non-numeric limit.
+        ThresholdsError: unreadable TOML, an unknown metric or key (a typo would otherwise
+            switch a check off without a word), a table where a number belongs or the other
+            way round, or a limit that is not a finite number (``max_drop`` >= 0).
     """
     try:
-        data = tomllib.loads(Path(path).read_text(encoding="utf-8"))
-    except (OSError, UnicodeDecodeError, tomllib.TOMLDecodeError) as exc:
+        data = tomllib.loads(read_text(path, "thresholds file", max_bytes=1 << 20))
+    except InputFileError as exc:
+        raise ThresholdsError(path, exc.reason) from None
+    except tomllib.TOMLDecodeError as exc:
         raise ThresholdsError(path, f"cannot read thresholds: {exc}") from exc
     limits, categories = {}, {}
     min_n = data.pop("min_n", Thresholds.min_n)
@@ -83,20 +89,36 @@ def read_thresholds(path: Path) -> Thresholds:
         if metric not in METRICS:
             raise ThresholdsError(path, f"unknown metric {metric!r} (known: {sorted(METRICS)})")
         if not isinstance(table, dict):
-            raise ThresholdsError(path, f"[{metric}] must be a table")
-        limits[metric] = _limit(path, metric, table)
+            raise ThresholdsError(path, f"[{metric}] must be a table, got {table!r}")
+        limits[metric] = _limit(path, metric, table, (*_LIMIT_KEYS, "categories"))
         over = table.get("categories", {})
-        categories[metric] = {c: _limit(path, f"{metric}.categories.{c}", t)
+        if not isinstance(over, dict):
+            raise ThresholdsError(path, f"{metric}.categories must be a table of categories, "
+                                  f"got {over!r}")
+        categories[metric] = {c: _limit(path, f"{metric}.categories.{c}", t, _LIMIT_KEYS)
                               for c, t in over.items()}
     return Thresholds(limits, categories, str(path), min_n)
 
 
-def _limit(path: Path, where: str, table: Mapping[str, object]) -> Limit:
+_LIMIT_KEYS = ("floor", "max_drop")
+
+
+def _limit(path: Path, where: str, table: object, known: tuple[str, ...]) -> Limit:
+    if not isinstance(table, dict):
+        raise ThresholdsError(path, f"[{where}] must be a table of {' and '.join(_LIMIT_KEYS)}, "
+                              f"got {table!r}")
+    unknown = sorted(set(table) - set(known))
+    if unknown:
+        raise ThresholdsError(path, f"[{where}] has unknown key(s) {unknown} (known: "
+                              f"{', '.join(known)})")
     values = {}
-    for key in ("floor", "max_drop"):
+    for key in _LIMIT_KEYS:
         value = table.get(key)
-        if value is not None and (isinstance(value, bool) or not isinstance(value, int | float)):
-            raise ThresholdsError(path, f"{where}.{key} must be a number, got {value!r}")
+        if value is not None and (isinstance(value, bool) or not isinstance(value, int | float)
+                                  or not math.isfinite(value)):
+            raise ThresholdsError(path, f"{where}.{key} must be a finite number, got {value!r}")
+        if key == "max_drop" and value is not None and value < 0:
+            raise ThresholdsError(path, f"{where}.max_drop must be >= 0, got {value!r}")
         values[key] = None if value is None else float(value)
     return Limit(**values)
 

@@ -151,15 +151,22 @@ def prefect_api(tmp_path_factory: pytest.TempPathFactory):  # type: ignore[no-un
     stop_server(proc)
 
 
-def start_night(library: Path, workspace: Path, env: dict[str, str], **params: object):  # type: ignore[no-untyped-def]
+def start_night(library: Path, workspace: Path, env: dict[str, str],
+                **groups: dict[str, object]):  # type: ignore[no-untyped-def]
     """The nightly flow on ``library`` in a child process (its own session, so that it and its
-    CAD workers can be killed together), with the small test settings and ``params``."""
+    CAD workers can be killed together), with the small test settings and ``groups`` of the
+    night's configuration on top (e.g. ``runtime={"dask_address": ...}``)."""
     import subprocess
     import sys
 
-    args = {"library": str(library), "workspace": str(workspace), "views_per_scene": 1,
-            "pairs_per_relation": 1, "fail_on_threshold": False, **params}
-    code = f"from flows.nightly import nightly; nightly(**{args!r})"
+    config: dict[str, dict[str, object]] = {
+        "library": {"path": str(library)}, "runtime": {"workspace": str(workspace)},
+        "capture": {"views_per_scene": 1, "pairs_per_relation": 1},
+        "thresholds": {"fail_on_threshold": False}}
+    for name, values in groups.items():
+        config.setdefault(name, {}).update(values)
+    code = ("from flows.config import night_config; from flows.nightly import nightly; "
+            f"nightly(night_config({config!r}))")
     log = Path(workspace).with_name(f"{Path(workspace).name}.log")
     with log.open("ab") as out:  # a file, not a pipe: nobody reads while the night runs
         proc = subprocess.Popen([sys.executable, "-c", code], cwd=Path(__file__).parents[1],

@@ -57,7 +57,8 @@ def test_the_nightly_on_dask_reports_what_the_local_runner_does(
         small_library: Path, prefect_api: dict[str, str], local_night: Path,
         dask_cluster: str, tmp_path: Path) -> None:
     ws = tmp_path / "ws"
-    finish_night(start_night(small_library, ws, prefect_api, dask_address=dask_cluster))
+    finish_night(start_night(small_library, ws, prefect_api,
+                            runtime={"dask_address": dask_cluster}))
     local, dask = local_night, (ws / "runs" / "latest").resolve()
     from distributed import Client
 

@@ -19,6 +19,8 @@ import pandas as pd
 import pytest
 from conftest import free_port
 
+from cadio.tolerances import DEFAULT_TOLERANCES
+
 pytestmark = pytest.mark.server
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -63,12 +65,23 @@ def _client_call(env: dict[str, str], fn: Any) -> Any:
         return asyncio.run(call())
 
 
-def _run_nightly(env: dict[str, str], library: Path, workspace: Path) -> str:
-    cmd = ["prefect", "deployment", "run", "nightly/nightly", "--param", f"library={library}",
-           "--param", f"workspace={workspace}", "--param", "views_per_scene=1",
-           "--param", "pairs_per_relation=1", "--param", "fail_on_threshold=false", "--watch"]
-    done = subprocess.run([str(Path(sys.executable).with_name("prefect")), *cmd[1:]], env=env,
+def _prefect(env: dict[str, str], *args: str) -> subprocess.CompletedProcess[str]:
+    return subprocess.run([str(Path(sys.executable).with_name("prefect")), *args], env=env,
                           cwd=ROOT, capture_output=True, text=True, timeout=900)
+
+
+def _deployment_run(env: dict[str, str],
+                    config: dict[str, Any]) -> subprocess.CompletedProcess[str]:
+    """``prefect deployment run 'nightly/nightly' --param config=... --watch``."""
+    return _prefect(env, "deployment", "run", "nightly/nightly", "--param",
+                    f"config={json.dumps(config)}", "--watch")
+
+
+def _run_nightly(env: dict[str, str], library: Path, workspace: Path) -> str:
+    done = _deployment_run(env, {
+        "library": {"path": str(library)}, "runtime": {"workspace": str(workspace)},
+        "capture": {"views_per_scene": 1, "pairs_per_relation": 1},
+        "thresholds": {"fail_on_threshold": False}})
     assert done.returncode == 0, done.stdout[-4000:] + done.stderr[-4000:]
     return done.stdout
 
@@ -91,9 +104,49 @@ def test_the_deployments_are_applied_with_a_schedule_and_a_limit(
     assert nightly.global_concurrency_limit and nightly.global_concurrency_limit.limit == 1
     assert [s.schedule.cron for s in nightly.schedules] == ["0 2 * * *"]
     assert scheduled and all(r.state.name == "Scheduled" for r in scheduled)
-    schema = nightly.parameter_openapi_schema["properties"]
-    assert {"library", "workspace", "categories", "tolerances", "completion_models",
-            "relation_models", "thresholds"} <= set(schema)
+
+
+def test_inspect_shows_every_field_of_the_night_with_its_description_and_range(
+        served: dict[str, str]) -> None:
+    from flows.config import NightConfig
+
+    done = _prefect(served, "deployment", "inspect", "nightly/nightly", "--output", "json")
+    assert done.returncode == 0, done.stderr
+    schema = json.loads(done.stdout)["parameter_openapi_schema"]
+    assert list(schema["properties"]) == ["config"]  # one parameter: the night's config
+    shown = schema["definitions"]
+    expected = NightConfig.model_json_schema()["$defs"]
+    groups = {name: field.annotation.__name__ for name, field in NightConfig.model_fields.items()
+              if name != "tolerances"}
+    assert set(groups) == {"library", "capture", "models", "thresholds", "runtime"}
+    for group, model in groups.items():
+        fields = shown[model]["properties"]
+        assert set(fields) == set(expected[model]["properties"]), group
+        for name, field in fields.items():
+            assert field["description"] == expected[model]["properties"][name]["description"]
+            assert len(field["description"]) > 15, f"{group}.{name}"
+    views = shown["CaptureOptions"]["properties"]["views_per_scene"]
+    assert (views["minimum"], views["maximum"]) == (1, 125)
+    assert "(allowed: 1 to 125)" in views["description"]
+    assert set(shown["Tolerances"]["properties"]) == set(DEFAULT_TOLERANCES.as_dict())
+
+
+def test_a_parameter_out_of_range_or_naming_nothing_fails_before_any_work(
+        served: dict[str, str], small_library: Path, tmp_path: Path) -> None:
+    ws = tmp_path / "ws"
+    out_of_range = _deployment_run(served, {"library": {"path": str(small_library)},
+                                            "runtime": {"workspace": str(ws)},
+                                            "capture": {"views_per_scene": 0}})
+    said = out_of_range.stdout + out_of_range.stderr
+    assert out_of_range.returncode != 0 and "views_per_scene" in said, said[-3000:]
+    empty = tmp_path / "empty-library"
+    empty.mkdir()
+    nothing = _deployment_run(served, {"library": {"path": str(empty)},
+                                       "runtime": {"workspace": str(ws)}})
+    said = nothing.stdout + nothing.stderr
+    assert nothing.returncode != 0 and "Failed" in said, said[-3000:]
+    assert "library.path" in said and "the night would check nothing" in said, said[-3000:]
+    assert not ws.exists()  # no run folder, no catalog: nothing was done
 
 
 def test_a_deployment_run_writes_the_report_and_a_second_night_only_reports(

@@ -25,6 +25,7 @@ def harness() -> object:
 
 def test_nightly_ingests_reports_and_caches(harness: object, tmp_path: Path,
                                             box_step: Path) -> None:
+    from flows.config import night_config
     from flows.nightly import nightly
 
     lib = tmp_path / "lib"
@@ -34,8 +35,10 @@ def test_nightly_ingests_reports_and_caches(harness: object, tmp_path: Path,
     (lib / "casters-wheels-trolleys" / "broken.stp").write_bytes(b"ISO-10303-21;\nHEADER;")
     ws = tmp_path / "ws"
 
-    first = nightly(library=str(lib), workspace=str(ws), voxel_sizes=[16], batch_size=1,
-                    views_per_scene=2)
+    config = night_config({"library": {"path": str(lib), "voxel_sizes": [16], "batch_size": 1},
+                           "runtime": {"workspace": str(ws)},
+                           "capture": {"views_per_scene": 2}})
+    first = nightly(config)
     assert first.ingest.files == 2
     assert first.ingest.ok == 1 and first.ingest.failed == 1
     report = Path(first.ingest_report).read_text()
@@ -70,8 +73,8 @@ def test_nightly_ingests_reports_and_caches(harness: object, tmp_path: Path,
 
     meshes = sorted((ws / "meshes").glob("*.ply"))
     stamps = [m.stat().st_mtime_ns for m in meshes]
-    second = nightly(library=str(lib), workspace=str(ws), voxel_sizes=[16], batch_size=1,
-                     views_per_scene=2, captures=str(ws / "captures"))
+    second = nightly(config.model_copy(update={"capture": config.capture.model_copy(
+        update={"recordings": str(ws / "captures")})}))
     # unchanged files: the ingest tasks are cached on content hashes, nothing is rewritten
     assert second.ingest == first.ingest
     assert [m.stat().st_mtime_ns for m in meshes] == stamps and meshes
@@ -146,3 +149,25 @@ def test_a_failed_threshold_exits_3_with_a_complete_report(
     assert suite is not None and int(suite.get("failures", "0")) >= 1
     (tmp_path / "bad.toml").write_text("[iou]\n")
     assert main([*args[:-1], str(tmp_path / "bad.toml")]) == 2
+
+
+def test_a_night_whose_recordings_are_all_unusable_fails_naming_them(
+        harness: object, tmp_path: Path, box_step: Path) -> None:
+    from cadio.capture.scan import ScanConfig, capture_step
+    from flows.config import ConfigError, night_config
+    from flows.nightly import nightly
+
+    lib = tmp_path / "lib" / "fasteners"
+    lib.mkdir(parents=True)
+    shutil.copy(box_step, lib / "box.step")
+    recordings = tmp_path / "recordings"
+    recordings.mkdir()
+    other = capture_step(str(box_step), tmp_path / "elsewhere", ScanConfig(views_per_scene=1))
+    shutil.copy(other.path, recordings / "of-another-library.mcap")
+    config = night_config({"library": {"path": str(lib.parent), "voxel_sizes": [16]},
+                           "runtime": {"workspace": str(tmp_path / "ws")},
+                           "capture": {"recordings": str(recordings)}})
+    with pytest.raises(ConfigError, match=r"capture\.recordings: none of the 1 recording") as err:
+        nightly(config)
+    assert "of-another-library.mcap: shows parts that are not in the library" in str(err.value)
+    assert not list((tmp_path / "ws").glob("runs/*/summary.json"))

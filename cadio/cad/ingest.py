@@ -1,12 +1,13 @@
 """Ingest a library of STEP files into the workspace: catalog, meshes, features, voxels.
 
-Files are found recursively (``.step``/``.stp`` in any letter case), hashed, and checked cheaply
-in this process (size limit, not a regular file, unreadable, duplicate content). The real work,
-reading through OpenCascade and deriving geometry (``process_file``, the worker's job), runs in
-crash-isolated worker processes (``cadio.sandbox``), largest file first so that a big file does
-not run alone at the end. Every file found is accounted for by at least one ``CatalogRow``:
-ok + failed + skipped = found. A rerun reuses the rows of files whose content hash and
-configuration are unchanged.
+Files are found recursively (``.step``/``.stp`` in any letter case), checked cheaply in this
+process (not a regular file, size limit, a name that is not UTF-8, unreadable) and hashed; only
+regular files are ever opened, so a named pipe or a link to a device never blocks the batch.
+The real work, reading through OpenCascade and deriving geometry (``process_file``, the
+worker's job), runs in crash-isolated worker processes (``cadio.sandbox``), largest file first
+so that a big file does not run alone at the end. Every file found is accounted for by at least
+one ``CatalogRow``: ok + failed + skipped = found. A rerun reuses the rows of files whose
+content hash and configuration are unchanged.
 
 This process never loads OCP or open3d (seconds of start-up on a small machine, while the
 workers load them anyway): the worker's job at the bottom imports the CAD modules itself.
@@ -17,6 +18,8 @@ from __future__ import annotations
 import hashlib
 import json
 import logging
+import os
+import stat
 import time
 from collections.abc import Callable, Iterable, Sequence
 from dataclasses import asdict, dataclass, field, replace
@@ -25,6 +28,7 @@ from typing import TYPE_CHECKING, TypeVar
 
 from cadio.catalog import CatalogRow, catalog_rows, read_catalog, to_frame, write_catalog
 from cadio.errors import GeometryError, InputFileError, WorkerError
+from cadio.inputs import kind, open_regular, read_text
 from cadio.sandbox import Job, Limits, run_isolated
 from cadio.tolerances import DEFAULT_TOLERANCES, Tolerances
 from cadio.workspace import Workspace, write_features, write_mesh, write_voxels
@@ -118,31 +122,70 @@ def discover(root: Path) -> list[Found]:
 def read_library_csv(path: Path) -> list[Found]:
     """The files a library CSV lists: columns ``path`` (relative to the CSV's folder, or
     absolute) and ``category``, one row per STEP file; listed files that are missing are
-    returned too, so that the report accounts for them.
+    returned too, so that the report accounts for them. A file listed again is read once (the
+    first line wins; a warning names both lines). A byte-order mark, as spreadsheets save, is
+    allowed.
 
     Raises:
-        InputFileError: the CSV cannot be read or lacks a column.
+        InputFileError: the CSV cannot be read, is empty, lacks a column, or has a row without
+            a category (the line is named).
     """
     import csv
+    import io
 
+    text = read_text(path, "library CSV")
+    if not text.strip():
+        raise InputFileError(path, "library CSV is empty (it needs a header line path,category)")
     try:
-        with path.open(newline="", encoding="utf-8") as fh:
-            reader = csv.DictReader(fh)
-            rows = list(reader)
-    except (OSError, UnicodeDecodeError, csv.Error) as exc:
+        reader = csv.DictReader(io.StringIO(text, newline=""))
+        rows = list(reader)
+    except csv.Error as exc:
         raise InputFileError(path, f"library CSV cannot be read: {exc}") from exc
-    if not {"path", "category"} <= set(reader.fieldnames or ()):
-        raise InputFileError(path, "library CSV needs the columns path and category")
-    return [Found(path.parent / r["path"], r["category"].strip()) for r in rows
-            if (r.get("path") or "").strip()]
+    header = [c.strip() for c in reader.fieldnames or ()]
+    if not {"path", "category"} <= set(header):
+        raise InputFileError(path, f"library CSV needs the columns path and category, has "
+                             f"{', '.join(map(repr, header)) or 'none'}")
+    reader.fieldnames = header
+    return _listed(path, rows)
 
 
-def file_sha256(path: Path) -> str:
-    """Hex SHA-256 of a file's bytes, read in 1 MiB blocks."""
-    digest = hashlib.sha256()
-    with path.open("rb") as fh:
+def _listed(path: Path, rows: list[dict[str, str]]) -> list[Found]:
+    """Found files of the CSV's rows (line 2 is the first), each file once."""
+    found: list[Found] = []
+    first: dict[Path, int] = {}
+    for line, row in enumerate(rows, start=2):
+        name, category = (row.get("path") or "").strip(), (row.get("category") or "").strip()
+        if not name:
+            continue
+        if not category:
+            raise InputFileError(path, f"line {line}: {name} has no category")
+        file = path.parent / name
+        seen = first.setdefault(file.resolve(), line)
+        if seen != line:
+            log.warning("%s: line %d lists %s again (first on line %d): read once", path, line,
+                        name, seen)
+            continue
+        found.append(Found(file, category))
+    return found
+
+
+def file_sha256(path: Path, max_bytes: int | None = None) -> str:
+    """Hex SHA-256 of a regular file's bytes, read in 1 MiB blocks.
+
+    Raises:
+        InputFileError: not a regular file (a pipe or a device is never read), or longer than
+            ``max_bytes`` (it may have grown since its size was checked).
+        OSError: it cannot be opened or read.
+    """
+    digest, left = hashlib.sha256(), max_bytes
+    with open_regular(path) as fh:
         for block in iter(lambda: fh.read(1 << 20), b""):
             digest.update(block)
+            if left is not None:
+                left -= len(block)
+                if left < 0:
+                    raise InputFileError(path, f"grew beyond {(max_bytes or 0) / 1e6:g} MB "
+                                         "while read")
     return digest.hexdigest()
 
 
@@ -211,20 +254,39 @@ def mark_duplicates(rows: Iterable[CatalogRow]) -> list[CatalogRow]:
 
 
 def _screen(item: Found, cfg: IngestConfig) -> tuple[CatalogRow | None, str]:
-    """A final row for inputs that need no CAD kernel, else (None, content hash)."""
+    """A final row for inputs that need no CAD kernel, else (None, content hash). Only regular
+    files within the size limit are read (hashed), and only once each."""
     path = item.path
-    base = CatalogRow(category=item.category, source=str(path))
-    if path.is_dir():
+    base = CatalogRow(category=printable(item.category), source=printable(str(path)))
+    if base.source != str(path) or base.category != item.category:
+        return _row(base, "skipped", "the file or folder name is not valid UTF-8 (its bytes "
+                    "are shown escaped): rename it to read it"), ""
+    try:
+        info = path.stat()
+    except OSError as exc:
+        return _row(base, "failed", f"cannot be read: {exc.strerror or exc}"), ""
+    if stat.S_ISDIR(info.st_mode):
         return _row(base, "skipped", "is a directory, not a STEP file"), ""
-    size_mb = path.stat().st_size / 1e6 if path.exists() else 0.0
+    if not stat.S_ISREG(info.st_mode):
+        return _row(base, "skipped", f"is {kind(info.st_mode)}, not a regular file: not "
+                    "read"), ""
+    size_mb = info.st_size / 1e6
     if size_mb > cfg.max_file_mb:
         reason = f"file is {size_mb:.1f} MB, over the {cfg.max_file_mb:g} MB limit"
         return _row(base, "skipped", reason), ""
     try:
-        sha = file_sha256(path)
+        sha = file_sha256(path, int(cfg.max_file_mb * 1e6))
+    except InputFileError as exc:
+        return _row(base, "skipped", exc.reason), ""
     except OSError as exc:
         return _row(base, "failed", f"cannot be read: {exc.strerror or exc}"), ""
     return None, sha
+
+
+def printable(text: str) -> str:
+    """``text`` as valid Unicode: bytes of a non-UTF-8 file name (surrogate escapes) shown as
+    ``\\xff``; unchanged for every other name."""
+    return os.fsencode(text).decode("utf-8", "backslashreplace")
 
 
 def _row(base: CatalogRow, status: str, error: str) -> CatalogRow:

@@ -222,14 +222,20 @@ def capture_assembly(assembly: str, category: str, part_ids: list[str], ws: Work
 
 def read_captures(captures_dir: Path, ws: Workspace, cfg: ScanConfig) -> list[CaptureSummary]:
     """Learning inputs of every recording made elsewhere (``*.mcap`` under the folder, in
-    either MCAP dialect: ``cadio.capture.mcap_io``). A recording that cannot be used gets its
-    reason in the summary's ``error`` and the others go on."""
+    either MCAP dialect: ``cadio.capture.mcap_io``). A recording that cannot be used (no
+    regular file: a folder or a pipe so named) gets its reason in the summary's ``error`` and
+    the others go on."""
     out = []
     for path in sorted(Path(captures_dir).rglob("*.mcap")):
-        summary = CaptureSummary(scene_id=path.stem, path=str(path), bytes=path.stat().st_size)
+        summary = CaptureSummary(scene_id=path.stem, path=str(path))
+        if not path.is_file():
+            out.append(replace(summary, error="not a regular file (a folder or a pipe so "
+                               "named): not read"))
+            continue
+        summary = replace(summary, bytes=path.stat().st_size)
         try:
             out.append(with_inputs(summary, ws, cfg))
-        except (ValueError, OSError) as exc:  # e.g. a camera looking straight down
+        except ValueError as exc:  # e.g. a camera looking straight down
             log.warning("%s: %s", path, exc)
             out.append(replace(summary, error=f"{type(exc).__name__}: {exc}"))
     return out
@@ -241,6 +247,8 @@ def with_inputs(capture: CaptureSummary, ws: Workspace, cfg: ScanConfig) -> Capt
         inputs = scan_inputs(Path(capture.path), ws, cfg)
     except CaptureError as exc:
         return replace(capture, error=exc.reason)
+    except OSError as exc:
+        return replace(capture, error=f"cannot be read: {exc.strerror or exc}")
     return replace(capture, frames=inputs.frames, input_parts=inputs.parts,
                    seg_mean_iou=inputs.seg_mean_iou, warnings=inputs.warnings)
 
@@ -255,7 +263,8 @@ def scan_inputs(path: Path, ws: Workspace, cfg: ScanConfig) -> InputsSummary:
     A recording without scene meta yields clusters but no part to score.
 
     Raises:
-        CaptureError: the capture is corrupt before its first frame, or has no frame.
+        CaptureError: the capture is corrupt before its first frame, has no frame, or shows
+            parts the workspace does not know (a recording of another library).
     """
     meta = read_scene_meta(path) or {}
     frames = list(read_capture(path))
@@ -271,6 +280,11 @@ def scan_inputs(path: Path, ws: Workspace, cfg: ScanConfig) -> InputsSummary:
         summary = replace(summary, seg_mean_iou=score.mean_iou, seg_ari=score.ari)
     if not meta.get("parts") or any(f.instance is None for f in frames):
         return summary
+    unknown = [str(p["part_id"]) for p in meta["parts"] if not ws.mesh(str(p["part_id"])).is_file()]
+    if unknown:
+        raise CaptureError(path, f"shows parts that are not in the library's catalog ("
+                           f"{', '.join(unknown[:5])}{' ...' if len(unknown) > 5 else ''}): "
+                           "its parts cannot be scored")
     labels = [f.instance for f in frames if f.instance is not None]
     parts = examples = 0
     for part in meta["parts"]:

@@ -1,0 +1,160 @@
+"""The commands of ``mateqa`` that read CAD without Prefect: ``ingest``, ``mates``,
+``capture``, ``export`` and ``samples``."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import sys
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
+from pathlib import Path
+from typing import TYPE_CHECKING
+
+from cadio.errors import InputFileError
+
+if TYPE_CHECKING:
+    from cadio.capture.scan import ScanConfig
+    from cadio.contracts import CaptureSummary
+    from cadio.sandbox import Limits
+
+
+@contextmanager
+def progress(description: str, total: int | None) -> Iterator[Callable[[str], None]]:
+    """A progress bar on stderr (a counter when ``total`` is None); yields the function that
+    advances it by one item."""
+    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TimeElapsedColumn
+
+    columns = (*Progress.get_default_columns()[:1], BarColumn(), MofNCompleteColumn(),
+               TimeElapsedColumn())
+    with Progress(*columns, transient=True) as bar:
+        task = bar.add_task(description, total=total)
+        yield lambda item: bar.advance(task)
+
+
+
+def cmd_ingest(args: argparse.Namespace) -> int:
+    from cadio.cad.ingest import discover, ingest
+    from flows.settings import Settings, ingest_config
+    from reports.render import build_ingest_report
+
+    settings = Settings(workers=args.workers, file_timeout_s=args.timeout,
+                        file_memory_mb=args.memory_mb, max_file_mb=args.max_file_mb)
+    cfg = ingest_config(settings, args.voxel_sizes, args.tolerances,
+                        default_workers=os.cpu_count() or 1)
+    try:
+        total = len(discover(args.library))
+        with progress("ingest", total) as advance:
+            catalog = ingest(args.library, args.workspace, cfg, on_file=advance)
+    except InputFileError as exc:
+        print(f"mateqa ingest: {exc}", file=sys.stderr)
+        return 2
+    print(build_ingest_report(catalog).markdown())
+    print(f"catalog: {Path(args.workspace) / 'catalog.parquet'}")
+    return 0
+
+
+
+def cmd_mates(args: argparse.Namespace) -> int:
+    from cadio.truth.assemblies import AssemblyJob, extract_assembly_mates
+    from cadio.truth.mates import read_mates
+
+    job = AssemblyJob(path=str(args.step), assembly=args.step.stem, category="",
+                      workspace=str(args.workspace), part_ids={}, tolerances=args.tolerances)
+    with progress("mates", None):  # in a CAD worker, as ingest reads: a crash is an error
+        (summary,) = extract_assembly_mates([job], _limits())
+    if not summary.ok:
+        print(f"mateqa mates: {args.step}: {summary.error}", file=sys.stderr)
+        return 2
+    print(f"{summary.n_parts} parts, {summary.n_pairs} pairs, {summary.n_contact_pairs} in "
+          "contact")
+    table = read_mates(Path(summary.path))
+    if table.empty:
+        print("no mates or relations: one part has no pair" if summary.n_parts < 2 else
+              "no mates or relations between its parts")
+    else:
+        print(table.groupby(["level", "relation"]).size().to_string())
+    print(f"mates: {summary.path}")
+    return 0
+
+
+def cmd_capture(args: argparse.Namespace) -> int:
+    from cadio.capture.mcap_io import summarise_capture
+    from cadio.capture.scan import ScanConfig
+    from cadio.sandbox import Job, run_isolated
+
+    if args.read is not None:
+        read = summarise_capture(args.read)
+        print(json.dumps(read.to_dict(), indent=1))
+        return 2 if read.error else 0
+    if args.target is None:
+        print("mateqa capture: give STEP_OR_SCENE, or --read MCAP", file=sys.stderr)
+        return 2
+    cfg = ScanConfig(views_per_scene=args.views, noise=args.noise, tolerances=args.tolerances)
+    job = Job(str(args.target), (str(args.target), str(args.workspace), cfg))
+    with progress(f"capture, {args.views} views", None):
+        (outcome,) = run_isolated(capture_job, [job], _limits())
+    if outcome.error is not None or outcome.result is None:
+        print(f"mateqa capture: {outcome.error}", file=sys.stderr)
+        return 2
+    print(json.dumps(outcome.result.to_dict(), indent=1))
+    return 0
+
+
+def capture_job(payload: tuple[str, str, ScanConfig]) -> CaptureSummary:
+    """``capture_step`` in a CAD worker (spawned: it travels by this qualified name)."""
+    from cadio.capture.scan import capture_step
+
+    target, workspace, cfg = payload
+    return capture_step(target, Path(workspace), cfg)
+
+
+def _limits() -> Limits:
+    """One CAD worker with the environment's per-file limits."""
+    from flows.settings import load_settings
+
+    return load_settings().limits(default_workers=1)
+
+
+def cmd_export(args: argparse.Namespace) -> int:
+    from collections import Counter
+
+    from cadio.export.job import export_assemblies, model_digests, run_jobs, write_index
+    from cadio.sandbox import Limits
+    from cadio.workspace import Workspace
+    from models.evaluate import SHIPPED
+    from models.relate import SHIPPED_RELATIONS
+
+    run_dir = Workspace(args.workspace).run_dir(args.run)
+    models = model_digests({"relations": args.relation_models or SHIPPED_RELATIONS,
+                            "completion": args.completion_models or SHIPPED})
+    try:
+        jobs = run_jobs(args.workspace, run_dir, models, args.out)
+    except InputFileError as exc:
+        print(f"mateqa export: {exc}", file=sys.stderr)
+        return 2
+    workers = args.workers or os.cpu_count() or 1
+    with progress("export", len(jobs)) as advance:
+        summaries = []
+        for summary in export_assemblies(jobs, Limits(workers=workers)):
+            summaries.append(summary)
+            advance(summary.assembly)
+    index = write_index(args.out or run_dir.resolve() / "exports", summaries)
+    for s in sorted(summaries, key=lambda s: s.assembly):
+        print(f"{s.assembly}: {s.status}" + (f" ({s.reason})" if s.reason else "")
+              + (f", {s.predicted_pairs}/{s.pairs} pairs predicted, {s.constraints} "
+                 "constraints" if s.sidecar and s.status != "failed" else ""))
+    counts = Counter(s.status for s in summaries)
+    print(f"{len(summaries)} assemblies ({', '.join(f'{n} {k}' for k, n in sorted(counts.items()))}"
+          f"): {index}")
+    return 0
+
+
+
+def cmd_samples(args: argparse.Namespace) -> int:
+    from cadio.samples.library import generate_library
+
+    paths = generate_library(args.out)
+    print(f"{len(paths)} STEP files in {args.out}")
+    return 0

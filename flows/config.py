@@ -1,0 +1,228 @@
+"""The configuration of a night: one typed object, grouped the way a QA team reads it.
+
+``NightConfig`` is the nightly flow's one parameter, what ``run_stages`` reads, what the CLI's
+options map onto (``flows.cli``) and what the deployment form shows: ``library`` (what is
+checked), ``capture`` (how it is seen), ``models`` (the checkpoints, the model version),
+``thresholds`` (what a pass is), ``runtime`` (where and with how much of the machine) and the
+run's ``tolerances``. Every field carries a description and its allowed range (the JSON
+schema's ``minimum``/``maximum``, repeated in the description for the form and ``--help``),
+and unknown keys are refused, so a deployment parameter that does not fit fails before any
+work with a message naming the field. What a schema cannot know (the library has files, the
+categories exist, the checkpoints load) is checked by ``flows.preflight``.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import fields
+from functools import cache
+from typing import Annotated, Any
+
+from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator
+
+from cadio.tolerances import DEFAULT_TOLERANCES, Tolerances
+from flows.settings import FileMB, FileSeconds, MemoryMB, Workers
+
+# The paper's camera circle has 125 views; more per scene would repeat them.
+Views = Annotated[int, Field(ge=1, le=125)]
+# Grid sides of the occupancy written at ingest: below 8 a part is a few voxels; 256 is the
+# paper's output, 0.2-2 s and about 2 MB a part.
+VoxelSide = Annotated[int, Field(ge=8, le=256)]
+Name = Annotated[str, Field(min_length=1)]
+Count = Annotated[int, Field(ge=1, le=1000)]
+
+
+def _ranges(schema: dict[str, Any]) -> None:
+    """Append each property's allowed range to its description (the form shows descriptions;
+    the bounds themselves stay in the schema for validators)."""
+    for prop in schema.get("properties", {}).values():
+        text = range_text(prop)
+        if text and "description" in prop:
+            prop["description"] += f" (allowed: {text})"
+
+
+def range_text(prop: dict[str, Any]) -> str:
+    """``1 to 125``, ``> 0``, ``8 to 256 each`` ... of a property's JSON schema; '' if none."""
+    for option in prop.get("anyOf", []):
+        if option.get("type") != "null":
+            return range_text(option)
+    if prop.get("type") == "array":
+        inner = range_text(prop.get("items", {}))
+        return f"{inner} each" if inner else ""
+    bounds = {key: _number(prop[key]) for key in _BOUNDS if key in prop}
+    if "minimum" in bounds and "maximum" in bounds:
+        return f"{bounds['minimum']} to {bounds['maximum']}"
+    return " and ".join(f"{_BOUNDS[key]} {value}" for key, value in bounds.items())
+
+
+_BOUNDS = {"minimum": ">=", "exclusiveMinimum": ">", "maximum": "<=", "exclusiveMaximum": "<"}
+_RANGE_ERRORS = {"greater_than", "greater_than_equal", "less_than", "less_than_equal"}
+
+
+def _number(value: float) -> str:
+    return str(int(value)) if float(value).is_integer() else f"{value:g}"
+
+
+class _Group(BaseModel):
+    model_config = ConfigDict(extra="forbid", frozen=True, json_schema_extra=_ranges)
+
+
+class LibraryOptions(_Group):
+    """What the night checks: the STEP library and the grids ingest writes of every part."""
+
+    path: str | None = Field(
+        default=None, description="folder of STEP files (categories are its sub-folders) or "
+        "a CSV with columns path,category; null: the built-in sample library")
+    categories: list[Name] | None = Field(
+        default=None, min_length=1, description="only these categories of the library, each "
+        "one the library has; null: every category")
+    voxel_sizes: list[VoxelSide] = Field(
+        default=[32, 64], min_length=1, max_length=4,
+        description="occupancy grid sides written for every part, voxels")
+    batch_size: Count = Field(default=12, description="files per ingest task")
+
+
+class CaptureOptions(_Group):
+    """How the parts are seen: rendered scenes, or recordings made elsewhere."""
+
+    recordings: str | None = Field(
+        default=None, description="folder of MCAP recordings to read instead of rendering "
+        "the scenes (real logs); null: render")
+    views_per_scene: Views = Field(
+        default=8, description="views rendered per scene, spread over the paper's 125-view "
+        "circle")
+    pairs_per_relation: Count = Field(
+        default=4, description="scenes generated per relation (over all splits)")
+    noise: bool = Field(default=False, description="switch the depth sensor noise model on")
+    seed: int = Field(default=0, ge=0, le=2**32 - 1, description="seed of the scene generator")
+
+
+class ModelOptions(_Group):
+    """The checkpoints the learned stages use: the night's model version."""
+
+    completion: str | None = Field(
+        default=None, description="folder of completion checkpoints (*.pt); null: the shipped "
+        "ones (models/checkpoints/completion)")
+    relations: str | None = Field(
+        default=None, description="folder of relation checkpoints (*.pt); null: the shipped "
+        "ones (models/checkpoints/relations)")
+
+
+class ThresholdOptions(_Group):
+    """What a pass is: per-category thresholds and the trend against earlier nights."""
+
+    file: str | None = Field(
+        default=None, description="per-category thresholds (TOML); null: "
+        "reports/thresholds.toml")
+    history: int = Field(
+        default=7, ge=0, le=365, description="earlier runs the trends compare with")
+    fail_on_threshold: bool = Field(
+        default=True, description="end the run Failed when a threshold fails or a metric "
+        "regressed")
+
+
+class RuntimeOptions(_Group):
+    """Where the night writes and how much of the machine it may use."""
+
+    workspace: Name = Field(default="workspace", description="the workspace folder")
+    workers: Workers | None = Field(
+        default=None, description="CAD worker processes per task (0: one); null: "
+        "MATEQA_WORKERS")
+    file_timeout_s: FileSeconds | None = Field(
+        default=None, description="seconds one file may take before its worker is killed; "
+        "null: MATEQA_FILE_TIMEOUT_S")
+    file_memory_mb: MemoryMB | None = Field(
+        default=None, description="address-space limit of each CAD worker, MB; null: "
+        "MATEQA_FILE_MEMORY_MB")
+    max_file_mb: FileMB | None = Field(
+        default=None, description="files larger than this are skipped, MB; null: "
+        "MATEQA_MAX_FILE_MB")
+    dask_address: str | None = Field(
+        default=None, description="a Dask scheduler (tcp://host:8786) to run the tasks on; "
+        "null: MATEQA_DASK_ADDRESS; empty: this machine")
+
+
+class NightConfig(_Group):
+    """Everything a night is run with (the nightly flow's one parameter)."""
+
+    library: LibraryOptions = Field(default=LibraryOptions(),
+                                    description=LibraryOptions.__doc__)
+    capture: CaptureOptions = Field(default=CaptureOptions(),
+                                    description=CaptureOptions.__doc__)
+    models: ModelOptions = Field(default=ModelOptions(), description=ModelOptions.__doc__)
+    thresholds: ThresholdOptions = Field(default=ThresholdOptions(),
+                                         description=ThresholdOptions.__doc__)
+    runtime: RuntimeOptions = Field(default=RuntimeOptions(),
+                                    description=RuntimeOptions.__doc__)
+    tolerances: Tolerances = Field(
+        default=DEFAULT_TOLERANCES, description="every geometric tolerance of the run, finite "
+        "and >= 0 (cadio/tolerances.py gives each one's reason; written to tolerances.json)")
+
+    @field_validator("tolerances")
+    @classmethod
+    def _finite(cls, tol: Tolerances) -> Tolerances:
+        bad = [f"{f.name}={getattr(tol, f.name)!r}" for f in fields(tol)
+               if not math.isfinite(getattr(tol, f.name)) or getattr(tol, f.name) < 0]
+        if bad:
+            raise ValueError(f"tolerances must be finite and >= 0: {', '.join(bad)}")
+        return tol
+
+
+class ConfigError(ValueError):
+    """A night's configuration that cannot run: ``field`` (dotted, e.g. ``library.path``) and
+    the reason, or several of them."""
+
+    def __init__(self, problems: list[tuple[str, str]]) -> None:
+        self.problems = problems
+        super().__init__("; ".join(f"{f}: {r}" for f, r in problems))
+
+
+@cache
+def _schema() -> dict[str, Any]:
+    return NightConfig.model_json_schema()
+
+
+def field_schema(path: str) -> dict[str, Any]:
+    """The JSON schema of one field of ``NightConfig`` (dotted path), refs resolved.
+
+    Raises:
+        KeyError: no such field.
+    """
+    schema = _schema()
+    node: dict[str, Any] = schema
+    for part in path.split("."):
+        if "$ref" in node:
+            node = schema["$defs"][node["$ref"].rsplit("/", 1)[-1]]
+        node = node["properties"][part]
+    return node
+
+
+def config_problems(exc: ValidationError) -> list[tuple[str, str]]:
+    """(field, reason with the allowed range and the value given) of each validation error."""
+    problems = []
+    for err in exc.errors():
+        loc = ".".join(str(p) for p in err["loc"] if not isinstance(p, int))
+        try:
+            allowed = range_text(field_schema(loc))
+        except KeyError:  # an unknown key: no schema of its own
+            allowed = ""
+        reason = f"must be {allowed}" if err["type"] in _RANGE_ERRORS and allowed else err["msg"]
+        if err["type"] != "missing":
+            reason += f", got {err['input']!r}"
+        problems.append((loc, reason))
+    return problems
+
+
+def night_config(values: dict[str, Any]) -> NightConfig:
+    """The configuration of nested ``values`` (groups of fields, as the deployment takes them).
+
+    Raises:
+        ConfigError: a field out of range, of the wrong type, or unknown; each named.
+    """
+    try:
+        return NightConfig.model_validate(values)
+    except ValidationError as exc:
+        raise ConfigError(config_problems(exc)) from None
+
+
+DEFAULT_NIGHT = NightConfig()
