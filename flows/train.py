@@ -233,8 +233,8 @@ def evaluate_models(ws: Workspace, models_dir: Path, run_dir: Path,
     index = read_index(dataset_dir(ws) / "index.parquet")
     test = index[(index["status"] == "ok") & (index["split"] == "test")]
     if per_group is not None:
-        test = test.groupby(["kind", "category", "n_views"], group_keys=False).apply(
-            lambda g: g.sample(min(len(g), per_group), random_state=seed))
+        shuffled = test.sample(frac=1.0, random_state=seed)
+        test = shuffled.groupby(["kind", "category", "n_views"]).head(per_group)
     category = dict(zip(test["part_id"], test["category"], strict=False))
     models = load_models(models_dir)
     scores = score_files([dataset_dir(ws) / f for f in test["file"]], models,
