@@ -1,4 +1,6 @@
-# The two commands of the README: `make nightly` (set up + run the main job) and `make test`.
+# The README's commands. `make nightly`: set up what a night needs, then run one on the built-in
+# sample library. `make test`: set up what the tests need besides, then ruff, mypy and the test
+# suite (exactly what CI runs, .ci/run).
 .PHONY: setup setup-test nightly serve test lint bench
 
 WORKSPACE ?= workspace
@@ -12,8 +14,9 @@ setup-test:
 nightly: setup
 	.venv/bin/mateqa nightly --workspace $(WORKSPACE)
 
-# A local Prefect server (UI on :4200), a process work pool and worker, the deployments of
-# prefect.yaml; then `prefect deployment run 'nightly/nightly' --watch`. Ctrl-C stops it.
+# A local Prefect server with its UI on :4200 (it takes over the one a night left running), a
+# process work pool and worker, the deployments of prefect.yaml; then
+# `prefect deployment run 'nightly/nightly' --watch`. Ctrl-C stops it all.
 serve: setup
 	.venv/bin/mateqa serve
 

@@ -1,12 +1,30 @@
 #!/usr/bin/env bash
-# Set up mateqa from nothing, idempotently: Debian libraries open3d needs, a virtualenv with
-# every pin from constraints.txt, and the independent MCAP reader used by the tests.
-# --test adds what only the tests need: Debian's chromium and its driver (the HTML report is
-# opened in a headless browser).
+# Set up mateqa from nothing, idempotently.
+#
+#   scripts/setup.sh          what a night needs (`make nightly`): the Debian libraries open3d
+#                             loads and a virtualenv with the runtime pins of constraints.txt
+#   scripts/setup.sh --test   what the tests need besides (`make test`): the dev extras (pytest,
+#                             ruff, mypy, an MCAP checker, selenium), Debian's chromium and its
+#                             driver (the HTML report is opened in a headless browser), Node with
+#                             npm and the independent MCAP reader of tests/mcap_reader
+#
+# Debian packages are installed with apt-get: as root, or through sudo.
 set -euo pipefail
 cd "$(dirname "$0")/.."
+test_setup=0
+case "${1:-}" in
+  "") ;;
+  --test) test_setup=1 ;;
+  *) echo "usage: scripts/setup.sh [--test]" >&2; exit 2 ;;
+esac
+
 debs=(libusb-1.0-0 libgl1 libgomp1)
-[ "${1:-}" = "--test" ] && debs+=(chromium chromium-driver)
+if [ "$test_setup" = 1 ]; then
+  debs+=(chromium chromium-driver)
+  # Any Node 18 or later reads the lock of tests/mcap_reader; Debian's is taken only when none is
+  # on PATH.
+  command -v npm >/dev/null 2>&1 || debs+=(nodejs npm)
+fi
 
 sudo_if_needed() { if [ "$(id -u)" -eq 0 ]; then "$@"; else sudo "$@"; fi; }
 
@@ -28,9 +46,11 @@ fi
 [ -x .venv/bin/python ] || "$PY" -m venv .venv
 # constraints.txt is the lock: every package, direct or not, at one exact version.
 # torch==2.13.0 resolves to the CPU wheel; a looser pin would pull several GB of CUDA.
-.venv/bin/python -m pip install -q --disable-pip-version-check -c constraints.txt -e ".[dev]"
+target="."
+[ "$test_setup" = 1 ] && target=".[dev]"
+.venv/bin/python -m pip install -q --disable-pip-version-check -c constraints.txt -e "$target"
 
-if [ -f tests/mcap_reader/package-lock.json ] && [ ! -d tests/mcap_reader/node_modules ]; then
+if [ "$test_setup" = 1 ] && [ ! -d tests/mcap_reader/node_modules ]; then
   echo "setup: installing the independent MCAP reader (npm @mcap/core)"
   (cd tests/mcap_reader && npm ci --silent --no-audit --no-fund)
 fi
