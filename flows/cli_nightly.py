@@ -48,6 +48,7 @@ def cmd_serve(args: argparse.Namespace) -> int:
         server_env,
         start_server,
         start_worker,
+        stop_owned,
         stop_process,
     )
 
@@ -80,7 +81,8 @@ def cmd_serve(args: argparse.Namespace) -> int:
         return 1
     finally:
         stop_process(worker)
-        stop_process(server)
+        if server is not None:
+            stop_owned(server)
         print("mateqa serve: stopped", flush=True)
 
 

@@ -1,23 +1,71 @@
-"""Start and stop a local Prefect server on SQLite for runs that have no API URL configured,
-and the rest of a local installation for ``mateqa serve``: a process work pool, the deployments
-of ``prefect.yaml`` and a worker.
+"""The local Prefect server on SQLite, and the rest of a local installation for ``mateqa serve``:
+a process work pool, the deployments of ``prefect.yaml`` and a worker.
+
+One server story: a server mateqa starts (for a night or for ``serve``) has its web UI, so the
+"View at" links of the runs open; a night leaves it running for the UI and later nights, and
+``mateqa serve`` takes it over (Ctrl-C then stops it). A headless Prefect server found on the
+port (one an older version left) is replaced by one with the UI, unless a flow run is in flight
+on it. ``mateqa serve --stop`` stops whatever Prefect server answers on the port.
 
 Prefect's ``--background`` mode never drains its output pipes and dies, so the server runs as a
-plain child process with output to a log file, and we wait for ``/api/health``.
+plain child process in its own session with output to a log file, and we wait for
+``/api/health``. The pid of a server mateqa started is kept in ``HOME/mateqa-server.pid``.
 """
 
 from __future__ import annotations
 
+import json
+import logging
 import os
 import subprocess
 import sys
 import time
 import urllib.request
+from dataclasses import dataclass, field
 from pathlib import Path
+
+import psutil
+
+logger = logging.getLogger(__name__)
+
+PID_FILE = "mateqa-server.pid"
+# States of a flow run that a replaced server would cut short.
+_IN_FLIGHT = ["PENDING", "RUNNING", "CANCELLING"]
 
 
 def api_url(port: int) -> str:
     return f"http://127.0.0.1:{port}/api"
+
+
+def ui_url(port: int) -> str:
+    return f"http://127.0.0.1:{port}"
+
+
+@dataclass(frozen=True)
+class LocalServer:
+    """A Prefect server answering on a loopback port.
+
+    ``started``: this process started it (on a free port, or in place of a headless one).
+    ``left_by_mateqa``: an earlier mateqa command started it (its pid is in the home's pid
+    file). ``replaced``: the pid of the headless server it replaced.
+    """
+
+    port: int
+    pid: int | None
+    ui: bool
+    started: bool = False
+    left_by_mateqa: bool = False
+    replaced: int | None = None
+    home: Path | None = None
+    process: subprocess.Popen[bytes] | None = field(default=None, compare=False, repr=False)
+
+    @property
+    def api_url(self) -> str:
+        return api_url(self.port)
+
+    @property
+    def ui_url(self) -> str | None:
+        return ui_url(self.port) if self.ui else None
 
 
 def is_healthy(url: str) -> bool:
@@ -29,35 +77,99 @@ def is_healthy(url: str) -> bool:
         return False
 
 
-def server_env(home: Path, port: int, ui: bool = False) -> dict[str, str]:
-    """Environment for a local server and its clients: SQLite under ``home``, no telemetry
-    (the web UI only when asked: ``mateqa serve``)."""
-    env = dict(os.environ)
-    env.update({
-        "PREFECT_HOME": str(home.resolve()),
-        "PREFECT_API_URL": api_url(port),
-        "PREFECT_SERVER_ANALYTICS_ENABLED": "false",
-        "PREFECT_SERVER_API_HOST": "127.0.0.1",
-        "PREFECT_SERVER_API_PORT": str(port),
-        "PREFECT_UI_ENABLED": "true" if ui else "false",
-        "PREFECT_LOGGING_LEVEL": env.get("PREFECT_LOGGING_LEVEL", "INFO"),
-    })
-    return env
+def ui_answers(port: int) -> bool:
+    """True when the Prefect web UI answers on ``port`` (a headless server gives 404 there)."""
+    try:
+        with urllib.request.urlopen(f"{ui_url(port)}/", timeout=5) as resp:
+            return resp.status == 200 and "text/html" in resp.headers.get("content-type", "")
+    except OSError:
+        return False
+
+
+def in_flight_runs(port: int) -> int | None:
+    """Flow runs pending or running on the server at ``port``; None when it does not say."""
+    body = json.dumps({"flow_runs": {"state": {"type": {"any_": _IN_FLIGHT}}}}).encode()
+    request = urllib.request.Request(f"{api_url(port)}/flow_runs/count", data=body,
+                                     headers={"Content-Type": "application/json"})
+    try:
+        with urllib.request.urlopen(request, timeout=10) as resp:
+            return int(json.load(resp))
+    except (OSError, ValueError):
+        return None
+
+
+def listener(port: int) -> psutil.Process | None:
+    """The process listening on TCP ``port`` of this host, where it can be seen."""
+    try:
+        conns = psutil.net_connections(kind="tcp")
+    except psutil.AccessDenied:
+        return None
+    for conn in conns:
+        if conn.status == psutil.CONN_LISTEN and conn.laddr and conn.laddr.port == port \
+                and conn.pid is not None:
+            try:
+                return psutil.Process(conn.pid)
+            except psutil.NoSuchProcess:
+                return None
+    return None
+
+
+def is_prefect_server(proc: psutil.Process) -> bool:
+    """True when ``proc`` is ``prefect server start`` (or the uvicorn of Prefect's API)."""
+    try:
+        cmd = proc.cmdline()
+    except (psutil.NoSuchProcess, psutil.AccessDenied):
+        return False
+    words = [Path(word).name for word in cmd]
+    return ("prefect" in words and "server" in words and "start" in words) \
+        or any("prefect.server.api.server" in word for word in cmd)
 
 
 def start_server(home: Path, port: int, timeout_s: float = 90.0,
-                 ui: bool = False) -> subprocess.Popen[bytes] | None:
-    """Start ``prefect server start`` unless one already answers; wait until healthy.
+                 ui: bool = True) -> LocalServer:
+    """The Prefect server on ``port``: the one answering there, else one started here.
 
-    Returns:
-        The server process, or None when a server was already running on ``port``.
+    A server answering without its UI when ``ui`` is asked for is replaced by one with it, if
+    it is a Prefect server of this host with no flow run in flight; otherwise it is kept (with
+    a warning: its "View at" links do not open).
 
     Raises:
         RuntimeError: the server did not answer within ``timeout_s`` (its log is named).
     """
-    url = api_url(port)
-    if is_healthy(url):
-        return None
+    if is_healthy(api_url(port)):
+        proc = listener(port)
+        mine = proc is not None and proc.pid == _marked_pid(home)
+        has_ui = ui_answers(port)
+        if has_ui or not ui:
+            return LocalServer(port, proc.pid if proc else None, has_ui, left_by_mateqa=mine,
+                               home=home)
+        reason = _why_not_replace(port, proc)
+        if reason:
+            logger.warning("the Prefect server on port %d has no UI and is kept (%s): its "
+                           "run links will not open", port, reason)
+            return LocalServer(port, proc.pid if proc else None, False, left_by_mateqa=mine,
+                               home=home)
+        assert proc is not None
+        old = proc.pid
+        stop_pid(old)
+        return _launch(home, port, timeout_s, ui, replaced=old)
+    return _launch(home, port, timeout_s, ui)
+
+
+def _why_not_replace(port: int, proc: psutil.Process | None) -> str | None:
+    """Why the headless server on ``port`` may not be replaced, or None when it may."""
+    if proc is None or not is_prefect_server(proc):
+        return "its process is not a Prefect server of this host"
+    runs = in_flight_runs(port)
+    if runs is None:
+        return "it did not say whether flow runs are in flight"
+    if runs:
+        return f"{runs} flow run(s) in flight on it"
+    return None
+
+
+def _launch(home: Path, port: int, timeout_s: float, ui: bool,
+            replaced: int | None = None) -> LocalServer:
     home.mkdir(parents=True, exist_ok=True)
     log_path = home / "server.log"
     with log_path.open("ab") as log_file:
@@ -69,18 +181,100 @@ def start_server(home: Path, port: int, timeout_s: float = 90.0,
         )
     deadline = time.monotonic() + timeout_s
     while time.monotonic() < deadline:
-        if is_healthy(url):
-            return proc
+        if is_healthy(api_url(port)):
+            (home / PID_FILE).write_text(f"{proc.pid}\n")
+            return LocalServer(port, proc.pid, ui, started=True, replaced=replaced,
+                               home=home, process=proc)
         if proc.poll() is not None:
             break
         time.sleep(0.5)
     proc.kill()
+    proc.wait()
     raise RuntimeError(f"Prefect server did not start on port {port}; see {log_path}")
 
 
-def stop_server(proc: subprocess.Popen[bytes] | None) -> None:
-    """Stop a server started by ``start_server`` (no-op for None)."""
-    stop_process(proc)
+def _marked_pid(home: Path) -> int | None:
+    try:
+        return int((home / PID_FILE).read_text().strip())
+    except (OSError, ValueError):
+        return None
+
+
+def stop_server(server: LocalServer | None) -> None:
+    """Stop a server that ``start_server`` started (no-op for None or one found running)."""
+    if server is not None and server.started and server.pid is not None:
+        _stop_and_unmark(server)
+
+
+def stop_owned(server: LocalServer) -> None:
+    """Stop the server when mateqa started it, now or for an earlier night (``serve``'s exit)."""
+    if (server.started or server.left_by_mateqa) and server.pid is not None:
+        _stop_and_unmark(server)
+
+
+def _stop_and_unmark(server: LocalServer) -> None:
+    assert server.pid is not None
+    if server.process is not None:
+        stop_process(server.process)
+    else:
+        stop_pid(server.pid)
+    if server.home is not None and _marked_pid(server.home) == server.pid:
+        (server.home / PID_FILE).unlink(missing_ok=True)
+
+
+def stop_port(port: int, home: Path | None = None) -> int | None:
+    """Stop the Prefect server listening on ``port`` of this host (``mateqa serve --stop``).
+
+    Returns:
+        Its pid, or None when no server answers there.
+
+    Raises:
+        RuntimeError: the port is held by a process that is no Prefect server, or one that
+            cannot be seen.
+    """
+    proc = listener(port)
+    if proc is None:
+        if is_healthy(api_url(port)):
+            raise RuntimeError(f"a Prefect API answers on port {port}, but its process cannot "
+                               "be seen from here (another user's, or in a container)")
+        return None
+    if not is_prefect_server(proc):
+        raise RuntimeError(f"port {port} is held by process {proc.pid} "
+                           f"({' '.join(proc.cmdline())[:80]}), not a Prefect server")
+    stop_pid(proc.pid)
+    if home is not None and _marked_pid(home) == proc.pid:
+        (home / PID_FILE).unlink(missing_ok=True)
+    return proc.pid
+
+
+def stop_pid(pid: int, timeout_s: float = 20.0) -> None:
+    """SIGTERM a process, SIGKILL it when it is still there after ``timeout_s``."""
+    try:
+        proc = psutil.Process(pid)
+        proc.terminate()
+        try:
+            proc.wait(timeout_s)
+        except psutil.TimeoutExpired:
+            proc.kill()
+            proc.wait(timeout_s)
+    except psutil.NoSuchProcess:
+        return
+
+
+def server_env(home: Path, port: int, ui: bool = True) -> dict[str, str]:
+    """Environment for a local server and its clients: SQLite under ``home``, no telemetry,
+    the web UI on unless asked otherwise."""
+    env = dict(os.environ)
+    env.update({
+        "PREFECT_HOME": str(home.resolve()),
+        "PREFECT_API_URL": api_url(port),
+        "PREFECT_SERVER_ANALYTICS_ENABLED": "false",
+        "PREFECT_SERVER_API_HOST": "127.0.0.1",
+        "PREFECT_SERVER_API_PORT": str(port),
+        "PREFECT_UI_ENABLED": "true" if ui else "false",
+        "PREFECT_LOGGING_LEVEL": env.get("PREFECT_LOGGING_LEVEL", "INFO"),
+    })
+    return env
 
 
 POOL = "mateqa"
