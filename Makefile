@@ -1,7 +1,7 @@
 # The README's commands. `make nightly`: set up what a night needs, then run one on the built-in
 # sample library. `make test`: set up what the tests need besides, then ruff, mypy and the test
 # suite (exactly what CI runs, .ci/run).
-.PHONY: setup setup-test nightly serve test lint bench
+.PHONY: setup setup-test nightly serve stop-server test lint bench
 
 WORKSPACE ?= workspace
 
@@ -19,6 +19,10 @@ nightly: setup
 # `prefect deployment run 'nightly/nightly' --watch`. Ctrl-C stops it all.
 serve: setup
 	.venv/bin/mateqa serve
+
+# Stop the Prefect server a night left running on :4200.
+stop-server:
+	.venv/bin/mateqa serve --stop
 
 lint: setup-test
 	.venv/bin/ruff check .

@@ -60,6 +60,10 @@ class Workspace:
         ``<protocol>-<views>.npz`` each) and ``points.npz`` (600 observed points)."""
         return self.root / "inputs" / capture / str(instance)
 
+    def checkpoints(self, stage: str) -> Path:
+        """Checkpoints ``mateqa train`` wrote for a stage (``completion``, ``relations``)."""
+        return self.root / "checkpoints" / stage
+
     def run_dir(self, run_id: str) -> Path:
         return self.root / "runs" / run_id
 

@@ -2,15 +2,17 @@
 
 ``ingest``, ``mates`` and ``capture`` run the library functions directly (no Prefect);
 ``nightly`` runs the Prefect flow, against ``PREFECT_API_URL`` when set, otherwise against a
-local Prefect server on SQLite that it starts (and leaves running for the UI and later runs
-unless ``--stop-server``). Every command takes the same tolerance options (``--tol NAME=VALUE``,
+local Prefect server on SQLite with its UI that it starts (and leaves running for the UI and
+later runs unless ``--stop-server``; ``serve --stop`` stops it). ``nightly``, ``ingest``,
+``mates`` and ``capture`` take the same tolerance options (``--tol NAME=VALUE``,
 ``--tolerances FILE.json``), which map onto the one ``Tolerances`` object of the run.
+``train`` writes into its training workspace; ``ship`` makes those checkpoints the default.
 Exit code 0 means the run completed, even when some inputs were bad (they are in the report);
 ``nightly`` exits 3 when the run completed but a per-category threshold failed or a metric
 regressed (its report says which), 1 when the run itself failed, 2 on bad arguments.
 
 This module holds the parser; the commands live beside it: ``cli_cad`` (ingest, mates, capture,
-export, samples), ``cli_train`` (train) and ``cli_nightly`` (nightly, serve).
+export, samples), ``cli_train`` (train, ship) and ``cli_nightly`` (nightly, serve).
 """
 
 from __future__ import annotations
@@ -26,7 +28,7 @@ from cadio.tolerances import DEFAULT_TOLERANCES
 from flows.cli_cad import cmd_capture, cmd_export, cmd_ingest, cmd_mates, cmd_samples
 from flows.cli_nightly import cmd_nightly, cmd_serve
 from flows.cli_options import allowed, bounded, check_inputs, config_of, tolerances_of
-from flows.cli_train import cmd_train
+from flows.cli_train import cmd_ship, cmd_train
 
 if TYPE_CHECKING:
     from flows.settings import Settings
@@ -134,12 +136,16 @@ def _parser() -> argparse.ArgumentParser:
                        description="Start a local Prefect server on SQLite (with its UI), a "
                        "process work pool with a worker, and apply the deployments of "
                        "prefect.yaml; then `prefect deployment run 'nightly/nightly' --watch` "
-                       "works. Runs until interrupted (Ctrl-C or SIGTERM), then stops "
-                       "everything it started.")
+                       "works. It takes over the server a night left running (a server without "
+                       "a UI is replaced). Runs until interrupted (Ctrl-C or SIGTERM), then "
+                       "stops the worker and that server; --stop stops a server left running.")
     p.add_argument("--port", type=bounded(int, 1, 65535), default=settings.server_port,
                    help=f"server port (default {settings.server_port})")
     p.add_argument("--home", type=Path, default=settings.prefect_home,
                    help=f"Prefect home: database, logs (default {settings.prefect_home})")
+    p.add_argument("--stop", action="store_true",
+                   help="stop the Prefect server on the port (the one a night left running) "
+                   "and exit")
     p.set_defaults(func=cmd_serve, tol=[], tolerances_file=None)
 
     p = sub.add_parser("mates", help="face mates, relations and joints of a STEP assembly",
@@ -169,9 +175,8 @@ def _parser() -> argparse.ArgumentParser:
                        "parts (after completion, in the same workspace); score them on "
                        "held-out parts beside the baselines, and write them with their model "
                        "card (no Prefect; the train flow runs the same steps).")
-    p.add_argument("stage", choices=["completion", "relations"], help="what to train")
-    p.add_argument("--workspace", type=Path, default=Path("train-workspace"),
-                   help="training workspace: corpus, dataset, snapshots, reports")
+    _training_workspace(p, "what to train", "checkpoint folder (default: "
+                        "WORKSPACE/checkpoints/<stage>)")
     p.add_argument("--shared", type=Path, default=None,
                    help="folder of real STEP parts to add to the corpus (split by part)")
     p.add_argument("--variants", type=bounded(int, 0, 100_000), default=100,
@@ -189,8 +194,6 @@ def _parser() -> argparse.ArgumentParser:
                    help="relations: corpus scenes per relation (split by part)")
     p.add_argument("--protocols", nargs="+", default=["observed", "oracle-box"],
                    help="input protocols to train for")
-    p.add_argument("--out", type=Path, default=None,
-                   help="checkpoint folder (default: the shipped models/checkpoints/<stage>)")
     p.add_argument("--workers", type=bounded(int, 1, 256), default=os.cpu_count() or 1,
                    help="worker processes for CAD work and rendering")
     p.add_argument("--grids", type=bounded(int, 8, 512), nargs=2, default=[32, 64],
@@ -204,6 +207,14 @@ def _parser() -> argparse.ArgumentParser:
     p.add_argument("--threads", type=bounded(int, 1, 256), default=1,
                    help="torch threads (one is fastest on a busy 2-core machine)")
     p.set_defaults(func=cmd_train, tol=[], tolerances_file=None)
+
+    p = sub.add_parser("ship", help="make trained checkpoints the shipped default",
+                       description="Copy the checkpoints `mateqa train STAGE` wrote into its "
+                       "workspace, with their MODEL_CARD.md, over the shipped ones "
+                       "(models/checkpoints/STAGE), which a night uses unless told otherwise. "
+                       "Read the model card first.")
+    _training_workspace(p, "what to ship", "the folder train wrote to, when it was given --out")
+    p.set_defaults(func=cmd_ship, tol=[], tolerances_file=None)
 
     p = sub.add_parser("export", help="write a run's predicted mates back into CAD files "
                        "(no Prefect)",
@@ -231,6 +242,14 @@ def _parser() -> argparse.ArgumentParser:
     p.add_argument("out", type=Path, metavar="OUT", help="output folder")
     p.set_defaults(func=cmd_samples, tol=[], tolerances_file=None)
     return parser
+
+
+def _training_workspace(p: argparse.ArgumentParser, stage_help: str, out_help: str) -> None:
+    p.add_argument("stage", choices=["completion", "relations"], help=stage_help)
+    p.add_argument("--workspace", type=Path, default=Path("train-workspace"),
+                   help="training workspace: corpus, dataset, snapshots, reports, checkpoints "
+                   "(default train-workspace)")
+    p.add_argument("--out", type=Path, default=None, help=out_help)
 
 
 def _workspace_and_tolerances(p: argparse.ArgumentParser, settings: Settings) -> None:

@@ -9,6 +9,10 @@ import os
 import sys
 from dataclasses import asdict
 from pathlib import Path
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:
+    from flows.server import LocalServer
 
 # Prefect configures its own loggers when imported; this override (a default the user's
 # environment may replace) keeps one "Finished in state Completed()" per task off the console:
@@ -28,13 +32,29 @@ def cmd_nightly(args: argparse.Namespace) -> int:
         home = settings.prefect_home
         os.environ.update(server_env(home, settings.server_port))
         print(f"starting a local Prefect server on SQLite in {home} ...", flush=True)
-        proc = start_server(home, settings.server_port)
-        print(f"Prefect API at {os.environ['PREFECT_API_URL']}", flush=True)
+        try:
+            proc = start_server(home, settings.server_port)
+        except RuntimeError as exc:
+            print(f"mateqa nightly: {exc}", file=sys.stderr)
+            return 1
+        print(_server_lines(proc, left_running=not args.stop_server), flush=True)
     try:
         return _run_nightly(args)
     finally:
         if args.stop_server:
             stop_server(proc)
+
+
+def _server_lines(server: LocalServer, left_running: bool) -> str:
+    """What a night says of its local Prefect server: where its UI is, and how to stop it."""
+    where = (f"Prefect UI at {server.ui_url}" if server.ui_url
+             else f"Prefect API at {server.api_url} (this server has no UI)")
+    if server.replaced:
+        where += f" (replaced the server without a UI, pid {server.replaced})"
+    if not left_running:
+        return where
+    return (f"{where}; it stays up for later nights: `mateqa serve --stop"
+            f"{'' if server.port == 4200 else f' --port {server.port}'}` stops it")
 
 
 def cmd_serve(args: argparse.Namespace) -> int:
@@ -53,6 +73,8 @@ def cmd_serve(args: argparse.Namespace) -> int:
     )
 
     root, home = project_root(), args.home.resolve()
+    if args.stop:
+        return _stop_serve(args.port, home)
     env = server_env(home, args.port, ui=True)
     env.update({k: env.get(k, v) for k, v in _PREFECT_QUIET.items()})
     stop = threading.Event()
@@ -64,11 +86,15 @@ def cmd_serve(args: argparse.Namespace) -> int:
         server = start_server(home, args.port, ui=True)
         apply_deployments(env, root, home / "deploy.log")
         worker = start_worker(env, root, home / "worker.log")
-        print(f"Prefect UI:  http://127.0.0.1:{args.port}\nPrefect API: {api_url(args.port)}\n"
+        owned = server.started or server.left_by_mateqa
+        print(f"Prefect UI:  {server.ui_url or '(none: this server has no UI)'} "
+              f"({_origin(server)})\nPrefect API: {api_url(args.port)}\n"
               f"work pool 'mateqa' with a process worker (log: {home / 'worker.log'})\n"
               f"deployments of {root / 'prefect.yaml'} applied; run the nightly with\n"
               f"  PREFECT_API_URL={api_url(args.port)} prefect deployment run 'nightly/nightly'"
-              f" --param library=DIR --watch\nCtrl-C stops the worker and the server.",
+              f" --param 'config={{\"library\": {{\"path\": \"DIR\"}}}}' --watch\n"
+              "Ctrl-C stops the worker and "
+              + ("the server." if owned else "leaves the server, which was running before."),
               flush=True)
         while not stop.wait(1.0):
             if worker.poll() is not None:
@@ -85,6 +111,27 @@ def cmd_serve(args: argparse.Namespace) -> int:
             stop_owned(server)
         print("mateqa serve: stopped", flush=True)
 
+
+
+def _origin(server: LocalServer) -> str:
+    if server.replaced:
+        return f"started in place of a server without a UI, pid {server.replaced}"
+    if server.started:
+        return "started"
+    return "taken over from an earlier night" if server.left_by_mateqa else "already running"
+
+
+def _stop_serve(port: int, home: Path) -> int:
+    from flows.server import stop_port
+
+    try:
+        pid = stop_port(port, home)
+    except RuntimeError as exc:
+        print(f"mateqa serve --stop: {exc}", file=sys.stderr)
+        return 1
+    print(f"stopped the Prefect server on port {port} (pid {pid})" if pid
+          else f"no Prefect server on port {port}")
+    return 0
 
 
 def _run_nightly(args: argparse.Namespace) -> int:

@@ -1,13 +1,18 @@
-"""``mateqa train``: the completion checkpoints, then the relation networks (no Prefect)."""
+"""``mateqa train``: the completion checkpoints, then the relation networks (no Prefect), into
+the training workspace; ``mateqa ship``: those checkpoints over the shipped ones."""
 
 from __future__ import annotations
 
 import argparse
 import sys
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from cadio.errors import InputFileError
 from flows.cli_cad import progress
+
+if TYPE_CHECKING:
+    from cadio.workspace import Workspace
 
 
 def cmd_train(args: argparse.Namespace) -> int:
@@ -24,11 +29,10 @@ def cmd_train(args: argparse.Namespace) -> int:
     from cadio.sandbox import Limits
     from cadio.workspace import Workspace
     from flows.train import evaluate_models, prepare_corpus, train_model, write_model_card
-    from models.evaluate import SHIPPED
 
     torch.set_num_threads(args.threads)
     ws = Workspace(args.workspace.resolve())
-    out = (args.out or SHIPPED).resolve()
+    out = train_out(args, ws)
     ingest_cfg = IngestConfig(limits=Limits(workers=args.workers, seconds=600),
                               tolerances=args.tolerances)
     try:
@@ -58,7 +62,7 @@ def cmd_train(args: argparse.Namespace) -> int:
                              "threads": args.threads}, corpus)
     print(Path(run_dir / "completion.md").read_text())
     print(f"model card: {card}")
-    return 0
+    return _trained(args, out)
 
 
 def _cmd_train_relations(args: argparse.Namespace) -> int:
@@ -76,14 +80,15 @@ def _cmd_train_relations(args: argparse.Namespace) -> int:
         write_relation_card,
     )
     from models.evaluate import SHIPPED
-    from models.relate import SHIPPED_RELATIONS
 
     torch.set_num_threads(args.threads)
     ws = Workspace(args.workspace.resolve())
-    out = (args.out or SHIPPED_RELATIONS).resolve()
+    out = train_out(args, ws)
+    completion = ws.checkpoints("completion")  # trained in this workspace, else the shipped
+    completion = completion if any(completion.glob("*.pt")) else SHIPPED
     try:
         with progress("labelled shots", None) as advance:
-            rows = build_dataset(ws, SHIPPED, Limits(workers=args.workers, seconds=600),
+            rows = build_dataset(ws, completion, Limits(workers=args.workers, seconds=600),
                                  advance)
     except (FileNotFoundError, ValueError) as exc:
         print(f"mateqa train relations: {exc} (run mateqa train completion in this workspace "
@@ -104,4 +109,35 @@ def _cmd_train_relations(args: argparse.Namespace) -> int:
                                 "pairs_per_relation": args.pairs_per_relation})
     print(report.read_text())
     print(f"model card: {card}")
+    return _trained(args, out)
+
+
+def train_out(args: argparse.Namespace, ws: Workspace) -> Path:
+    """Where ``mateqa train`` writes: ``--out``, else the training workspace's checkpoints."""
+    return Path(args.out or ws.checkpoints(args.stage)).resolve()
+
+
+def _trained(args: argparse.Namespace, out: Path) -> int:
+    """Say where the checkpoints are, how a night tries them and how to ship them."""
+    option = {"completion": "--completion-models", "relations": "--relation-models"}
+    print(f"checkpoints in {out}: `mateqa nightly {option[args.stage]} {out}` tries them; "
+          f"`mateqa ship {args.stage} --workspace {args.workspace}` makes them the default")
+    return 0
+
+
+def cmd_ship(args: argparse.Namespace) -> int:
+    from cadio.workspace import Workspace
+    from models.checkpoint import ship_checkpoints
+    from models.errors import CheckpointError
+    from models.evaluate import SHIPPED
+    from models.relate import SHIPPED_RELATIONS
+
+    trained = train_out(args, Workspace(args.workspace.resolve()))
+    shipped = {"completion": SHIPPED, "relations": SHIPPED_RELATIONS}[args.stage]
+    try:
+        files = ship_checkpoints(trained, shipped)
+    except CheckpointError as exc:
+        print(f"mateqa ship: {exc}", file=sys.stderr)
+        return 2
+    print(f"shipped {len(files)} files of {trained} into {shipped}")
     return 0

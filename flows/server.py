@@ -125,7 +125,7 @@ def is_prefect_server(proc: psutil.Process) -> bool:
         or any("prefect.server.api.server" in word for word in cmd)
 
 
-def start_server(home: Path, port: int, timeout_s: float = 90.0,
+def start_server(home: Path, port: int, timeout_s: float = 300.0,
                  ui: bool = True) -> LocalServer:
     """The Prefect server on ``port``: the one answering there, else one started here.
 

@@ -53,8 +53,7 @@ from cadio.truth.scenes import (
     write_scenes,
 )
 from cadio.workspace import Workspace
-from models.evaluate import LEARNED, SHIPPED
-from models.relate import SHIPPED_RELATIONS
+from models.evaluate import LEARNED
 
 log = logging.getLogger(__name__)
 
@@ -372,9 +371,9 @@ def evaluate_relations_task(workspace: str, out: str, run_dir: str, command: str
 @flow(name="train")
 def train(workspace: str = "train-workspace", shared: str | None = None, variants: int = 100,
           seed: int = 0, steps: int = 2000, methods: list[str] | None = None,
-          protocols: list[str] | None = None, out: str = str(SHIPPED),
+          protocols: list[str] | None = None, out: str | None = None,
           workers: int = 2, relation_steps: int = 1000,
-          relation_out: str = str(SHIPPED_RELATIONS)) -> dict[str, Any]:
+          relation_out: str | None = None) -> dict[str, Any]:
     """Train the completion checkpoints, then the relation checkpoints on the same corpus, and
     write their held-out reports and model cards.
 
@@ -384,13 +383,17 @@ def train(workspace: str = "train-workspace", shared: str | None = None, variant
         variants: parametric variants per category of the sample library.
         steps: training steps per completion model (a rerun resumes unfinished ones).
         methods, protocols: which completion checkpoints (default: all three, both protocols).
-        out: where the completion checkpoints and MODEL_CARD.md go (default: the shipped folder).
+        out: where the completion checkpoints and MODEL_CARD.md go (default: the workspace's
+            ``checkpoints/completion``; ``mateqa ship completion`` makes them the default).
         workers: worker processes for the CAD and rendering work.
         relation_steps: training steps per relation model (0: no relation training).
-        relation_out: where the relation checkpoints and their MODEL_CARD.md go.
+        relation_out: where the relation checkpoints and their MODEL_CARD.md go (default: the
+            workspace's ``checkpoints/relations``; ``mateqa ship relations`` ships them).
     """
     log = get_run_logger()
     ws = Workspace(Path(workspace).resolve())
+    out = out or str(ws.checkpoints("completion"))
+    relation_out = relation_out or str(ws.checkpoints("relations"))
     corpus = corpus_task(str(ws.root), shared, variants, seed, workers)
     log.info("corpus: %d parts %s, %d failed", corpus.parts, corpus.splits, corpus.failed)
     trained = [train_task(str(ws.root), m, p, steps, out)

@@ -26,6 +26,7 @@ import json
 import os
 import pickle
 import re
+import shutil
 from collections.abc import Mapping
 from datetime import UTC, datetime
 from importlib import metadata
@@ -185,6 +186,34 @@ def _unpickling_reason(exc: Exception) -> str:
         return "its pickle holds more than tensors and plain values"
     first = text.splitlines()[0] if text else ""
     return f"{type(exc).__name__}: {first}" if first else type(exc).__name__
+
+
+def ship_checkpoints(trained: Path, shipped: Path) -> list[Path]:
+    """Copy a folder of trained checkpoints and its ``MODEL_CARD.md`` over the shipped ones.
+
+    ``mateqa train`` writes into its workspace; shipping is the explicit step that makes them
+    what a night uses by default. Each file is copied atomically (temp file + rename); shipped
+    checkpoints of methods that were not trained stay.
+
+    Returns:
+        The shipped files.
+
+    Raises:
+        CheckpointError: ``trained`` holds no checkpoint.
+    """
+    files = sorted(trained.glob("*.pt"))
+    if not files:
+        raise CheckpointError(trained, "no checkpoint (*.pt) to ship: train into it first")
+    card = trained / "MODEL_CARD.md"
+    shipped.mkdir(parents=True, exist_ok=True)
+    out = []
+    for src in [*files, *([card] if card.is_file() else [])]:
+        fd, tmp = create_beside(shipped / src.name)
+        with os.fdopen(fd, "wb") as dst, src.open("rb") as f:
+            shutil.copyfileobj(f, dst)
+        os.replace(tmp, shipped / src.name)
+        out.append(shipped / src.name)
+    return out
 
 
 def model_card(ckpt: Mapping[str, Any], command: str = "") -> str:

@@ -49,3 +49,34 @@ def test_ingest_exits_zero_with_bad_inputs_and_reports_them(
 def test_ingest_of_a_missing_folder_fails_the_run(tmp_path: Path) -> None:
     code = main(["ingest", str(tmp_path / "nope"), "--workspace", str(tmp_path / "ws")])
     assert code == 2
+
+
+def test_train_writes_into_its_workspace_and_ship_is_the_explicit_step(
+        tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    from cadio.workspace import Workspace
+    from flows.cli_train import train_out
+    from models.checkpoint import load_checkpoint, ship_checkpoints
+    from models.evaluate import SHIPPED
+
+    ws = tmp_path / "train-ws"
+    for stage in ("completion", "relations"):
+        args = _parser().parse_args(["train", stage, "--workspace", str(ws)])
+        assert train_out(args, Workspace(ws)) == (ws / "checkpoints" / stage).resolve()
+    # Nothing trained there yet: shipping refuses, naming the folder, and ships nothing.
+    assert main(["ship", "completion", "--workspace", str(ws)]) == 2
+    assert f"{ws.resolve() / 'checkpoints' / 'completion'}: no checkpoint" in \
+        capsys.readouterr().err
+    trained, shipped = ws / "checkpoints" / "completion", tmp_path / "shipped"
+    trained.mkdir(parents=True)
+    shutil.copy(SHIPPED / "completion-ae-observed.pt", trained)
+    (trained / "MODEL_CARD.md").write_text("# trained here\n")
+    shipped.mkdir()
+    (shipped / "completion-r2n2-observed.pt").write_bytes(b"kept")
+    (shipped / "MODEL_CARD.md").write_text("# the old card\n")
+    files = ship_checkpoints(trained, shipped)
+    assert sorted(f.name for f in files) == ["MODEL_CARD.md", "completion-ae-observed.pt"]
+    assert (shipped / "MODEL_CARD.md").read_text() == "# trained here\n"
+    assert load_checkpoint(shipped / "completion-ae-observed.pt")["method"] == "ae"
+    assert (shipped / "completion-r2n2-observed.pt").read_bytes() == b"kept"
+    assert sorted(p.name for p in shipped.iterdir()) == [
+        "MODEL_CARD.md", "completion-ae-observed.pt", "completion-r2n2-observed.pt"]
