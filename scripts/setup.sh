@@ -46,9 +46,15 @@ fi
 [ -x .venv/bin/python ] || "$PY" -m venv .venv
 # constraints.txt is the lock: every package, direct or not, at one exact version.
 # torch==2.13.0 resolves to the CPU wheel; a looser pin would pull several GB of CUDA.
-target="."
-[ "$test_setup" = 1 ] && target=".[dev]"
-.venv/bin/python -m pip install -q --disable-pip-version-check -c constraints.txt -e "$target"
+# pip re-resolves every pin on each call (minutes); a stamp of the lock and the package
+# metadata skips it while neither changed. The test stamp covers a night's needs too.
+lock=$(cat constraints.txt pyproject.toml | sha256sum | cut -d' ' -f1)
+target="." stamp=.venv/.installed-run
+[ "$test_setup" = 1 ] && target=".[dev]" stamp=.venv/.installed-test
+if [ "$(cat "$stamp" 2>/dev/null)" != "$lock" ] && [ "$(cat .venv/.installed-test 2>/dev/null)" != "$lock" ]; then
+  .venv/bin/python -m pip install -q --disable-pip-version-check -c constraints.txt -e "$target"
+  echo "$lock" > "$stamp"
+fi
 
 if [ "$test_setup" = 1 ] && [ ! -d tests/mcap_reader/node_modules ]; then
   echo "setup: installing the independent MCAP reader (npm @mcap/core)"
