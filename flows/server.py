@@ -252,13 +252,28 @@ def stop_pid(pid: int, timeout_s: float = 20.0) -> None:
     try:
         proc = psutil.Process(pid)
         proc.terminate()
-        try:
-            proc.wait(timeout_s)
-        except psutil.TimeoutExpired:
+        if not _ended(proc, timeout_s):
             proc.kill()
-            proc.wait(timeout_s)
+            _ended(proc, timeout_s)
     except psutil.NoSuchProcess:
         return
+
+
+def _ended(proc: psutil.Process, timeout_s: float) -> bool:
+    """Wait until ``proc`` has ended; a zombie has (its parent reaps it when it will: a server
+    a night left behind belongs to no living process of ours)."""
+    deadline = time.monotonic() + timeout_s
+    while time.monotonic() < deadline:
+        try:
+            proc.wait(0.5)
+            return True
+        except psutil.TimeoutExpired:
+            try:
+                if proc.status() == psutil.STATUS_ZOMBIE:
+                    return True
+            except psutil.NoSuchProcess:
+                return True
+    return False
 
 
 def server_env(home: Path, port: int, ui: bool = True) -> dict[str, str]:
