@@ -231,9 +231,12 @@ def evaluate_models(ws: Workspace, models_dir: Path, run_dir: Path,
 
     index = read_index(dataset_dir(ws) / "index.parquet")
     test = index[(index["status"] == "ok") & (index["split"] == "test")]
+    # one example per part, kind of shot, protocol and number of views (a part sits in many
+    # shots: the report scores it once per context, as the nightly does)
+    test = test.sample(frac=1.0, random_state=seed).drop_duplicates(
+        ["part_id", "kind", "protocol", "n_views"])
     if per_group is not None:
-        shuffled = test.sample(frac=1.0, random_state=seed)
-        test = shuffled.groupby(["kind", "category", "n_views"]).head(per_group)
+        test = test.groupby(["kind", "category", "n_views"]).head(per_group)
     category = dict(zip(test["part_id"], test["category"], strict=False))
     models = load_models(models_dir)
     scores = score_files([dataset_dir(ws) / f for f in test["file"]], models,
