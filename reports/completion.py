@@ -13,6 +13,10 @@ Two files other tools read (DESIGN.md, "Report files": names and columns are a c
 - ``runs/<run_id>/completion_contexts.csv``: the same means per category x context
   (``CONTEXT_COLUMNS``): how the methods do on parts in pairs and inside assemblies.
 
+``completion.md`` opens with the parts per category: with the coverage of the library
+(``reports.coverage``: parts ingested, parts scored and their share) where the run has it, and
+per split.
+
 Every mean here is taken first over the views of a part, then over parts, so a part scored
 from 125 views weighs as much as a part scored from one. ``all`` is the mean over every part
 (a category with more parts weighs more), not the mean of the category means. NaN metrics (the
@@ -74,6 +78,8 @@ PAPER_IOU_PCT = {  # Table II: IoU of the paper's method and of 3D-R2N2
 # how 57.23 was taken. Reported as printed, with that note.
 PAPER_OVERALL_IOU_PCT = 57.23
 _PAPER_SETTING = f"the paper: {PAPER_PROTOCOL}, one view, its own parts"
+_LIBRARY_TITLE = ("### Parts per category: ingested, scored (coverage_parts = parts_scored / "
+                   "parts_ingested) and per split")
 
 
 @dataclass(frozen=True)
@@ -316,11 +322,28 @@ def split_sizes(parts: pd.DataFrame) -> pd.DataFrame:
     return table.reindex(rows).reset_index()
 
 
-def completion_markdown(parts: pd.DataFrame, split: str = HELD_OUT) -> str:
-    """The run report's completion section: split sizes, empty predictions, and per protocol
-    the category means, the paper comparisons, IoU against view angle and number of views."""
+def _parts_table(parts: pd.DataFrame, library: pd.DataFrame | None) -> pd.DataFrame:
+    """Parts per category: ingested, scored and their share (when known), then per split."""
+    splits = split_sizes(parts) if len(parts) else pd.DataFrame(columns=["category"])
+    if library is None:
+        return splits
+    table = _fmt(library, 3).merge(splits, on="category", how="left")
+    split_columns = [c for c in table.columns if c not in library.columns]
+    table[split_columns] = table[split_columns].fillna(0).astype("int64")
+    return table
+
+
+def completion_markdown(parts: pd.DataFrame, split: str = HELD_OUT,
+                        library: pd.DataFrame | None = None) -> str:
+    """The run report's completion section: the parts per category (with ``library``, the
+    ``reports.coverage.part_coverage`` table: parts ingested, scored and their share) and
+    split, empty predictions, and per protocol the category means, the paper comparisons, IoU
+    against view angle and number of views."""
     if parts.empty:
-        return "## Completion\n\nNo completion scores in this run.\n"
+        lines = ["## Completion", "", "No completion scores in this run.", ""]
+        if library is not None:
+            lines += [_LIBRARY_TITLE, "", markdown_table(_parts_table(parts, library)), ""]
+        return "\n".join(lines)
     categories = category_means(parts, split)
     lines = [
         "## Completion", "",
@@ -331,7 +354,8 @@ def completion_markdown(parts: pd.DataFrame, split: str = HELD_OUT) -> str:
         f"figures are {PAPER_PROTOCOL}, single view, 256^3, on the paper's own parts; its "
         f"overall {PAPER_OVERALL_IOU_PCT}% is the abstract's, where its Table II averages "
         "70.61%).", "",
-        "### Parts per split and category", "", markdown_table(split_sizes(parts)), "",
+        _LIBRARY_TITLE if library is not None else "### Parts per split and category", "",
+        markdown_table(_parts_table(parts, library)), "",
     ]
     lines += _empty_predictions(parts)
     for protocol in [p for p in PROTOCOLS if p in set(parts["protocol"])]:
@@ -406,13 +430,15 @@ def _fmt(frame: pd.DataFrame, digits: int) -> pd.DataFrame:
     return out
 
 
-def write_completion(run_dir: Path, parts: pd.DataFrame) -> Path:
-    """The parts file, the categories file and ``completion.md`` in ``run_dir``; returns the
-    Markdown path."""
+def write_completion(run_dir: Path, parts: pd.DataFrame,
+                     library: pd.DataFrame | None = None) -> Path:
+    """The parts file, the categories and contexts files and ``completion.md`` (with
+    ``library``, the ``reports.coverage.part_coverage`` table, where given) in ``run_dir``;
+    returns the Markdown path."""
     write_completion_parts(run_dir, parts)
     write_completion_categories(run_dir, category_means(parts))
     with atomic_write(run_dir / CONTEXTS_FILE, "w") as fh:
         context_means(parts).to_csv(fh, index=False)
     with atomic_write(run_dir / MARKDOWN_FILE, "w") as fh:
-        fh.write(completion_markdown(parts))
+        fh.write(completion_markdown(parts, library=library))
     return run_dir / MARKDOWN_FILE
