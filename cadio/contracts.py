@@ -64,7 +64,9 @@ class CaptureSummary:
     error: empty when the capture and its inputs are fine, else the reason (the other counts
     say how far it got). seg_mean_iou: segmentation without ids scored against the ids (NaN
     when the capture has no ids). warnings: what the reader had to assume (a recording without
-    a transform tree, colour left out), from ``RgbdFrame.meta["warnings"]``.
+    a transform tree, colour left out), from ``RgbdFrame.meta["warnings"]``. input_parts: parts
+    with learning inputs; scored: the part ids among them whose completion examples were
+    built, to be scored from this capture (``cadio.capture.coverage``).
     """
 
     scene_id: str
@@ -76,6 +78,7 @@ class CaptureSummary:
     seg_mean_iou: float = math.nan
     error: str = ""
     warnings: tuple[str, ...] = ()
+    scored: tuple[str, ...] = ()
 
     def to_dict(self) -> dict[str, Any]:
         return asdict(self)

@@ -23,6 +23,7 @@ from prefect.artifacts import (
 )
 from prefect.task_runners import ThreadPoolTaskRunner
 
+from cadio.capture.coverage import ingested_parts
 from cadio.capture.scan import ScanConfig
 from cadio.catalog import read_catalog
 from cadio.contracts import CaptureSummary, MatesSummary
@@ -35,7 +36,6 @@ from flows.settings import Settings, ingest_config, load_settings
 from flows.stopping import stop_on_signal
 from flows.tasks import (
     Run,
-    assembly_stage,
     capture_stage,
     complete_stage,
     export_stage,
@@ -43,11 +43,13 @@ from flows.tasks import (
     ingest_stage,
     mates_stage,
     relate_stage,
+    render_stage,
     scenes_task,
     start_run,
 )
 from models.evaluate import SHIPPED, Scores, write_completion_report
 from models.relate import SHIPPED_RELATIONS, RelateBatch
+from reports.coverage import coverage_summary, read_part_coverage
 from reports.relations import combine_pairs, write_relation_report
 from reports.render import (
     IngestTotals,
@@ -72,7 +74,11 @@ class ThresholdFailure(RuntimeError):
 
 @dataclass(frozen=True)
 class NightlySummary:
-    """What a nightly run returns: where its reports are and the totals of each stage."""
+    """What a nightly run returns: where its reports are and the totals of each stage.
+
+    coverage: per category (and ``all``) the library's parts (``parts_ingested``), those the
+    completion stage scored (``parts_scored``) and their share (``coverage_parts``).
+    """
 
     run_id: str
     library: str
@@ -89,6 +95,7 @@ class NightlySummary:
     stage_seconds: dict[str, float] = field(default_factory=dict)
     exports: str = ""
     export_status: dict[str, int] = field(default_factory=dict)
+    coverage: dict[str, dict[str, Any]] = field(default_factory=dict)
 
 
 @task(name="relations-report")
@@ -105,8 +112,10 @@ def relations_report_task(run: Run, batches: list[RelateBatch]) -> str:
 
 @task(name="completion-report")
 def completion_report_task(run: Run, scores: list[Scores]) -> str:
-    """The completion report of the run (``completion_parts.parquet``, categories, Markdown)."""
-    return str(write_completion_report(Path(run.run_dir), scores))
+    """The completion report of the run (``completion_parts.parquet``, categories, the
+    coverage of the library's parts, Markdown)."""
+    ingested = ingested_parts(read_catalog(Workspace(Path(run.workspace)).catalog))
+    return str(write_completion_report(Path(run.run_dir), scores, ingested))
 
 
 @task(name="report")
@@ -242,10 +251,10 @@ def stages_of(config: NightConfig) -> NightlySummary:
              clock.lap("scenes"))
     scan_cfg = ScanConfig(views_per_scene=cap.views_per_scene, noise=cap.noise,
                           tolerances=tolerances)
-    captured = capture_stage(scenes, run, scan_cfg, cap.recordings)
-    if not cap.recordings:  # recordings stand on their own; a rendered run captures the assemblies
-        captured += assembly_stage(catalog, mates, run, scan_cfg)
-    elif all(c.error for c in captured):  # each one's reason is in the report; the night is empty
+    # recordings stand on their own; a rendered night captures the assemblies and every part
+    captured = (capture_stage(scenes, run, scan_cfg, cap.recordings) if cap.recordings
+                else render_stage(catalog, scenes, mates, run, scan_cfg))
+    if cap.recordings and all(c.error for c in captured):  # each reason is in the report
         raise ConfigError([("capture.recordings", f"none of the {len(captured)} recording(s) "
                             "could be used, the night would check nothing: " + "; ".join(
                                 f"{c.path}: {c.error}" for c in captured[:3]))])
@@ -256,9 +265,12 @@ def stages_of(config: NightConfig) -> NightlySummary:
     relations_dir = models.relations or str(SHIPPED_RELATIONS)
     scores = complete_stage(captured, run, completion_dir)
     completion = completion_report_task(run, scores)
-    log.info("completion: %d scores of %d examples, %d failed (%.1f s)",
-             sum(len(s.parts) for s in scores), sum(len(s.registration) for s in scores),
-             sum(len(s.failed) for s in scores), clock.lap("completion"))
+    coverage = coverage_summary(read_part_coverage(Path(run.run_dir)))
+    log.info("completion: %d scores of %d examples, %d failed, %d of %d parts scored "
+             "(%.1f s)", sum(len(s.parts) for s in scores),
+             sum(len(s.registration) for s in scores), sum(len(s.failed) for s in scores),
+             coverage.get("all", {}).get("parts_scored", 0),
+             coverage.get("all", {}).get("parts_ingested", 0), clock.lap("completion"))
     batches = relate_stage(captured, run, relations_dir, completion_dir)
     relations = relations_report_task(run, batches)
     log.info("relations: %d pair views, %d rows, %d captures failed (%.1f s)",
@@ -284,7 +296,8 @@ def stages_of(config: NightConfig) -> NightlySummary:
         stages_report=str(Path(run.run_dir) / "stages.md"), completion_report=completion,
         relations_report=relations, ingest=ingest, stages=stages,
         run_report=str(report.html), failed_checks=list(report.failed),
-        stage_seconds=clock.seconds, exports=exports, export_status=status)
+        stage_seconds=clock.seconds, exports=exports, export_status=status,
+        coverage=coverage)
     write_json(Path(run.run_dir) / "summary.json", asdict(summary))
     Workspace(Path(run.workspace)).mark_latest(run.run_id)
     return summary

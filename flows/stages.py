@@ -27,12 +27,11 @@ from flows.settings import ingest_config, load_settings
 from flows.stopping import stop_on_signal
 from flows.tasks import (
     Run,
-    assembly_stage,
-    capture_stage,
     export_stage,
     generate_library_task,
     ingest_stage,
     mates_stage,
+    render_stage,
     scenes_task,
     start_run,
     workspace_epoch,
@@ -82,7 +81,8 @@ def ingest(library: str | None = None, workspace: str = "workspace",
 def capture(workspace: str = "workspace", tolerances: Tolerances = DEFAULT_TOLERANCES,
             pairs_per_relation: Count = 4, views_per_scene: Views = 8, noise: bool = False,
             seed: int = 0) -> dict[str, Any]:
-    """Generate the scenes of an ingested workspace and capture them and its assemblies.
+    """Generate the scenes of an ingested workspace and capture them, its assemblies and,
+    alone, every part neither shows (each part's learning examples where it is scored).
 
     Args:
         workspace: a workspace the ``ingest`` flow (or the nightly) filled.
@@ -104,10 +104,9 @@ def capture(workspace: str = "workspace", tolerances: Tolerances = DEFAULT_TOLER
                                 tolerances=tolerances)
         scenes = scenes_task(str(ws.catalog), run.workspace, scene_cfg)
         scan_cfg = ScanConfig(views_per_scene=views_per_scene, noise=noise, tolerances=tolerances)
-        captured = capture_stage(scenes, run, scan_cfg, None)
         mates = mates_stage(str(ws.catalog), run, tolerances,  # cached: the ingest's own results
                             ingest_config(load_settings(), None, tolerances).limits)
-        captured += assembly_stage(str(ws.catalog), mates, run, scan_cfg)
+        captured = render_stage(str(ws.catalog), scenes, mates, run, scan_cfg)
         return {"scenes": scenes.scenes, "captures": len(captured),
                 "failed": sum(bool(c.error) for c in captured),
                 "frames": sum(c.frames for c in captured)}

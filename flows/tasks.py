@@ -34,6 +34,15 @@ from cadio.cad.ingest import (
     ingest_files,
     mark_duplicates,
 )
+from cadio.capture.coverage import (
+    Plan,
+    alone_id,
+    capture_parts_alone,
+    is_alone,
+    placements,
+    scoring_plan,
+    unscored_parts,
+)
 from cadio.capture.scan import (
     ASSEMBLY_PREFIX,
     ScanConfig,
@@ -58,7 +67,7 @@ from models.evaluate import Scores, complete_parts, part_inputs
 from models.relate import RelateBatch, relate_batch
 
 # Bump when a stage's code changes what it writes, so cached batches are redone.
-CAPTURE_VERSION = "capture-1"
+CAPTURE_VERSION = "capture-2"
 COMPLETION_VERSION = "completion-1"
 RELATE_VERSION = "relate-1"
 
@@ -204,10 +213,11 @@ def scenes_task(catalog: str, workspace: str, cfg: SceneConfig) -> ScenesSummary
 
 
 @task(name="capture", **_CACHED)
-def capture_task(scene_ids: list[str], workspace: str, cfg: ScanConfig,
-                 key: str) -> list[CaptureSummary]:
-    """Render a batch of scenes to MCAP and derive their learning inputs."""
-    return capture_batch(scene_ids, Workspace(Path(workspace)), cfg)
+def capture_task(scene_ids: list[str], workspace: str, cfg: ScanConfig, key: str,
+                 plan: Plan | None = None) -> list[CaptureSummary]:
+    """Render a batch of scenes to MCAP and derive their learning inputs (examples of the
+    parts ``plan`` scores in them)."""
+    return capture_batch(scene_ids, Workspace(Path(workspace)), cfg, plan)
 
 
 @task(name="read-captures", **_RETRY)
@@ -218,11 +228,20 @@ def read_captures_task(captures: str, workspace: str, cfg: ScanConfig) -> list[C
 
 @task(name="capture-assemblies", **_CACHED)
 def capture_assemblies_task(jobs: list[AssemblyJob], workspace: str, cfg: ScanConfig,
-                            key: str) -> list[CaptureSummary]:
-    """Render a batch of assemblies (their parts as placed) and derive their inputs."""
+                            key: str, plan: Plan | None = None) -> list[CaptureSummary]:
+    """Render a batch of assemblies (their parts as placed) and derive their inputs
+    (examples of the parts ``plan`` scores in them)."""
     ws = Workspace(Path(workspace))
-    return [capture_assembly(j.assembly, j.category, list(j.part_ids.values()), ws, cfg)
+    return [capture_assembly(j.assembly, j.category, list(j.part_ids.values()), ws, cfg,
+                             None if plan is None else plan.get(ASSEMBLY_PREFIX + j.assembly, ()))
             for j in jobs]
+
+
+@task(name="capture-alone", **_CACHED)
+def capture_alone_task(part_ids: list[str], workspace: str, cfg: ScanConfig,
+                       key: str) -> list[CaptureSummary]:
+    """Render a batch of parts, each alone, and build their examples to be scored."""
+    return capture_parts_alone(part_ids, Workspace(Path(workspace)), cfg)
 
 
 @task(name="complete", **_CACHED)
@@ -274,9 +293,23 @@ def mates_stage(catalog: str, run: Run, tol: Tolerances, limits: Limits) -> list
     return [m for f in futures for m in f.result()]
 
 
-def capture_stage(scenes: ScenesSummary, run: Run, cfg: ScanConfig,
-                  captures: str | None) -> list[CaptureSummary]:
-    """Render the scenes ten per task, or read the recordings of ``captures``."""
+def render_stage(catalog: str, scenes: ScenesSummary, mates: list[MatesSummary], run: Run,
+                 cfg: ScanConfig) -> list[CaptureSummary]:
+    """Render the scenes and the assemblies, a part scored in the first capture of each
+    context that places it (``cadio.capture.coverage.scoring_plan``), then alone every part
+    that none of them scored."""
+    jobs = captured_assemblies(catalog, mates, run)
+    plan = scoring_plan(placements(read_scenes(Path(scenes.path)), jobs))
+    captured = capture_stage(scenes, run, cfg, None, plan)
+    captured += assembly_stage(jobs, run, cfg, plan)
+    return captured + alone_stage(unscored_parts(read_catalog(Path(catalog)), captured), run,
+                                  cfg)
+
+
+def capture_stage(scenes: ScenesSummary, run: Run, cfg: ScanConfig, captures: str | None,
+                  plan: Plan | None = None) -> list[CaptureSummary]:
+    """Render the scenes ten per task (examples of the parts ``plan`` scores in each; None:
+    of all), or read the recordings of ``captures``."""
     if captures:
         return read_captures_task(captures, run.workspace, cfg)
     ws = Workspace(Path(run.workspace))
@@ -287,11 +320,12 @@ def capture_stage(scenes: ScenesSummary, run: Run, cfg: ScanConfig,
     for rows in batches(table.to_dict("records"), 10):
         ids = [str(r["scene_id"]) for r in rows]
         parts = sorted({str(r[c]) for r in rows for c in ("part_a", "part_b")})
+        scored = None if plan is None else {i: plan[i] for i in ids if i in plan}
         key = content_digest(
             [ws.mesh(p) for p in parts], rows=rows, colours=[colours.get(p) for p in parts],
-            cfg=cfg, epoch=run.epoch, version=CAPTURE_VERSION)
+            cfg=cfg, epoch=run.epoch, version=CAPTURE_VERSION, plan=scored)
         futures.append(_refreshed(capture_task, _present(ws, ids)).submit(
-            ids, run.workspace, cfg, key))
+            ids, run.workspace, cfg, key, scored))
     return [c for f in futures for c in f.result()]
 
 
@@ -306,26 +340,50 @@ def _refreshed(cached: Any, present: bool) -> Any:
     return cached if present else cached.with_options(refresh_cache=True)
 
 
-def assembly_stage(catalog: str, mates: list[MatesSummary], run: Run,
-                   cfg: ScanConfig) -> list[CaptureSummary]:
-    """Capture every assembly whose mates were extracted, two per task."""
+def captured_assemblies(catalog: str, mates: list[MatesSummary], run: Run) -> list[AssemblyJob]:
+    """The assemblies to capture: those whose mates were extracted."""
     ok = {m.assembly for m in mates if m.ok}
+    return [j for j in assembly_jobs(read_catalog(Path(catalog)), Path(run.workspace))
+            if j.assembly in ok]
+
+
+def assembly_stage(jobs: list[AssemblyJob], run: Run, cfg: ScanConfig,
+                   plan: Plan | None = None) -> list[CaptureSummary]:
+    """Capture the assemblies, two per task (examples of the parts ``plan`` scores in each;
+    None: of all)."""
     ws = Workspace(Path(run.workspace))
-    jobs = [j for j in assembly_jobs(read_catalog(Path(catalog)), ws.root) if j.assembly in ok]
     futures = []
     for b in batches(jobs, 2):
+        ids = [ASSEMBLY_PREFIX + j.assembly for j in b]
+        scored = None if plan is None else {i: plan[i] for i in ids if i in plan}
         files = [ws.mates(j.assembly) for j in b] + [ws.mesh(p) for j in b
                                                      for p in j.part_ids.values()]
-        key = content_digest(files, jobs=b, cfg=cfg, epoch=run.epoch, version=CAPTURE_VERSION)
-        present = _present(ws, [ASSEMBLY_PREFIX + j.assembly for j in b])
-        futures.append(_refreshed(capture_assemblies_task, present).submit(
-            b, run.workspace, cfg, key))
+        key = content_digest(files, jobs=b, cfg=cfg, epoch=run.epoch, version=CAPTURE_VERSION,
+                             plan=scored)
+        futures.append(_refreshed(capture_assemblies_task, _present(ws, ids)).submit(
+            b, run.workspace, cfg, key, scored))
+    return [c for f in futures for c in f.result()]
+
+
+def alone_stage(part_ids: list[str], run: Run, cfg: ScanConfig) -> list[CaptureSummary]:
+    """Capture each of the parts alone, ten per task."""
+    ws = Workspace(Path(run.workspace))
+    catalog = read_catalog(ws.catalog)
+    colours = dict(zip(catalog["part_id"].astype(str), catalog["colour"].astype(str),
+                       strict=True))
+    futures = []
+    for b in batches(part_ids, 10):
+        key = content_digest([ws.mesh(p) for p in b], parts=b, colours=[colours.get(p) for p in b],
+                             cfg=cfg, epoch=run.epoch, version=CAPTURE_VERSION)
+        present = _present(ws, [alone_id(p) for p in b])
+        futures.append(_refreshed(capture_alone_task, present).submit(b, run.workspace, cfg,
+                                                                       key))
     return [c for f in futures for c in f.result()]
 
 
 def complete_stage(captured: list[CaptureSummary], run: Run, models_dir: str) -> list[Scores]:
-    """Every captured part completed and scored (in the first capture that shows it), twenty
-    parts per task."""
+    """Every scored part completed and scored (once in each context it was seen in: in the
+    capture that scored it there), twenty parts per task."""
     ws = Workspace(Path(run.workspace))
     folders = part_inputs([ws.root / "inputs" / Path(c.path).stem for c in captured
                            if not c.error])
@@ -343,7 +401,8 @@ def relate_stage(captured: list[CaptureSummary], run: Run, relations_models: str
     """Every capture's pair views related by every method, ten captures per task; each
     batch's rows are written once under ``relations/<key>.parquet`` of the workspace."""
     ws = Workspace(Path(run.workspace))
-    paths = [Path(c.path) for c in captured if not c.error and c.path]
+    paths = [Path(c.path) for c in captured
+             if not c.error and c.path and not is_alone(c.scene_id)]  # a part alone: no pair
     labels = _categories_digest(ws)
     futures = []
     for b in batches(paths, 10):

@@ -25,6 +25,7 @@ import numpy.typing as npt
 import pandas as pd
 import torch
 
+from cadio.capture.coverage import capture_context
 from cadio.capture.examples import Example, read_example
 from cadio.capture.observe import union_states
 from cadio.capture.register import register
@@ -33,6 +34,7 @@ from cadio.workspace import Workspace, atomic_path
 from models.checkpoint import load_checkpoint, model_from_checkpoint
 from models.train import Model, predict
 from reports.completion import CompletionCase, parts_frame, write_completion
+from reports.coverage import part_coverage, write_part_coverage
 from reports.metrics import surface_points
 from reports.tables import markdown_table
 
@@ -115,11 +117,10 @@ class RegistrationRow:
 
 def context_of(meta: Mapping[str, Any]) -> str:
     """Where an example's part was seen: the corpus says it (``kind``); a nightly capture by its
-    name (``assembly-<name>``, ``alone-<part>``, else a pair scene)."""
+    name (``cadio.capture.coverage.capture_context``)."""
     if "kind" in meta:
         return str(meta["kind"])
-    capture = str(meta.get("capture", ""))
-    return next((c for c in ("assembly", "alone") if capture.startswith(f"{c}-")), "pair")
+    return capture_context(str(meta.get("capture", "")))
 
 
 def score_example(example: Example, preds: Mapping[str, npt.NDArray[np.bool_]],
@@ -188,12 +189,14 @@ def part_inputs(captures: Iterable[Path]) -> list[Path]:
     """The input folder of each part in each context (alone, in a pair, inside an assembly) in
     the first capture (by name) that shows it there: a part in several scenes is scored once
     per context, as ``completion_parts`` has one row per part, context and view. A folder is
-    one instance of a capture; its part is the one its examples name."""
+    one instance of a capture; its part is the one its examples name. A folder of a part its
+    capture does not score (only the views' inputs, ``cadio.capture.scan.scan_inputs``) is
+    passed over."""
     first: dict[tuple[str, str], Path] = {}
     for capture in sorted(c for c in captures if Path(c).is_dir()):
         for folder in sorted(p for p in Path(capture).iterdir() if p.is_dir()):
             meta = _folder_meta(folder)
-            if meta is not None:
+            if meta is not None and not meta.get("input_only"):
                 first.setdefault((str(meta["part_id"]), context_of(meta)), folder)
     return [first[k] for k in sorted(first)]
 
@@ -225,12 +228,17 @@ def complete_parts(folders: Iterable[Path], models_dir: Path, ws: Workspace) -> 
                        lambda pid: category.get(pid, "unknown"))
 
 
-def write_completion_report(run_dir: Path, scores: Iterable[Scores]) -> Path:
+def write_completion_report(run_dir: Path, scores: Iterable[Scores],
+                            ingested: pd.DataFrame | None = None) -> Path:
     """``completion_parts.parquet``, ``completion_categories.csv``, ``completion.md`` and
-    ``completion_registration.csv`` of the scores; returns the Markdown's path."""
+    ``completion_registration.csv`` of the scores, and with ``ingested`` (the library's parts:
+    part_id, category) ``completion_coverage.csv``; returns the Markdown's path."""
     batches = list(scores)
     parts = parts_frame(row for s in batches for row in s.parts)
-    md = write_completion(run_dir, parts)
+    library = None if ingested is None else part_coverage(parts, ingested)
+    if library is not None:
+        write_part_coverage(run_dir, library)
+    md = write_completion(run_dir, parts, library)
     registration = pd.DataFrame([r for s in batches for r in s.registration],
                                 columns=[f.name for f in fields(RegistrationRow)])
     with atomic_path(run_dir / "completion_registration.csv") as tmp:

@@ -114,10 +114,10 @@ def test_a_perfect_completion_registers_with_no_residual(examples: list[Path]) -
     assert math.isclose(row.view_deg, 0.0, abs_tol=1e-9)
 
 
-def _instance(folder: Path, part: str, capture: str) -> None:
+def _instance(folder: Path, part: str, capture: str, **meta: object) -> None:
     folder.mkdir(parents=True)
     np.savez(folder / "observed-0.npz", meta=np.array(json.dumps(
-        {"part_id": part, "capture": capture})))
+        {"part_id": part, "capture": capture, **meta})))
 
 
 def test_a_part_in_two_captures_is_scored_once_per_context(tmp_path: Path) -> None:
@@ -128,7 +128,10 @@ def test_a_part_in_two_captures_is_scored_once_per_context(tmp_path: Path) -> No
             _instance(tmp_path / capture / str(i), part, capture)
     _instance(tmp_path / "assembly-x" / "1", "a", "assembly-x")
     (tmp_path / "s2" / "3").mkdir()  # an instance without examples is skipped
+    # a part its capture does not score has only its views' inputs: passed over
+    _instance(tmp_path / "alone-d" / "1", "d", "alone-d")
+    _instance(tmp_path / "a0" / "1", "d", "a0", input_only=True)
     found = part_inputs([tmp_path / "s2", tmp_path / "s1", tmp_path / "assembly-x",
-                         tmp_path / "gone"])
+                         tmp_path / "gone", tmp_path / "a0", tmp_path / "alone-d"])
     assert sorted(str(p.relative_to(tmp_path)) for p in found) == [
-        "assembly-x/1", "s1/1", "s1/2", "s2/2"]
+        "alone-d/1", "assembly-x/1", "s1/1", "s1/2", "s2/2"]

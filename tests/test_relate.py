@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import shutil
 from pathlib import Path
 
 import numpy as np
@@ -111,3 +112,22 @@ def test_a_checkpoint_that_does_not_load_is_reported_and_the_baseline_runs(
     batch = relate_batch(captures, ws, folder, SHIPPED, tmp_path / "rows.parquet")
     assert len(batch.failed) == 1 and batch.failed[0].startswith("ltn-partial.pt: ")
     assert set(pd.read_parquet(batch.path)["method"]) == {"geometric"}
+
+
+def test_the_completed_input_is_the_same_where_the_parts_are_not_scored(
+        ws: Workspace, tmp_path: Path) -> None:
+    """A capture that scores none of its parts keeps only each view's observed input: the
+    relation stage completes exactly what it completes from the full examples."""
+    from cadio.capture.scan import scan_inputs
+    from models.evaluate import load_models
+    from models.relate import completions_of
+
+    light = Workspace(tmp_path / "ws")
+    shutil.copytree(ws.root, light.root)
+    model = load_models(SHIPPED).models[("gan_lstm", "observed")]
+    for capture in sorted(light.root.glob("captures/*.mcap")):
+        full = completions_of(capture, light, model)
+        assert scan_inputs(capture, light, CFG, scored=()).examples == 0
+        again = completions_of(capture, light, model)
+        assert full.keys() == again.keys() and full
+        assert all(np.array_equal(full[k], again[k]) for k in full)

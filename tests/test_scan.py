@@ -132,3 +132,27 @@ def test_capture_a_step_file(tmp_path: Path, box_step: Path) -> None:
     assert summary.frames == 3 and summary.parts == 1
     frames = list(read_capture(Path(summary.path)))
     assert len(frames) == 3 and all((f.depth > 0).any() for f in frames)
+
+
+def test_a_part_a_capture_does_not_score_gets_only_its_views_inputs(ws: Workspace) -> None:
+    """Scanned without scoring its parts, a capture keeps each view's observed input exactly
+    as the scored example has it (what the relation stage completes) and drops the rest."""
+    scene = pd.read_parquet(ws.scenes).iloc[0]
+    captured = capture_scenes(scene.to_frame().T, read_catalog(ws.catalog), ws, CFG)
+    path = Path(captured[0].path)
+    full = scan_inputs(path, ws, CFG)
+    folder = ws.inputs(path.stem, 1)  # instance 1: part a
+    scored = {p.name: read_example(p) for p in folder.glob("observed-*.npz")}
+    assert full.scored == (str(scene["part_a"]), str(scene["part_b"]))
+    light = scan_inputs(path, ws, CFG, scored=())
+    assert light.scored == () and light.examples == 0 and light.parts == full.parts
+    names = sorted(p.name for p in folder.glob("*.npz"))
+    singles = sorted(n for n in scored if n.count("-") == 1)
+    assert names == sorted([*singles, "points.npz"]) and singles
+    for name in singles:
+        mine, theirs = read_example(folder / name), scored[name]
+        assert mine.target is None and theirs.target is not None
+        assert np.array_equal(mine.inputs, theirs.inputs)
+        assert np.array_equal(mine.points, theirs.points)
+        assert mine.grid.grid_to_world(4) == pytest.approx(theirs.grid.grid_to_world(4))
+        assert mine.carve.size == 0 and mine.meta["input_only"]

@@ -130,6 +130,12 @@ def part_views(frames: Sequence[RgbdFrame], labels: Sequence[npt.NDArray[np.int3
     return out
 
 
+def frame_supports(frames: Sequence[RgbdFrame], labels: Sequence[npt.NDArray[np.int32]]
+                   ) -> list[tuple[FloatArray, float] | None]:
+    """Each frame's ``support_plane``, for ``part_views`` of every part of a capture."""
+    return [support_plane(f, lab) for f, lab in zip(frames, labels, strict=True)]
+
+
 def support_plane(frame: RgbdFrame,
                   labels: npt.NDArray[np.int32]) -> tuple[FloatArray, float] | None:
     """The support plane under the parts (normal up, offset), fitted to the pixels of no part
@@ -156,6 +162,22 @@ def observed_example(views: Sequence[PartView], cfg: ExampleConfig) -> Example:
     grid = place_grid(points, first.world_to_camera, cfg.rule,
                       occluded_sides(first, cfg.rule), first.support)
     return _inputs(OBSERVED, views, grid, cfg)
+
+
+def view_input(view: PartView, cfg: ExampleConfig) -> Example:
+    """The observed protocol's input of one view and nothing more: the grid, the view's voxel
+    states and points as ``observed_example`` of that view has them, without the baselines
+    (``depth``, ``visible`` and ``carve`` are empty) or a target. What the relation stage
+    completes of a part in a capture that does not score it."""
+    first = view.evidence
+    grid = place_grid(view.points, first.world_to_camera, cfg.rule,
+                      occluded_sides(first, cfg.rule), first.support)
+    empty = np.zeros((0,), dtype=bool)
+    return Example(
+        protocol=OBSERVED, views=(view.view,), azimuths=(view.azimuth_deg,), grid=grid,
+        inputs=view_states(first, view.points, grid, cfg.n_in)[None],
+        depth=np.zeros((0,), dtype=np.float32), visible=empty, carve=empty,
+        points=_sample(view.points, POINTS_KEPT), meta={"input_only": True})
 
 
 def oracle_example(views: Sequence[PartView], mesh: Mesh, part_to_world: FloatArray,

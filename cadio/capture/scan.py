@@ -16,7 +16,7 @@ from __future__ import annotations
 
 import logging
 import math
-from collections.abc import Callable
+from collections.abc import Callable, Collection, Mapping, Sequence
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
@@ -30,9 +30,11 @@ from cadio.capture.examples import (
     Example,
     ExampleConfig,
     PartView,
+    frame_supports,
     observed_example,
     oracle_example,
     part_views,
+    view_input,
     view_sets,
     with_truth,
     write_example,
@@ -85,8 +87,9 @@ class ScanConfig:
 class InputsSummary:
     """What ``scan_inputs`` made of one capture.
 
-    parts: parts with learning inputs written; examples: completion examples written.
-    has_ids: the capture has instance ids. clusters: clusters found without ids.
+    parts: parts with learning inputs written; examples: completion examples written (of the
+    ``scored`` parts only). has_ids: the capture has instance ids. clusters: clusters found
+    without ids.
     seg_mean_iou, seg_ari: those clusters scored against the ids (NaN without ids).
     warnings: the reader's (``RgbdFrame.meta["warnings"]`` of the last frame).
     """
@@ -100,6 +103,7 @@ class InputsSummary:
     seg_mean_iou: float = math.nan
     seg_ari: float = math.nan
     warnings: tuple[str, ...] = ()
+    scored: tuple[str, ...] = ()
 
 
 def view_indices(cfg: ScanConfig) -> list[int]:
@@ -144,12 +148,12 @@ def capture_scene(scene: dict[str, Any], ws: Workspace, colours: dict[str, str],
     """
     parts = placed_parts(scene, ws, colours)
     path = ws.capture(str(scene["scene_id"]))
-    frames = _write_views(path, parts, cfg, scene_labels(scene), on_frame)
+    frames = write_views(path, parts, cfg, scene_labels(scene), on_frame)
     return CaptureSummary(scene_id=str(scene["scene_id"]), path=str(path), frames=frames,
                           parts=len(parts), bytes=path.stat().st_size)
 
 
-def _write_views(path: Path, parts: list[PlacedPart], cfg: ScanConfig,
+def write_views(path: Path, parts: list[PlacedPart], cfg: ScanConfig,
                  labels: dict[str, Any], on_frame: Callable[[str], None] | None = None) -> int:
     """Render the views of ``cfg`` into one MCAP file; the number of frames written."""
     capture_cfg = cfg.capture_config()
@@ -178,12 +182,19 @@ def capture_scenes(scenes: pd.DataFrame, catalog: pd.DataFrame, ws: Workspace,
     return out
 
 
-def capture_batch(scene_ids: list[str], ws: Workspace, cfg: ScanConfig) -> list[CaptureSummary]:
-    """Render a batch of the workspace's scenes and derive their learning inputs (view 0)."""
+def capture_batch(scene_ids: list[str], ws: Workspace, cfg: ScanConfig,
+                  plan: Mapping[str, Sequence[str]] | None = None) -> list[CaptureSummary]:
+    """Render a batch of the workspace's scenes and derive their learning inputs.
+
+    Args:
+        plan: scene id -> the parts to score there (``cadio.capture.coverage.scoring_plan``;
+            a scene it leaves out scores none); None: every part of every scene.
+    """
     scenes = read_scenes(ws.scenes)
     scenes = scenes[scenes["scene_id"].isin(scene_ids)]
     captured = capture_scenes(scenes, read_catalog(ws.catalog), ws, cfg)
-    return [c if c.error else with_inputs(c, ws, cfg) for c in captured]
+    return [c if c.error else with_inputs(
+        c, ws, cfg, None if plan is None else plan.get(c.scene_id, ())) for c in captured]
 
 
 ASSEMBLY_PREFIX = "assembly-"
@@ -199,10 +210,11 @@ def assembly_pairs(mates: pd.DataFrame) -> list[list[str]]:
 
 
 def capture_assembly(assembly: str, category: str, part_ids: list[str], ws: Workspace,
-                     cfg: ScanConfig) -> CaptureSummary:
+                     cfg: ScanConfig, scored: Collection[str] | None = None) -> CaptureSummary:
     """Render an assembly (its parts as placed in the file) into
-    ``captures/assembly-<name>.mcap`` and derive its inputs; the pairs its mates table names
-    are the capture's labelled pairs. A failure comes back as the summary's error."""
+    ``captures/assembly-<name>.mcap`` and derive its inputs (learning examples of the
+    ``scored`` parts, None: of all); the pairs its mates table names are the capture's
+    labelled pairs. A failure comes back as the summary's error."""
     scene_id = f"{ASSEMBLY_PREFIX}{assembly}"
     try:
         mates = pd.read_parquet(ws.mates(assembly), columns=["part_a", "part_b", "level"])
@@ -211,13 +223,13 @@ def capture_assembly(assembly: str, category: str, part_ids: list[str], ws: Work
                  for i, pid in enumerate(part_ids)]
         path = ws.capture(scene_id)
         labels = {"assembly": assembly, "category": category, "pairs": assembly_pairs(mates)}
-        frames = _write_views(path, parts, cfg, labels)
+        frames = write_views(path, parts, cfg, labels)
     except (OSError, ValueError, CaptureError) as exc:
         log.warning("assembly %s: %s", assembly, exc)
         return CaptureSummary(scene_id=scene_id, path="", error=str(exc))
     summary = CaptureSummary(scene_id=scene_id, path=str(path), frames=frames,
                              parts=len(parts), bytes=path.stat().st_size)
-    return with_inputs(summary, ws, cfg)
+    return with_inputs(summary, ws, cfg, scored)
 
 
 def read_captures(captures_dir: Path, ws: Workspace, cfg: ScanConfig) -> list[CaptureSummary]:
@@ -241,25 +253,33 @@ def read_captures(captures_dir: Path, ws: Workspace, cfg: ScanConfig) -> list[Ca
     return out
 
 
-def with_inputs(capture: CaptureSummary, ws: Workspace, cfg: ScanConfig) -> CaptureSummary:
-    """The capture's summary after deriving its learning inputs (or with the reason it failed)."""
+def with_inputs(capture: CaptureSummary, ws: Workspace, cfg: ScanConfig,
+                scored: Collection[str] | None = None) -> CaptureSummary:
+    """The capture's summary after deriving its learning inputs (or with the reason it
+    failed); ``scored`` as ``scan_inputs``."""
     try:
-        inputs = scan_inputs(Path(capture.path), ws, cfg)
+        inputs = scan_inputs(Path(capture.path), ws, cfg, scored)
     except CaptureError as exc:
         return replace(capture, error=exc.reason)
     except OSError as exc:
         return replace(capture, error=f"cannot be read: {exc.strerror or exc}")
     return replace(capture, frames=inputs.frames, input_parts=inputs.parts,
-                   seg_mean_iou=inputs.seg_mean_iou, warnings=inputs.warnings)
+                   seg_mean_iou=inputs.seg_mean_iou, warnings=inputs.warnings,
+                   scored=inputs.scored)
 
 
-def scan_inputs(path: Path, ws: Workspace, cfg: ScanConfig) -> InputsSummary:
+def scan_inputs(path: Path, ws: Workspace, cfg: ScanConfig,
+                scored: Collection[str] | None = None) -> InputsSummary:
     """Learning inputs of every part of a capture, written to ``inputs/<capture>/<instance>/``.
 
     Parts are told apart by the instance ids (our captures) or, in a recording without them,
     by removing the support plane and clustering (scored against the ids when both exist).
-    Each part seen in the scene meta gets its completion examples (``part_examples``) and 600
-    observed points of every view that sees it (world metres, for the relation network).
+    Every part seen in the scene meta gets 600 observed points of every view that sees it
+    (world metres, for the relation network). A part the capture scores (its id in
+    ``scored``; None: every part) gets its completion examples (``part_examples``); any other
+    only the observed input of each single view (``examples.view_input``: what the relation
+    stage completes), without the baselines, the sequences, the oracle-box protocol or the
+    truth. Files of an earlier scan of the capture that this one does not write are removed.
     A recording without scene meta yields clusters but no part to score.
 
     Raises:
@@ -286,20 +306,44 @@ def scan_inputs(path: Path, ws: Workspace, cfg: ScanConfig) -> InputsSummary:
                            f"{', '.join(unknown[:5])}{' ...' if len(unknown) > 5 else ''}): "
                            "its parts cannot be scored")
     labels = [f.instance for f in frames if f.instance is not None]
+    supports = frame_supports(frames, labels)  # one support plane a frame, for every part
     parts = examples = 0
+    done: list[str] = []
     for part in meta["parts"]:
         pid, instance = str(part["part_id"]), int(part["instance_id"])
-        views = part_views(frames, labels, instance)
+        views = part_views(frames, labels, instance, supports)
         if not views:
             continue
-        written = part_examples(views, read_mesh(ws.mesh(pid)), part_to_world(meta, part), cfg)
-        folder = ws.inputs(path.stem, instance)  # by instance: a scene may show a part twice
-        for name, example in written.items():
-            write_example(folder / f"{name}.npz", example,
-                          {"part_id": pid, "instance_id": instance, "capture": path.stem})
-        _write_points(folder / "points.npz", views, cfg)
-        parts, examples = parts + 1, examples + len(written)
-    return replace(summary, parts=parts, examples=examples)
+        scores = scored is None or pid in scored
+        written = (part_examples(views, read_mesh(ws.mesh(pid)), part_to_world(meta, part), cfg)
+                   if scores else view_inputs(views, cfg))
+        # by instance: a scene may show a part twice
+        _write_inputs(ws.inputs(path.stem, instance), written, views, cfg,
+                      {"part_id": pid, "instance_id": instance, "capture": path.stem})
+        parts += 1
+        if scores:
+            examples += len(written)
+            done.append(pid)
+    return replace(summary, parts=parts, examples=examples, scored=tuple(dict.fromkeys(done)))
+
+
+def view_inputs(views: list[PartView], cfg: ScanConfig) -> dict[str, Example]:
+    """The observed input of each single view of a part a capture does not score, by name
+    (``observed-<view>``, as ``part_examples`` names the same view's example)."""
+    ecfg = cfg.example_config()
+    return {f"{OBSERVED}-{v.view}": view_input(v, ecfg) for v in views}
+
+
+def _write_inputs(folder: Path, written: dict[str, Example], views: list[PartView],
+                  cfg: ScanConfig, meta: dict[str, Any]) -> None:
+    """One instance's examples and points into its input folder; stale ``.npz`` removed."""
+    for name, example in written.items():
+        write_example(folder / f"{name}.npz", example, meta)
+    _write_points(folder / "points.npz", views, cfg)
+    keep = {f"{name}.npz" for name in written} | {"points.npz"}
+    for old in folder.glob("*.npz"):
+        if old.name not in keep:
+            old.unlink()
 
 
 def part_to_world(meta: dict[str, Any], part: dict[str, Any]) -> FloatArray:
@@ -376,6 +420,6 @@ def _capture_file(path: Path, ws: Workspace, cfg: ScanConfig,
                         pose=np.eye(4), colour=s.info.colour or "#b4b4b4",
                         part_id=str(s.info.index), label=s.info.name) for s in read_step(path)]
     out = ws.capture(path.stem)
-    frames = _write_views(out, parts, cfg, {"source": str(path)}, on_frame)
+    frames = write_views(out, parts, cfg, {"source": str(path)}, on_frame)
     return CaptureSummary(scene_id=path.stem, path=str(out), frames=frames, parts=len(parts),
                           bytes=out.stat().st_size)
