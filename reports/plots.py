@@ -82,8 +82,9 @@ def iou_lines(fig: Any, table: pd.DataFrame, xlabel: str) -> bool:
         return False
     ax = fig.add_subplot(1, 1, 1)
     columns = [c for c in rows.columns if c not in ("protocol", "category", "method")]
-    for row in rows.to_dict("records"):
-        ax.plot(columns, [row[c] for c in columns], marker="o", label=row["method"])
+    for row in rows.to_dict("records"):  # x at positions: string labels make matplotlib log
+        ax.plot(range(len(columns)), [row[c] for c in columns], marker="o", label=row["method"])
+    ax.set_xticks(range(len(columns)), [str(c) for c in columns])
     ax.set(xlabel=xlabel, ylabel="IoU", ylim=(0, 1))
     ax.legend()
     return True
@@ -130,10 +131,10 @@ def trends(fig: Any, history: Sequence[tuple[str, pd.DataFrame]],
     for metric in metrics:
         values = [_value(table, metric) for _, table in history]
         if any(v == v for v in values):  # some value that is not NaN
-            ax.plot(labels, values, marker="o", label=metric)
+            ax.plot(range(len(labels)), values, marker="o", label=metric)
             drawn = True
+    ax.set_xticks(range(len(labels)), labels, rotation=20)
     ax.set(xlabel="run", ylabel="value", ylim=(0, 1.05))
-    ax.tick_params(axis="x", labelrotation=20)
     if drawn:
         ax.legend()
     return drawn
