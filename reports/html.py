@@ -158,8 +158,9 @@ def verdict_table(verdict: Verdict) -> str:
     rows = [f"<table class='verdict' id='verdict'><tr><th>category</th><th>verdict</th>{head}"
             "</tr>"]
     for c in verdict.categories:
-        count = (f"{c.failed} of {c.checked} checks failed" if c.failed else
-                 f"{c.checked} checks passed" if c.checked else "no check applied")
+        checks = f"{c.checked} check{'s' if c.checked != 1 else ''}"
+        count = (f"{c.failed} of {checks} failed" if c.failed else
+                 f"{checks} passed" if c.checked else "no check applied")
         cells = "".join(_figure_cell(c.figure(m)) for m in HEADLINE)
         rows.append(f"<tr><td>{html.escape(c.category)}</td>"
                     f"<td class='{html.escape(c.status)}'><b>{html.escape(c.status)}</b><br>"

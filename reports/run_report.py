@@ -176,14 +176,11 @@ def _page(run_dir: Path, checks: pd.DataFrame, parts: pd.DataFrame, pairs: pd.Da
 
 
 def _facts_line(facts: dict[str, Any]) -> str:
-    """Library, files and parts, and the night's seconds, in one line."""
-    seconds = sum(float(v) for k, v in facts.items() if k.endswith(" seconds"))
-    out = [f"library {facts['library']}" if "library" in facts else ""]
+    """The library, and the files and parts ingest found, in one line."""
+    out = [f"library {facts['library']}"] if "library" in facts else []
     if "ingest files" in facts:
         out.append(f"{facts['ingest files']} files, {facts.get('ingest parts', 0)} parts")
-    if seconds:
-        out.append(f"{seconds:.0f} s")
-    return " · ".join(o for o in out if o)
+    return " · ".join(out)
 
 
 def _totals(run_dir: Path) -> dict[str, Any]:

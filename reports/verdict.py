@@ -92,8 +92,9 @@ class Verdict:
     def headline(self) -> str:
         """One sentence: pass or fail, and how many checks applied."""
         word = "PASS" if self.passed else "FAIL"
-        counts = (f"{len(self.failed)} of {self.checked} threshold checks failed or regressed"
-                  if self.failed else f"all {self.checked} threshold checks passed")
+        checks = f"{self.checked} threshold check{'s' if self.checked != 1 else ''}"
+        counts = (f"{len(self.failed)} of {checks} failed or regressed" if self.failed
+                  else f"{'the' if self.checked == 1 else 'all'} {checks} passed")
         if not self.checked:
             counts = "no threshold check applied"
         few = f", {self.too_few} too few to check" if self.too_few else ""
