@@ -100,6 +100,12 @@ def test_the_console_verdict_is_a_dozen_lines_with_the_failed_inputs_and_the_rep
     assert "  failed: fasteners ingest_ok_fraction fail: 0.917 (floor 0.95)" in lines
     assert "Failed inputs: 2 (ingest 1, capture 1)" in text
     assert f"Report: {run.resolve() / 'report.html'}" in lines and Path(report.html).is_file()
+    checks = pd.read_csv(run / "categories.csv")
+    checks["category"] = checks["category"].replace({"fasteners": "bolts\nall pass\x1b[2J"})
+    checks.to_csv(run / "categories.csv", index=False)
+    hostile = console_verdict(run).splitlines()
+    assert len(hostile) == len(lines) and "\x1b" not in "".join(hostile)
+    assert hostile[2].split()[0] == "bolts\\nall"  # written as an escape, on its own line
     assert read_verdict(run).problem_counts() == "2 (ingest 1, capture 1)"
 
 
