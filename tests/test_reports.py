@@ -112,7 +112,7 @@ def test_stage_report_without_scenes() -> None:
 
 def test_markdown_table_escapes_pipes() -> None:
     text = markdown_table(pd.DataFrame({"a": ["x|y"], "b": [1]}))
-    assert text.splitlines() == ["| a | b |", "|---|---|", "| x/y | 1 |"]
+    assert text.splitlines() == ["| a | b |", "|---|---|", "| x\\|y | 1 |"]
 
 
 def test_reports_import_no_cad_kernel_torch_or_renderer() -> None:
