@@ -2,7 +2,11 @@
 
 from __future__ import annotations
 
-from sandbox_targets import misbehave
+import multiprocessing
+
+import psutil
+import pytest
+from sandbox_targets import misbehave, run_in_daemon
 
 from cadio.errors import WorkerError
 from cadio.sandbox import Job, Limits, run_isolated
@@ -42,3 +46,40 @@ def test_exceptions_are_reported_and_workers_run_in_parallel() -> None:
     assert len(out) == 7
     assert "ValueError: bad payload" in str(out["raise"])
     assert [out[f"ok:{i}"] for i in range(6)] == [str(i) for i in range(6)]
+
+
+def test_the_sandbox_runs_inside_a_daemonic_process() -> None:
+    """A ``dask worker`` process is daemonic, and multiprocessing gives such a process no
+    children: the sandbox's workers are plain subprocesses, with the same limits there."""
+    ctx = multiprocessing.get_context("spawn")
+    out = ctx.Queue()
+    payloads = ["ok:a", "segfault", "hang", "memory", "ok:b"]
+    proc = ctx.Process(target=run_in_daemon, daemon=True,
+                       args=(payloads, Limits(seconds=10, memory_mb=1024, workers=2), out))
+    proc.start()
+    proc.join(300)
+    assert proc.exitcode == 0  # multiprocessing children: "daemonic processes are not ..."
+    daemonic, found = out.get(timeout=10)
+    assert daemonic
+    assert found["ok:a"] == "a" and found["ok:b"] == "b"
+    assert "SIGSEGV" in found["segfault"]
+    assert "timed out after 10 s" in found["hang"]
+    assert "memory" in found["memory"]
+
+
+def _workers() -> list[psutil.Process]:
+    return [p for p in psutil.Process().children() if "cadio.sandbox" in " ".join(p.cmdline())]
+
+
+def test_no_worker_outlives_the_batch_even_when_it_is_abandoned() -> None:
+    outcomes = run_isolated(misbehave, [Job(p, p) for p in ["ok:a", "hang", "ok:b"]],
+                            Limits(seconds=600, workers=2))
+    first = next(outcomes)
+    assert first.result == "a" and len(_workers()) == 2
+    outcomes.close()  # the caller stops early (an error, a cancelled task): the hang is killed
+    assert _workers() == []
+
+
+def test_a_job_must_be_importable_by_name() -> None:
+    with pytest.raises(ValueError, match="module-level function"):
+        next(run_isolated(lambda p: p, [Job("x", "x")]))
