@@ -93,17 +93,20 @@ class Page:
         matplotlib.use("Agg")
         import matplotlib.pyplot as plt
 
-        fig = plt.figure(figsize=size)
-        try:
-            if not draw(fig):
-                self.parts.append(f"<figure><p class='nodata'>{html.escape(alt)}: no data</p>"
-                                  "</figure>")
-                return
-            buf = io.BytesIO()
-            fig.tight_layout()
-            fig.savefig(buf, format="png", dpi=100 if size == SMALL else 80)
-        finally:
-            plt.close(fig)
+        # Labels are category and file names from input: "$" in one is text, not mathtext
+        # (which fails on what it cannot parse).
+        with matplotlib.rc_context({"text.parse_math": False}):
+            fig = plt.figure(figsize=size)
+            try:
+                if not draw(fig):
+                    self.parts.append(f"<figure><p class='nodata'>{html.escape(alt)}: no data"
+                                      "</p></figure>")
+                    return
+                buf = io.BytesIO()
+                fig.tight_layout()
+                fig.savefig(buf, format="png", dpi=100 if size == SMALL else 80)
+            finally:
+                plt.close(fig)
         data = base64.b64encode(buf.getvalue()).decode()
         self.parts.append(f"<figure><img data-plot='{name}' alt='{html.escape(alt)}' "
                           f"src='data:image/png;base64,{data}'>"

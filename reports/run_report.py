@@ -29,7 +29,7 @@ from reports.html import (
     relations_section,
     trends_section,
 )
-from reports.tables import markdown_table
+from reports.tables import markdown_table, markdown_text
 from reports.trends import (
     Thresholds,
     check_metrics,
@@ -199,7 +199,8 @@ def _markdown(run_id: str, checks: pd.DataFrame, failed: list[str]) -> str:
     shown = checks[checks["status"] != "too-few"].copy()
     for col in ("value", "previous", "threshold", "mean_last_n"):
         shown[col] = shown[col].map(lambda v: "-" if v != v else f"{v:.4g}")
-    lines = [f"# Nightly {run_id}: {verdict}", "", *[f"- {f}" for f in failed], "",
+    lines = [f"# Nightly {markdown_text(run_id)}: {verdict}", "",
+             *[f"- {markdown_text(f)}" for f in failed], "",
              markdown_table(shown[["category", "metric", "value", "previous", "threshold",
                                    "status", "mean_last_n", "n"]]), ""]
     return "\n".join(lines)
