@@ -111,6 +111,20 @@ _BOOT = ("import sys\n"
          "_worker_main(conn, int(sys.argv[2]))\n")
 
 
+# Worker processes started and not yet reaped, in every pool of this process.
+_LIVE: set[subprocess.Popen[bytes]] = set()
+
+
+def kill_workers() -> int:
+    """Kill every running worker of this process's pools at once, without waiting for their
+    jobs (a night that stops on a signal must not wait minutes for a CAD file; the pools see
+    the deaths as crashes). Returns how many were running."""
+    running = [proc for proc in list(_LIVE) if proc.poll() is None]
+    for proc in running:
+        proc.kill()
+    return len(running)
+
+
 class _Worker(Generic[P]):
     def __init__(self, fn: Callable[[Any], Any], memory_mb: int) -> None:
         mine, theirs = socket.socketpair()
@@ -120,6 +134,7 @@ class _Worker(Generic[P]):
             self.process = subprocess.Popen(
                 [sys.executable, "-c", _BOOT, str(fd), str(memory_mb)], pass_fds=(fd,),
                 stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL)
+            _LIVE.add(self.process)
             self.conn = Connection(mine.detach())
         self._send(list(sys.path))
         self._send(fn)
@@ -150,6 +165,8 @@ class _Worker(Generic[P]):
             self.process.wait(seconds)
         except subprocess.TimeoutExpired:
             log.warning("worker %d did not exit within %g s", self.process.pid, seconds)
+            return
+        _LIVE.discard(self.process)
 
 
 class _Pool(Generic[P, R]):

@@ -75,8 +75,8 @@ def main(argv: list[str] | None = None) -> int:
 
 
 def _parser() -> argparse.ArgumentParser:
-    # Imported here, not at the top: the CAD workers that ``ingest`` spawns import this module
-    # afresh (multiprocessing re-runs the main module), and need neither pydantic nor pandas.
+    # Imported here, not at the top: importing this module (as ``python -m flows.cli`` and
+    # the tests do) needs neither pydantic nor pandas.
     from flows.settings import load_settings
 
     parser = _Parser(prog="mateqa", description=__doc__.splitlines()[0])

@@ -3,13 +3,15 @@
 from __future__ import annotations
 
 import multiprocessing
+import threading
+import time
 
 import psutil
 import pytest
 from sandbox_targets import misbehave, run_in_daemon
 
 from cadio.errors import WorkerError
-from cadio.sandbox import Job, Limits, run_isolated
+from cadio.sandbox import Job, Limits, Outcome, kill_workers, run_isolated
 
 
 def _run(payloads: list[str], limits: Limits) -> dict[str, object]:
@@ -78,6 +80,22 @@ def test_no_worker_outlives_the_batch_even_when_it_is_abandoned() -> None:
     assert first.result == "a" and len(_workers()) == 2
     outcomes.close()  # the caller stops early (an error, a cancelled task): the hang is killed
     assert _workers() == []
+
+
+def test_kill_workers_ends_running_jobs_at_once() -> None:
+    outcomes = run_isolated(misbehave, [Job("hang", "hang")], Limits(seconds=3600, workers=1))
+    done: list[Outcome[str, str]] = []
+    batch = threading.Thread(target=lambda: done.extend(outcomes))
+    batch.start()
+    deadline = time.monotonic() + 300  # a guard against a hang, not a speed check
+    while not _workers():
+        assert time.monotonic() < deadline, "no worker started"
+        time.sleep(0.1)
+    assert kill_workers() == 1  # what a night's stop on SIGTERM calls
+    batch.join(300)
+    assert not batch.is_alive() and _workers() == []
+    (outcome,) = done
+    assert isinstance(outcome.error, WorkerError) and "SIGKILL" in outcome.error.reason
 
 
 def test_a_job_must_be_importable_by_name() -> None:
