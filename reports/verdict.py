@@ -19,6 +19,7 @@ from typing import Any
 
 import pandas as pd
 
+from reports.tables import printable
 from reports.trends import ALL, CATEGORIES_COLUMNS
 
 # The figures shown per category, then those the assemblies give (category "all" only).
@@ -187,7 +188,7 @@ def console_verdict(run_dir: Path) -> str:
     verdict = read_verdict(run_dir)
     lines = [verdict.headline(), *_figure_lines(verdict)]
     for line in verdict.failed[:SHOWN_FAILURES]:
-        lines.append(f"  failed: {_plain(line)}")
+        lines.append(f"  failed: {printable(line)}")
     if len(verdict.failed) > SHOWN_FAILURES:
         lines.append(f"  ... and {len(verdict.failed) - SHOWN_FAILURES} more failed checks in "
                      f"{run_dir / 'categories.csv'}")
@@ -204,7 +205,7 @@ def _figure_lines(verdict: Verdict) -> list[str]:
         return ["  no metrics in this run"]
     columns = HEADLINE[:3]
     rows = [["category", "verdict", *(LABELS[m] for m in columns)]]
-    rows += [[_plain(c.category), c.status, *(_cell(c.figure(m)) for m in columns)]
+    rows += [[printable(c.category), c.status, *(_cell(c.figure(m)) for m in columns)]
              for c in verdict.categories]
     widths = [max(len(r[k]) for r in rows) for k in range(len(rows[0]))]
     lines = ["  " + "  ".join(v.ljust(w) for v, w in zip(r, widths, strict=True)).rstrip()
@@ -227,9 +228,3 @@ def _cell(figure: Figure | None) -> str:
     if figure.status == "too-few":
         return f"{value} (n={figure.n}, too few)"
     return f"{value} {figure.status}"
-
-
-def _plain(text: str) -> str:
-    """``text`` with control characters written as escapes: a category named from a folder
-    cannot break a line of the verdict or steer the terminal."""
-    return "".join(c if c.isprintable() else repr(c)[1:-1] for c in text)
