@@ -247,12 +247,13 @@ def _html(n: Night) -> None:
 
 def _plot(n: Night) -> None:
     """A plot whose labels are the hostile category ("$" starts mathtext in matplotlib)."""
-    from reports.html import Page, _bars
+    from reports.html import Page
+    from reports.plots import category_iou
 
     table = pd.DataFrame({"category": [CATEGORY, "fasteners"], "method": "gan_lstm",
                           "iou": [0.5, 0.6]})
     page = Page("plot")
-    page.plot("category_iou", "IoU per category", lambda fig: _bars(fig, table))
+    page.plot("category_iou", "IoU per category", lambda fig: category_iou(fig, table))
     assert "data-plot='category_iou'" in page.render()
 
 
