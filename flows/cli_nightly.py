@@ -65,7 +65,8 @@ def cmd_serve(args: argparse.Namespace) -> int:
               f"work pool 'mateqa' with a process worker (log: {home / 'worker.log'})\n"
               f"deployments of {root / 'prefect.yaml'} applied; run the nightly with\n"
               f"  PREFECT_API_URL={api_url(args.port)} prefect deployment run 'nightly/nightly'"
-              f" --param library=DIR --watch\nCtrl-C stops the worker and the server.",
+              " --param 'config={\"library\": {\"path\": \"DIR\"}}' --watch\n"
+              "Ctrl-C stops the worker and the server.",
               flush=True)
         while not stop.wait(1.0):
             if worker.poll() is not None:

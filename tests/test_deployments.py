@@ -1,6 +1,7 @@
 """End to end, as a QA engineer types it: `mateqa serve` (a real local Prefect server, a
 process work pool and worker, the deployments of prefect.yaml), then
-`prefect deployment run 'nightly/nightly' --param library=... --watch`, on real STEP files."""
+`prefect deployment run 'nightly/nightly' --param 'config={...}' --watch`, on real STEP
+files."""
 
 from __future__ import annotations
 
