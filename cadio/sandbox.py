@@ -2,18 +2,26 @@
 
 OpenCascade can hang on a pathological file, exhaust memory, or crash the whole process with a
 segmentation fault. None of that may stop a batch: each job runs in a long-lived worker process
-(spawned, never forked, so OCP state is not shared) with an address-space limit; the supervisor
-waits on results and process deaths together, turns a timeout, a memory error or a crash into a
-``WorkerError`` naming the input, replaces the dead worker and carries on with the next job.
+(a fresh interpreter, never a fork, so OCP state is not shared) with an address-space limit; the
+supervisor waits on results and worker deaths together, turns a timeout, a memory error or a
+crash into a ``WorkerError`` naming the input, replaces the dead worker and carries on with the
+next job.
+
+Workers are plain subprocesses (``subprocess.Popen`` of this interpreter), not
+``multiprocessing`` children: the supervisor may itself be a daemonic process, as every
+``dask worker`` process is, and ``multiprocessing`` refuses children to those. The job
+function travels by its qualified name and payloads and results as pickles over a socket pair
+that only the worker inherits; the worker's end closing is how the supervisor sees it die.
 """
 
 from __future__ import annotations
 
 import logging
-import multiprocessing as mp
 import os
 import resource
 import signal
+import socket
+import subprocess
 import sys
 import time
 from collections import deque
@@ -70,15 +78,22 @@ def run_isolated(
     """Run ``fn(payload)`` for every job in isolated worker processes.
 
     Args:
-        fn: a module-level function (workers are spawned, so it travels by its qualified
-            name); it takes a job payload and returns a picklable result, and raises
-            ``InputFileError`` for bad input.
+        fn: a module-level function of an importable module (not ``__main__``: it travels
+            to the workers by its qualified name); it takes a job payload and returns a
+            picklable result, and raises ``InputFileError`` for bad input.
         jobs: the jobs; their order of completion may differ.
         limits: time, memory and parallelism limits.
 
     Yields:
         One ``Outcome`` per job, as jobs finish.
+
+    Raises:
+        ValueError: ``fn`` is defined in ``__main__`` or is no module-level function.
     """
+    name = f"{getattr(fn, '__module__', '__main__')}.{getattr(fn, '__qualname__', '')}"
+    if name.startswith("__main__.") or "<" in name:
+        raise ValueError(f"{fn!r}: the job must be a module-level function of an importable "
+                         "module (workers import it by name)")
     pool: _Pool[P, R] = _Pool(fn, limits)
     try:
         yield from pool.run(deque(jobs))
@@ -86,31 +101,76 @@ def run_isolated(
         pool.close()
 
 
+# What a worker runs first: take the supervisor's import path from the socket before
+# importing anything of this package (the job's module may live on that path only).
+_BOOT = ("import sys\n"
+         "from multiprocessing.connection import Connection\n"
+         "conn = Connection(int(sys.argv[1]))\n"
+         "sys.path[:] = conn.recv()\n"
+         "from cadio.sandbox import _worker_main\n"
+         "_worker_main(conn, int(sys.argv[2]))\n")
+
+
+# Worker processes started and not yet reaped, in every pool of this process.
+_LIVE: set[subprocess.Popen[bytes]] = set()
+
+
+def kill_workers() -> int:
+    """Kill every running worker of this process's pools at once, without waiting for their
+    jobs (a night that stops on a signal must not wait minutes for a CAD file; the pools see
+    the deaths as crashes). Returns how many were running."""
+    running = [proc for proc in list(_LIVE) if proc.poll() is None]
+    for proc in running:
+        proc.kill()
+    return len(running)
+
+
 class _Worker(Generic[P]):
-    def __init__(self, ctx: Any, fn: Callable[[Any], Any], memory_mb: int) -> None:
-        self.conn, child = ctx.Pipe()
-        self.process = ctx.Process(
-            target=_worker_main, args=(child, fn, memory_mb), daemon=True
-        )
-        self.process.start()
-        child.close()
+    def __init__(self, fn: Callable[[Any], Any], memory_mb: int) -> None:
+        mine, theirs = socket.socketpair()
+        with mine, theirs:
+            fd = theirs.fileno()
+            # stdout to /dev/null: OpenCascade prints parser chatter straight to fd 1
+            self.process = subprocess.Popen(
+                [sys.executable, "-c", _BOOT, str(fd), str(memory_mb)], pass_fds=(fd,),
+                stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL)
+            _LIVE.add(self.process)
+            self.conn = Connection(mine.detach())
+        self._send(list(sys.path))
+        self._send(fn)
         self.job: Job[P] | None = None
         self.started = 0.0
 
+    def _send(self, value: Any) -> None:
+        try:
+            self.conn.send(value)
+        except OSError:
+            pass  # it died already: its closed socket shows that to the supervisor
+
+    def alive(self) -> bool:
+        return self.process.poll() is None
+
     def submit(self, job: Job[P]) -> None:
         self.job, self.started = job, time.monotonic()
-        self.conn.send(job.payload)
+        self._send(job.payload)
 
     def kill(self) -> None:
-        if self.process.is_alive():
+        if self.alive():
             self.process.kill()
-        self.process.join(5)
+        self.reap(5)
         self.conn.close()
+
+    def reap(self, seconds: float) -> None:
+        try:
+            self.process.wait(seconds)
+        except subprocess.TimeoutExpired:
+            log.warning("worker %d did not exit within %g s", self.process.pid, seconds)
+            return
+        _LIVE.discard(self.process)
 
 
 class _Pool(Generic[P, R]):
     def __init__(self, fn: Callable[[P], R], limits: Limits) -> None:
-        self.ctx = mp.get_context("spawn")
         self.fn, self.limits = fn, limits
         self.workers: list[_Worker[P]] = []
 
@@ -118,19 +178,18 @@ class _Pool(Generic[P, R]):
         while queue or any(w.job for w in self.workers):
             self._fill(queue)
             busy = [w for w in self.workers if w.job is not None]
-            ready = wait(
-                [w.conn for w in busy] + [w.process.sentinel for w in busy],
-                timeout=self._next_deadline(busy),
-            )
+            ready = wait([w.conn for w in busy], timeout=self._next_deadline(busy))
             for worker in busy:
                 outcome = self._check(worker, ready)
                 if outcome is not None:
                     yield outcome
 
     def _fill(self, queue: deque[Job[P]]) -> None:
-        self.workers = [w for w in self.workers if w.process.is_alive() or w.job is not None]
+        for worker in [w for w in self.workers if w.job is None and not w.alive()]:
+            worker.kill()  # died between jobs: reap it and close its socket
+            self.workers.remove(worker)
         while len(self.workers) < self.limits.workers and queue:
-            self.workers.append(_Worker(self.ctx, self.fn, self.limits.memory_mb))
+            self.workers.append(_Worker(self.fn, self.limits.memory_mb))
         for worker in self.workers:
             if worker.job is None and queue:
                 worker.submit(queue.popleft())
@@ -153,9 +212,9 @@ class _Pool(Generic[P, R]):
                 if status == "ok":
                     return Outcome(job, result=value, seconds=elapsed)
                 return Outcome(job, error=_rebuild_error(job.key, value), seconds=elapsed)
-        if worker.process.sentinel in ready or not worker.process.is_alive():
-            worker.process.join(5)
-            reason = _death_reason(worker.process.exitcode, self.limits)
+        if worker.conn in ready or not worker.alive():  # its socket closed: it died
+            worker.reap(5)
+            reason = _death_reason(worker.process.returncode, self.limits)
             return self._retire(worker, reason, elapsed)
         if elapsed >= self.limits.seconds:
             reason = f"timed out after {self.limits.seconds:g} s (worker killed)"
@@ -167,18 +226,21 @@ class _Pool(Generic[P, R]):
         assert job is not None
         worker.kill()
         self.workers.remove(worker)
-        log.warning("%s: %s", job.key, reason)
+        log.warning("%r: %s", job.key, reason)  # the key names an input: quoted, one line
         return Outcome(job, error=WorkerError(job.key, reason), seconds=elapsed)
 
     def close(self) -> None:
-        idle = [w for w in self.workers if w.job is None and w.process.is_alive()]
+        idle = [w for w in self.workers if w.job is None and w.alive()]
         for worker in idle:  # all told first, so that they wind down side by side
             try:
                 worker.conn.send(None)
             except OSError:
                 pass
         for worker in idle:
-            worker.process.join(2)
+            try:
+                worker.process.wait(2)
+            except subprocess.TimeoutExpired:
+                pass  # killed below
         for worker in self.workers:
             worker.kill()
         self.workers = []
@@ -202,24 +264,21 @@ def _rebuild_error(key: str, value: tuple[str, str]) -> InputFileError:
     return InputFileError(key, reason)
 
 
-def _worker_main(conn: Connection, fn: Callable[[Any], Any], memory_mb: int) -> None:
-    """Entry point of a worker: limit memory, silence the kernel's console, serve jobs.
+def _worker_main(conn: Connection, memory_mb: int) -> None:
+    """Entry point of a worker (after ``_BOOT``): limit memory, take the job function, serve
+    payloads until told to stop or the supervisor's end closes.
 
-    When told to stop, the worker leaves with ``os._exit``: every result is sent by then, and
-    tearing down an interpreter that holds OCP and open3d costs about half a second of CPU
-    (exit handlers do not run in workers, so nothing may rely on them there).
+    The worker leaves with ``os._exit``: every result is sent by then, and tearing down an
+    interpreter that holds OCP and open3d costs about half a second of CPU (exit handlers do
+    not run in workers, so nothing may rely on them there).
     """
     _limit_memory(memory_mb)
-    devnull = os.open(os.devnull, os.O_WRONLY)
-    os.dup2(devnull, 1)  # OpenCascade prints parser chatter straight to fd 1
-    while True:
-        try:
-            payload = conn.recv()
-        except EOFError:
-            break
-        if payload is None:
-            break
-        conn.send(_serve(fn, payload, memory_mb))
+    try:
+        fn = conn.recv()
+        while (payload := conn.recv()) is not None:
+            conn.send(_serve(fn, payload, memory_mb))
+    except (EOFError, OSError):
+        pass  # the supervisor is gone or gave up on this worker
     logging.shutdown()
     sys.stderr.flush()
     os._exit(0)

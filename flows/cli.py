@@ -9,7 +9,9 @@ later runs unless ``--stop-server``; ``serve --stop`` stops it). ``nightly``, ``
 ``train`` writes into its training workspace; ``ship`` makes those checkpoints the default.
 Exit code 0 means the run completed, even when some inputs were bad (they are in the report);
 ``nightly`` exits 3 when the run completed but a per-category threshold failed or a metric
-regressed (its report says which), 1 when the run itself failed, 2 on bad arguments.
+regressed (its report says which), 1 when the run itself failed, 2 on bad arguments. It ends
+with the night's verdict in a dozen lines (``reports.verdict``), or with ``--json`` the run's
+full ``summary.json``.
 
 This module holds the parser; the commands live beside it: ``cli_cad`` (ingest, mates, capture,
 export, samples), ``cli_train`` (train, ship) and ``cli_nightly`` (nightly, serve).
@@ -75,8 +77,8 @@ def main(argv: list[str] | None = None) -> int:
 
 
 def _parser() -> argparse.ArgumentParser:
-    # Imported here, not at the top: the CAD workers that ``ingest`` spawns import this module
-    # afresh (multiprocessing re-runs the main module), and need neither pydantic nor pandas.
+    # Imported here, not at the top: importing this module (as ``python -m flows.cli`` and
+    # the tests do) needs neither pydantic nor pandas.
     from flows.settings import load_settings
 
     parser = _Parser(prog="mateqa", description=__doc__.splitlines()[0])
@@ -130,6 +132,8 @@ def _parser() -> argparse.ArgumentParser:
                    "(default: the shipped ones)")
     p.add_argument("--stop-server", action="store_true",
                    help="stop the local Prefect server this command started when done")
+    p.add_argument("--json", action="store_true",
+                   help="print the run's full summary (its summary.json) instead of the verdict")
     p.set_defaults(func=cmd_nightly)
 
     p = sub.add_parser("serve", help="a local Prefect server, work pool, worker and deployments",

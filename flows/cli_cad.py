@@ -125,6 +125,7 @@ def cmd_export(args: argparse.Namespace) -> int:
     from cadio.workspace import Workspace
     from models.evaluate import SHIPPED
     from models.relate import SHIPPED_RELATIONS
+    from reports.tables import printable
 
     run_dir = Workspace(args.workspace).run_dir(args.run)
     models = model_digests({"relations": args.relation_models or SHIPPED_RELATIONS,
@@ -142,7 +143,8 @@ def cmd_export(args: argparse.Namespace) -> int:
             advance(summary.assembly)
     index = write_index(args.out or run_dir.resolve() / "exports", summaries)
     for s in sorted(summaries, key=lambda s: s.assembly):
-        print(f"{s.assembly}: {s.status}" + (f" ({s.reason})" if s.reason else "")
+        print(f"{printable(s.assembly)}: {s.status}"  # names from input: one line each
+              + (f" ({printable(s.reason)})" if s.reason else "")
               + (f", {s.predicted_pairs}/{s.pairs} pairs predicted, {s.constraints} "
                  "constraints" if s.sidecar and s.status != "failed" else ""))
     counts = Counter(s.status for s in summaries)

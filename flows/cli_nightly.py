@@ -4,10 +4,8 @@ local server, work pool, worker and the deployments)."""
 from __future__ import annotations
 
 import argparse
-import json
 import os
 import sys
-from dataclasses import asdict
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -141,15 +139,16 @@ def _run_nightly(args: argparse.Namespace) -> int:
     if not state.is_completed():
         failure = state.result(raise_on_failure=False)
         if isinstance(failure, ThresholdFailure):
-            print(Path(failure.run_dir, "report.md").read_text())
+            _print_verdict(Path(failure.run_dir), args.json)
             print(f"mateqa nightly: {failure}", file=sys.stderr)
             return 3
         print(f"mateqa nightly: the run failed: {state.message}", file=sys.stderr)
         return 1
-    summary = state.result()
-    print(Path(summary.ingest_report).read_text())
-    print(Path(summary.stages_report).read_text())
-    print(Path(summary.completion_report).read_text())
-    print(Path(summary.relations_report).read_text())
-    print(json.dumps(asdict(summary), indent=1))
+    _print_verdict(Path(state.result().run_dir), args.json)
     return 0
+
+
+def _print_verdict(run_dir: Path, as_json: bool) -> None:
+    from reports.verdict import console_verdict
+
+    print((run_dir / "summary.json").read_text() if as_json else console_verdict(run_dir))

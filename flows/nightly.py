@@ -21,6 +21,7 @@ from prefect.artifacts import (
     create_markdown_artifact,
     create_table_artifact,
 )
+from prefect.states import Failed
 from prefect.task_runners import ThreadPoolTaskRunner
 
 from cadio.capture.coverage import ingested_parts
@@ -70,6 +71,9 @@ class ThresholdFailure(RuntimeError):
         self.run_dir, self.failed = run_dir, failed
         super().__init__(f"{len(failed)} threshold checks failed (report in {run_dir}): "
                          + "; ".join(failed[:5]) + (" ..." if len(failed) > 5 else ""))
+
+    def __reduce__(self) -> tuple[type[ThresholdFailure], tuple[str, list[str]]]:
+        return ThresholdFailure, (self.run_dir, self.failed)  # pickles with its fields
 
 
 @dataclass(frozen=True)
@@ -188,7 +192,8 @@ def nightly(config: NightConfig = DEFAULT_NIGHT) -> NightlySummary:
             would check nothing (no file, no category, no model); raised before any work,
             or after the captures when not one of the recordings could be used.
         ThresholdFailure: a threshold failed (with ``fail_on_threshold``); the run's report
-            and ``summary.json`` are complete, and the flow run ends Failed.
+            and ``summary.json`` are complete, and the flow run ends Failed (a returned state
+            whose data is the failure, so that no traceback is logged).
     """
     with stop_on_signal():
         for warning in check_night(config):
@@ -199,7 +204,9 @@ def nightly(config: NightConfig = DEFAULT_NIGHT) -> NightlySummary:
             task_runner=_dask_runner(address))
         summary = stages(config)
     if config.thresholds.fail_on_threshold and summary.failed_checks:
-        raise ThresholdFailure(summary.run_dir, summary.failed_checks)
+        # a returned Failed state, not a raised error: no crash's traceback on the console
+        failure = ThresholdFailure(summary.run_dir, summary.failed_checks)
+        return Failed(message=str(failure), data=failure)  # type: ignore[return-value]
     return summary
 
 

@@ -14,7 +14,6 @@ night reuses what the cached tasks finished.
 from __future__ import annotations
 
 import logging
-import multiprocessing
 import os
 import signal
 import threading
@@ -23,6 +22,8 @@ from contextlib import contextmanager
 from types import FrameType
 from typing import Any
 from uuid import UUID
+
+from cadio.sandbox import kill_workers
 
 log = logging.getLogger(__name__)
 
@@ -68,8 +69,7 @@ def _stop(signum: int, frame: FrameType | None) -> None:
     except Exception as exc:  # the server may be what is going away: stop all the same
         log.error("could not mark the flow runs: %s", exc)
     _flush_logs()
-    for child in multiprocessing.active_children():  # the CAD workers of running tasks
-        child.kill()
+    kill_workers()  # the CAD workers of running tasks
     os._exit(128 + signum)
 
 

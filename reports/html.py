@@ -1,10 +1,15 @@
 """``report.html``: one self-contained page per run (plots inline as PNG), read the next morning.
 
-Sections: the run and its failures, the threshold checks, completion per category beside the
-paper's Tables I and II, relations per relation and input beside Table III, the assemblies
-against their CAD mates and joints, and the trends over earlier runs. Every plot is an ``img``
-with a ``data-plot`` name; a section without data says so instead. matplotlib is imported only
-when a plot is drawn, so that ``reports`` imports fast.
+The first screen is the verdict: pass or fail, per category the headline metrics with their
+threshold and the previous night's value, and the three plots a QA engineer looks at first
+(completion IoU per category and method, relation F1 against the CAD per relation, joint
+agreement). The long tables follow, each folded in a ``<details>`` with links to the run
+files it comes from: the inputs that failed, the run's facts, the threshold checks, completion
+beside the paper's Tables I and II, relations beside Table III, the assemblies against their
+CAD mates and joints, the trends over earlier runs. Every plot is an ``img`` with a
+``data-plot`` name; a section without data says so instead. Every string from the input
+(names, paths, reasons) is HTML-escaped. matplotlib is imported only when a plot is drawn, so
+that ``reports`` imports fast.
 """
 
 from __future__ import annotations
@@ -12,32 +17,46 @@ from __future__ import annotations
 import base64
 import html
 import io
-from collections.abc import Callable, Sequence
+import math
+from collections.abc import Callable, Iterator, Sequence
+from contextlib import contextmanager
 from typing import Any
 
 import pandas as pd
 
+from reports import plots
 from reports.completion import (
-    HELD_OUT,
-    category_means,
     iou_by_n_views,
     iou_by_view_angle,
     paper_iou_table,
     paper_overlap_table,
 )
-from reports.relations import RELATIONS, accuracy_table, calibration_table
+from reports.relations import accuracy_table, calibration_table
+from reports.verdict import HEADLINE, LABELS, Figure, Verdict
 
-PLOTS = ("category_iou", "iou_by_view_angle", "iou_by_n_views", "relation_accuracy",
+FIRST_SCREEN = ("category_iou", "relation_f1", "joint_agreement")
+PLOTS = (*FIRST_SCREEN, "iou_by_view_angle", "iou_by_n_views", "relation_accuracy",
          "confusion", "trends")
+WIDE, SMALL = (11.0, 4.2), (5.4, 3.6)  # figure sizes, inches: a folded section's, the first's
 STYLE = """
-body{font-family:system-ui,sans-serif;margin:2em;max-width:1300px;color:#222}
-h1{margin-bottom:0}h2{border-bottom:2px solid #ccc;padding-bottom:4px;margin-top:2em}
+body{font-family:system-ui,sans-serif;margin:1.5em 2em;max-width:1300px;color:#222}
+h1{margin:0 0 4px;font-size:1.6em}h2{display:inline;font-size:1.25em}
+summary{cursor:pointer;border-bottom:2px solid #ccc;padding:6px 0;margin-top:1em}
+.files{font-size:13px;margin-left:1em;color:#555}.files a{margin-right:0.6em}
 table{border-collapse:collapse;margin:0.5em 0 1em;font-size:13px}
 th,td{border:1px solid #ccc;padding:3px 7px;text-align:right}th{background:#f2f2f2}
 td:first-child,th:first-child{text-align:left}
 .pass{background:#d9f2d9}.fail,.regressed{background:#f8d0d0}.too-few,.no-data,
 .no-threshold{background:#eee;color:#666}.nodata{color:#888;font-style:italic}
-img{max-width:100%;border:1px solid #ddd;margin:0.5em 0}.banner{padding:8px;font-weight:bold}
+table.verdict{font-size:14px}
+table.verdict td,table.verdict th{text-align:left;white-space:nowrap}
+table.verdict small{color:#555}
+.facts,.legend{font-size:13px;color:#555;margin:2px 0 6px}
+.banner{padding:8px;font-weight:bold;margin:6px 0}
+img{max-width:100%;border:1px solid #ddd}figure{margin:0.5em 0}
+figcaption{font-size:13px;color:#444}
+.first{display:flex;gap:12px}.first figure{flex:1;min-width:0;margin:0}
+.first img{width:100%}
 """
 
 
@@ -49,7 +68,7 @@ class Page:
                       f"<title>{html.escape(title)}</title><style>{STYLE}</style></head><body>",
                       f"<h1>{html.escape(title)}</h1>"]
 
-    def heading(self, text: str, level: int = 2) -> None:
+    def heading(self, text: str, level: int = 3) -> None:
         self.parts.append(f"<h{level}>{html.escape(text)}</h{level}>")
 
     def text(self, text: str, css: str = "") -> None:
@@ -66,150 +85,157 @@ class Page:
                 out = out.replace(f"<td>{name}</td>", f"<td class='{name}'>{name}</td>")
         self.parts.append(out)
 
-    def plot(self, name: str, alt: str, draw: Callable[[Any], bool]) -> None:
+    def plot(self, name: str, alt: str, draw: Callable[[Any], bool],
+             size: tuple[float, float] = WIDE) -> None:
         """``draw(figure)`` fills a matplotlib figure and says whether it had data."""
         import matplotlib
 
         matplotlib.use("Agg")
         import matplotlib.pyplot as plt
 
-        fig = plt.figure(figsize=(11, 4.2))
-        try:
-            if not draw(fig):
-                self.text(f"{alt}: no data", "nodata")
-                return
-            buf = io.BytesIO()
-            fig.tight_layout()
-            fig.savefig(buf, format="png", dpi=80)
-        finally:
-            plt.close(fig)
+        # Labels are category and file names from input: "$" in one is text, not mathtext
+        # (which fails on what it cannot parse).
+        with matplotlib.rc_context({"text.parse_math": False}):
+            fig = plt.figure(figsize=size)
+            try:
+                if not draw(fig):
+                    self.parts.append(f"<figure><p class='nodata'>{html.escape(alt)}: no data"
+                                      "</p></figure>")
+                    return
+                buf = io.BytesIO()
+                fig.tight_layout()
+                fig.savefig(buf, format="png", dpi=100 if size == SMALL else 80)
+            finally:
+                plt.close(fig)
         data = base64.b64encode(buf.getvalue()).decode()
-        self.parts.append(f"<img data-plot='{name}' alt='{html.escape(alt)}' "
-                          f"src='data:image/png;base64,{data}'>")
+        self.parts.append(f"<figure><img data-plot='{name}' alt='{html.escape(alt)}' "
+                          f"src='data:image/png;base64,{data}'>"
+                          f"<figcaption>{html.escape(alt)}</figcaption></figure>")
+
+    @contextmanager
+    def folded(self, title: str, files: Sequence[str] = ()) -> Iterator[None]:
+        """A ``<details>`` section, closed, titled, with links to the run files it shows."""
+        links = "".join(f"<a href='{html.escape(f)}'>{html.escape(f)}</a>" for f in files)
+        self.parts.append(f"<details><summary><h2>{html.escape(title)}</h2>"
+                          f"<span class='files'>{links}</span></summary>")
+        yield
+        self.parts.append("</details>")
 
     def render(self) -> str:
         return "\n".join([*self.parts, "</body></html>"])
 
 
-# ---------------------------------------------------------------- sections
+# ---------------------------------------------------------------- the first screen
 
 
-def header(page: Page, run: dict[str, Any], checks: pd.DataFrame, problems: pd.DataFrame) -> None:
-    """Run facts, stage times, the verdict, and every input that failed with its reason."""
-    failed = checks[checks["status"].isin(["fail", "regressed"])]
-    verdict = (f"{len(failed)} threshold checks failed" if len(failed)
-               else "every threshold check passed")
-    page.parts.append(f"<div class='banner {'fail' if len(failed) else 'pass'}'>"
-                      f"{html.escape(verdict)}</div>")
-    page.table(pd.DataFrame([{"item": k, "value": str(v)} for k, v in run.items()]))
-    page.heading("Inputs that failed, and why", 3)
-    page.table(problems)
+def first_screen(page: Page, verdict: Verdict, facts: str, categories: pd.DataFrame,
+                 mates: pd.DataFrame, joints: pd.DataFrame) -> None:
+    """The verdict, its table of headline figures, the failed inputs' count and the three
+    plots (``categories``: ``completion_categories`` rows of the observed protocol)."""
+    page.text(facts, "facts")
+    page.parts.append(f"<div class='banner {'pass' if verdict.passed else 'fail'}'>"
+                      f"{html.escape(verdict.headline())}</div>")
+    page.parts.append(verdict_table(verdict))
+    page.text("Each cell: tonight's value, its floor and the previous night's value. Red: below "
+              "the floor (fail) or worse than the previous night by more than the allowed drop "
+              "(regressed); grey: too few parts, pairs or files to check. A category's verdict "
+              "is the worst of all its checks (the folded table below lists every one).",
+              "legend")
+    if verdict.problems:
+        page.text(f"Inputs that failed: {verdict.problem_counts()}; files and reasons in "
+                  "\"Inputs that failed, and why\" below.", "legend")
+    page.parts.append("<div class='first'>")
+    page.plot("category_iou", "Completion IoU per category and method (held-out parts, one "
+              "view, observed protocol)", lambda fig: plots.category_iou(fig, categories), SMALL)
+    page.plot("relation_f1", "Relation F1 against the CAD per relation, every assembly "
+              "(ltn on completed points; n: the CAD's pairs)",
+              lambda fig: plots.relation_f1(fig, mates), SMALL)
+    page.plot("joint_agreement", "Joint agreement: the joint the predictions imply against "
+              "the CAD's", lambda fig: plots.joint_agreement(fig, joints), SMALL)
+    page.parts.append("</div>")
 
 
-def checks_section(page: Page, checks: pd.DataFrame) -> None:
-    page.heading("Thresholds and the previous run (categories.csv)")
-    page.table(checks, digits=4, status=True)
+def verdict_table(verdict: Verdict) -> str:
+    """Per category (rows) its verdict and headline figures (columns), coloured by status."""
+    head = "".join(f"<th>{html.escape(LABELS[m])}</th>" for m in HEADLINE)
+    rows = [f"<table class='verdict' id='verdict'><tr><th>category</th><th>verdict</th>{head}"
+            "</tr>"]
+    for c in verdict.categories:
+        checks = f"{c.checked} check{'s' if c.checked != 1 else ''}"
+        count = (f"{c.failed} of {checks} failed" if c.failed else
+                 f"{checks} passed" if c.checked else "no check applied")
+        cells = "".join(_figure_cell(c.figure(m)) for m in HEADLINE)
+        rows.append(f"<tr><td>{html.escape(c.category)}</td>"
+                    f"<td class='{html.escape(c.status)}'><b>{html.escape(c.status)}</b><br>"
+                    f"<small>{count}</small></td>"
+                    f"{cells}</tr>")
+    if not verdict.categories:
+        rows.append(f"<tr><td colspan='{len(HEADLINE) + 2}' class='nodata'>no metrics in this "
+                    "run</td></tr>")
+    return "".join(rows) + "</table>"
 
 
-def completion_section(page: Page, parts: pd.DataFrame) -> None:
-    page.heading("Shape completion")
+def _figure_cell(figure: Figure | None) -> str:
+    """The value and its status on the first line; floor and previous value below."""
+    if figure is None:
+        return "<td>-</td>"
+    value = "-" if math.isnan(figure.value) else f"{figure.value:.3f}"
+    status = "" if figure.status in ("pass", "no-threshold") else figure.status
+    if figure.status == "too-few":
+        status = f"too few (n={figure.n})"
+    notes = [f"{label} {v:.3f}" for label, v in (("floor", figure.threshold),
+                                                  ("prev", figure.previous)) if not math.isnan(v)]
+    return (f"<td class='{html.escape(figure.status)}'><b>{value}</b> {html.escape(status)}"
+            f"<br><small>{' · '.join(notes) or '&nbsp;'}</small></td>")
+
+
+# ---------------------------------------------------------------- the folded sections
+
+
+def completion_section(page: Page, parts: pd.DataFrame, categories: pd.DataFrame) -> None:
+    """``categories``: ``completion_categories`` rows of both protocols (held-out parts)."""
     if parts.empty:
         page.text("no completion scores in this run", "nodata")
         return
-    categories = category_means(parts, HELD_OUT)
     page.text("Held-out parts, one view. Observed protocol: the networks see the observed "
               "points and the camera only; oracle-box: the paper's setting (truth grid), "
               "beside it for comparison.")
-    page.heading("IoU (%) per category beside the paper's Table II", 3)
+    page.heading("IoU (%) per category beside the paper's Table II")
     page.table(paper_iou_table(categories), digits=1)
-    page.heading("Projection overlap XY/YZ/ZX (%) beside the paper's Table I", 3)
+    page.heading("Projection overlap XY/YZ/ZX (%) beside the paper's Table I")
     page.table(paper_overlap_table(categories))
-    page.heading("Every metric per category, method and protocol", 3)
+    page.heading("Every metric per category, method and protocol")
     page.table(categories)
-    page.plot("category_iou", "IoU per category and method (observed)",
-              lambda fig: _bars(fig, categories[categories["protocol"] == "observed"]))
     page.plot("iou_by_view_angle", "IoU against the view angle (observed, all categories)",
-              lambda fig: _lines(fig, iou_by_view_angle(parts), "view azimuth (degrees)"))
+              lambda fig: plots.iou_lines(fig, iou_by_view_angle(parts), "view azimuth "
+                                          "(degrees)"))
     page.plot("iou_by_n_views", "IoU against the number of views (observed, all categories)",
-              lambda fig: _lines(fig, iou_by_n_views(parts), "views"))
-
-
-def _bars(fig: Any, table: pd.DataFrame) -> bool:
-    if table.empty:
-        return False
-    wide = table.pivot_table(index="category", columns="method", values="iou")
-    wide.plot.bar(ax=fig.add_subplot(1, 1, 1), rot=0, ylabel="IoU", ylim=(0, 1))
-    return True
-
-
-def _lines(fig: Any, table: pd.DataFrame, xlabel: str) -> bool:
-    rows = table[(table["protocol"] == "observed") & (table["category"] == "all")]
-    if rows.empty:
-        return False
-    ax = fig.add_subplot(1, 1, 1)
-    columns = [c for c in rows.columns if c not in ("protocol", "category", "method")]
-    for row in rows.to_dict("records"):
-        ax.plot(columns, [row[c] for c in columns], marker="o", label=row["method"])
-    ax.set(xlabel=xlabel, ylabel="IoU", ylim=(0, 1))
-    ax.legend()
-    return True
+              lambda fig: plots.iou_lines(fig, iou_by_n_views(parts), "views"))
 
 
 def relations_section(page: Page, summary: pd.DataFrame, pairs: pd.DataFrame) -> None:
-    page.heading("Relations")
     if summary.empty:
         page.text("no relation scores in this run", "nodata")
         return
-    page.heading("Accuracy (%) per relation, input and method beside the paper's Table III", 3)
+    page.heading("Accuracy (%) per relation, input and method beside the paper's Table III")
     page.table(accuracy_table(summary).reset_index(), digits=1)
     alls = summary[summary["category"] == "all"]
-    page.heading("Precision, recall and F1 per relation, input and method (all categories)", 3)
+    page.heading("Precision, recall and F1 per relation, input and method (all categories)")
     page.table(alls[["input", "method", "relation", "n", "accuracy", "precision", "recall",
                      "f1", "violation_rate"]])
     if "confidence" in pairs:
-        page.heading("Calibration of the confidences (%)", 3)
+        page.heading("Calibration of the confidences (%)")
         page.table(calibration_table(pairs), digits=1)
     page.plot("relation_accuracy", "Accuracy per relation by input (ltn)",
-              lambda fig: _relation_bars(fig, alls))
+              lambda fig: plots.relation_accuracy(fig, alls))
     page.plot("confusion", "Confusion matrices of ltn on completed points, per relation",
-              lambda fig: _confusion(fig, pairs))
-
-
-def _relation_bars(fig: Any, alls: pd.DataFrame) -> bool:
-    rows = alls[alls["method"] == "ltn"]
-    if rows.empty:
-        return False
-    wide = rows.pivot_table(index="relation", columns="input", values="accuracy")
-    wide = wide.reindex([r for r in RELATIONS if r in wide.index])
-    wide.plot.bar(ax=fig.add_subplot(1, 1, 1), rot=30, ylabel="accuracy", ylim=(0, 1))
-    return True
-
-
-def _confusion(fig: Any, pairs: pd.DataFrame) -> bool:
-    rows = pairs[(pairs["method"] == "ltn") & (pairs["input"] == "completed")] \
-        if len(pairs) else pairs
-    if rows.empty:
-        return False
-    for k, relation in enumerate(RELATIONS):
-        ax = fig.add_subplot(2, 5, k + 1)
-        sub = rows[rows["relation"] == relation]
-        matrix = pd.crosstab(sub["truth"].astype(bool), sub["predicted"].astype(bool)).reindex(
-            index=[False, True], columns=[False, True], fill_value=0)
-        counts = matrix.to_numpy()
-        ax.imshow(counts, cmap="Blues")
-        for (i, j), v in pd.DataFrame(counts).stack().items():
-            ax.text(j, i, str(v), ha="center", va="center", fontsize=8,
-                    color="white" if v > counts.max() / 2 else "black")
-        ax.set(title=relation, xticks=[0, 1], yticks=[0, 1], xticklabels=["no", "yes"],
-               yticklabels=["no", "yes"], xlabel="predicted", ylabel="truth")
-    return True
+              lambda fig: plots.confusion(fig, pairs))
 
 
 def assemblies_section(page: Page, mates: pd.DataFrame, joints: pd.DataFrame) -> None:
-    page.heading("Assemblies against their CAD mates")
     page.text("ltn on completed points against the relations and joints of the CAD.")
     page.table(mates)
-    page.heading("Joint type: CAD (rows) against predicted (columns)", 3)
+    page.heading("Joint type: CAD (rows) against predicted (columns)")
     if joints.empty:
         page.text("no jointed pairs in this run", "nodata")
         return
@@ -219,29 +245,6 @@ def assemblies_section(page: Page, mates: pd.DataFrame, joints: pd.DataFrame) ->
 
 
 def trends_section(page: Page, history: Sequence[tuple[str, pd.DataFrame]]) -> None:
-    page.heading("Trends over the last runs")
     metrics = ("completion_iou", "relation_accuracy", "mates_f1", "ingest_ok_fraction")
     page.plot("trends", "Headline metrics (all categories) over the last runs",
-              lambda fig: _trends(fig, history, metrics))
-
-
-def _trends(fig: Any, history: Sequence[tuple[str, pd.DataFrame]],
-            metrics: Sequence[str]) -> bool:
-    ax = fig.add_subplot(1, 1, 1)
-    labels = [run_id[:15] for run_id, _ in history]
-    drawn = False
-    for metric in metrics:
-        values = [_value(table, metric) for _, table in history]
-        if any(v == v for v in values):  # some value that is not NaN
-            ax.plot(labels, values, marker="o", label=metric)
-            drawn = True
-    ax.set(xlabel="run", ylabel="value", ylim=(0, 1.05))
-    ax.tick_params(axis="x", labelrotation=20)
-    if drawn:
-        ax.legend()
-    return drawn
-
-
-def _value(table: pd.DataFrame, metric: str) -> float:
-    rows = table[(table["metric"] == metric) & (table["category"] == "all")]
-    return float(rows["value"].iloc[0]) if len(rows) else float("nan")
+              lambda fig: plots.trends(fig, history, metrics))

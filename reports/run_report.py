@@ -4,7 +4,9 @@
 the completion scores with the part's source file and status), ``pairs.parquet`` (every
 relation decision), ``categories.csv`` (each metric per category against its threshold, the
 previous run and the last runs), ``junit.xml`` (one test case per category and metric),
-``report.md`` (the checks in Markdown) and ``report.html`` (everything, self-contained).
+``report.md`` (the checks in Markdown) and ``report.html`` (everything, self-contained: the
+verdict of ``reports.verdict`` first, then every table folded). A run that completes writes
+``summary.json`` last, after these (the report links it).
 """
 
 from __future__ import annotations
@@ -18,17 +20,16 @@ from typing import Any
 import pandas as pd
 
 from cadio.workspace import atomic_path, atomic_write
-from reports.completion import read_completion_parts
+from reports.completion import HELD_OUT, category_means, read_completion_parts
 from reports.html import (
     Page,
     assemblies_section,
-    checks_section,
     completion_section,
-    header,
+    first_screen,
     relations_section,
     trends_section,
 )
-from reports.tables import markdown_table
+from reports.tables import markdown_table, markdown_text
 from reports.trends import (
     Thresholds,
     check_metrics,
@@ -37,6 +38,7 @@ from reports.trends import (
     write_categories,
     write_junit,
 )
+from reports.verdict import build_verdict, read_problems
 
 SUMMARY = "summary.json"  # written last by a run that completed
 
@@ -105,8 +107,7 @@ def write_run_report(run_dir: Path, history: Sequence[Path], thresholds: Thresho
     markdown = _markdown(run_dir.name, checks, failed)
     with atomic_write(run_dir / "report.md", "w") as fh:
         fh.write(markdown)
-    page = _page(run_dir, checks, parts, pairs, catalog, facts or {},
-                 [*earlier, (run_dir.name, current)])
+    page = _page(run_dir, checks, parts, pairs, facts or {}, [*earlier, (run_dir.name, current)])
     with atomic_write(run_dir / "report.html", "w") as fh:
         fh.write(page)
     return RunReport(str(run_dir), str(run_dir / "report.html"), str(run_dir / "report.md"),
@@ -135,37 +136,51 @@ def _parts(run_dir: Path, catalog: Path | None) -> pd.DataFrame:
     return parts.merge(table, on="part_id", how="left")
 
 
-def _problems(run_dir: Path, catalog: Path | None) -> pd.DataFrame:
-    """Every input that failed or was skipped, and why (ingest), plus the run's other
-    failures that the stage reports list."""
-    rows = []
-    if catalog is not None and Path(catalog).is_file():
-        table = pd.read_parquet(catalog)
-        bad = table[table["status"] != "ok"]
-        rows += [{"stage": "ingest", "item": str(r.source), "status": str(r.status),
-                  "reason": str(r.error)} for r in bad.itertuples()]
-    stages = run_dir / "stages.json"
-    if stages.is_file():
-        for problem in json.loads(stages.read_text()).get("failures", []):
-            rows.append({"stage": str(problem.get("stage", "")),
-                         "item": str(problem.get("item", "")),
-                         "status": "failed", "reason": str(problem.get("error", ""))})
-    return pd.DataFrame(rows, columns=["stage", "item", "status", "reason"])
-
-
 def _page(run_dir: Path, checks: pd.DataFrame, parts: pd.DataFrame, pairs: pd.DataFrame,
-          catalog: Path | None, facts: dict[str, Any],
-          history: Sequence[tuple[str, pd.DataFrame]]) -> str:
+          facts: dict[str, Any], history: Sequence[tuple[str, pd.DataFrame]]) -> str:
+    """The verdict first, then every table folded, each with links to its files."""
     page = Page(f"mateqa nightly {run_dir.name}")
-    totals = _totals(run_dir)
-    header(page, {"run": run_dir.name, **facts, **totals}, checks, _problems(run_dir, catalog))
-    checks_section(page, checks)
-    completion_section(page, parts)
-    relations_section(page, _read_csv(run_dir / "relations_summary.csv"), pairs)
-    assemblies_section(page, _read_csv(run_dir / "assembly_mates.csv"),
-                       _read_csv(run_dir / "assembly_joints.csv"))
-    trends_section(page, history)
+    problems = read_problems(run_dir)
+    facts = {"run": run_dir.name, **facts, **_totals(run_dir)}
+    categories = category_means(parts, HELD_OUT) if len(parts) else pd.DataFrame()
+    observed = categories[categories["protocol"] == "observed"] if len(categories) else \
+        categories
+    mates = _read_csv(run_dir / "assembly_mates.csv")
+    joints = _read_csv(run_dir / "assembly_joints.csv")
+    first_screen(page, build_verdict(run_dir.name, checks, problems), _facts_line(facts),
+                 observed, mates, joints)
+
+    def files(*names: str) -> list[str]:
+        return [n for n in names if (run_dir / n).is_file()]
+
+    with page.folded(f"Inputs that failed, and why ({len(problems)})",
+                     files("ingest.md", "stages.md", "completion.md")):
+        page.table(problems)
+    with page.folded("The run: facts, totals and stage times",
+                     [SUMMARY, *files("ingest.json", "stages.json", "tolerances.json")]):
+        page.table(pd.DataFrame([{"item": k, "value": str(v)} for k, v in facts.items()]))
+    with page.folded("Thresholds and the previous run", files("categories.csv", "junit.xml")):
+        page.table(checks, digits=4, status=True)
+    with page.folded("Shape completion", files("completion_categories.csv",
+                                               "completion_parts.parquet", "parts.parquet")):
+        completion_section(page, parts, categories)
+    with page.folded("Relations", files("relations_summary.csv", "relations_near_boundary.csv",
+                                        "relations_pairs.parquet", "relations.md")):
+        relations_section(page, _read_csv(run_dir / "relations_summary.csv"), pairs)
+    with page.folded("Assemblies against their CAD mates",
+                     files("assembly_mates.csv", "assembly_joints.csv")):
+        assemblies_section(page, mates, joints)
+    with page.folded("Trends over the last runs", files("categories.csv")):
+        trends_section(page, history)
     return page.render()
+
+
+def _facts_line(facts: dict[str, Any]) -> str:
+    """The library, and the files and parts ingest found, in one line."""
+    out = [f"library {facts['library']}"] if "library" in facts else []
+    if "ingest files" in facts:
+        out.append(f"{facts['ingest files']} files, {facts.get('ingest parts', 0)} parts")
+    return " · ".join(out)
 
 
 def _totals(run_dir: Path) -> dict[str, Any]:
@@ -184,7 +199,8 @@ def _markdown(run_id: str, checks: pd.DataFrame, failed: list[str]) -> str:
     shown = checks[checks["status"] != "too-few"].copy()
     for col in ("value", "previous", "threshold", "mean_last_n"):
         shown[col] = shown[col].map(lambda v: "-" if v != v else f"{v:.4g}")
-    lines = [f"# Nightly {run_id}: {verdict}", "", *[f"- {f}" for f in failed], "",
+    lines = [f"# Nightly {markdown_text(run_id)}: {verdict}", "",
+             *[f"- {markdown_text(f)}" for f in failed], "",
              markdown_table(shown[["category", "metric", "value", "previous", "threshold",
                                    "status", "mean_last_n", "n"]]), ""]
     return "\n".join(lines)

@@ -13,20 +13,31 @@ import pandas as pd
 from cadio.contracts import CaptureSummary, MatesSummary
 
 
+def printable(value: object) -> str:
+    """``str(value)`` on one line: every character that is not printable (newline, tab, a
+    terminal's escape sequences, bidirectional overrides) as its Python escape (``\\n``,
+    ``\\x1b``). Names come from input files and folders; this is how they reach a console."""
+    text = str(value)
+    if text.isprintable():
+        return text
+    return "".join(c if c.isprintable() else ascii(c)[1:-1] for c in text)
+
+
+def markdown_text(value: object) -> str:
+    """``value`` as inline Markdown text that stays in its table cell or list item: on one
+    line (``printable``), ``|`` escaped, and ``<``, ``>`` as entities (no raw HTML)."""
+    text = printable(value).replace("|", "\\|")
+    return text.replace("<", "&lt;").replace(">", "&gt;")
+
+
 def markdown_table(frame: pd.DataFrame) -> str:
-    """A GitHub-flavoured Markdown table (no optional dependency on tabulate)."""
-    cols = [_cell(c) for c in frame.columns]
+    """A GitHub-flavoured Markdown table (no optional dependency on tabulate); every cell
+    through ``markdown_text``."""
+    cols = [markdown_text(c) for c in frame.columns]
     out = ["| " + " | ".join(cols) + " |", "|" + "---|" * len(cols)]
     for row in frame.itertuples(index=False):
-        out.append("| " + " | ".join(_cell(v) for v in row) + " |")
+        out.append("| " + " | ".join(markdown_text(v) for v in row) + " |")
     return "\n".join(out)
-
-
-def _cell(value: object) -> str:
-    """One table cell: a pipe escaped and line breaks shown as ``\\n`` (a file name may hold
-    both; either would break the row)."""
-    text = str(value).replace("|", "\\|")
-    return text.replace("\r", "\\r").replace("\n", "\\n")
 
 
 def files_table(catalog: pd.DataFrame) -> pd.DataFrame:

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import json
 import math
+import re
 import tomllib
 import xml.etree.ElementTree as ET
 from collections.abc import Callable, Mapping, Sequence
@@ -282,6 +283,16 @@ def write_categories(path: Path, checks: pd.DataFrame) -> Path:
     return path
 
 
+# Characters XML 1.0 cannot hold, even escaped (control characters, surrogates, U+FFFE/F).
+_NOT_XML = re.compile("[^\t\n\r\x20-\ud7ff\ue000-\ufffd\U00010000-\U0010ffff]")
+
+
+def _xml_safe(value: object) -> str:
+    """``str(value)`` with what XML cannot hold written as its Python escape (``\\x1b``):
+    a category is a folder name, which may hold any character but ``/``."""
+    return _NOT_XML.sub(lambda m: ascii(m.group())[1:-1], str(value))
+
+
 def write_junit(path: Path, checks: pd.DataFrame, suite: str) -> Path:
     """JUnit XML: one test case per category (class) and metric (name); ``fail`` and
     ``regressed`` are failures, ``no-data``, ``no-threshold`` and ``too-few`` are skipped."""
@@ -289,10 +300,11 @@ def write_junit(path: Path, checks: pd.DataFrame, suite: str) -> Path:
     skipped = int(checks["status"].isin(["no-data", "no-threshold", "too-few"]).sum())
     root = ET.Element("testsuites", name="mateqa", tests=str(len(checks)),
                       failures=str(failures), skipped=str(skipped))
-    node = ET.SubElement(root, "testsuite", name=suite, tests=str(len(checks)),
+    node = ET.SubElement(root, "testsuite", name=_xml_safe(suite), tests=str(len(checks)),
                          failures=str(failures), errors="0", skipped=str(skipped))
     for r in checks.itertuples():
-        case = ET.SubElement(node, "testcase", classname=str(r.category), name=str(r.metric))
+        case = ET.SubElement(node, "testcase", classname=_xml_safe(r.category),
+                             name=_xml_safe(r.metric))
         message = (f"{r.metric} = {r.value:.4g} ({r.direction} is better), threshold "
                    f"{r.threshold:.4g}, max drop {r.max_drop:.4g}, previous {r.previous:.4g}")
         if r.status in ("fail", "regressed"):

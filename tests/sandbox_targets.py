@@ -8,8 +8,11 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 if TYPE_CHECKING:
+    from multiprocessing.queues import Queue
+
     from cadio.cad.ingest import IngestJob
     from cadio.catalog import CatalogRow
+    from cadio.sandbox import Limits
 
 
 def misbehave(payload: str) -> str:
@@ -33,3 +36,17 @@ def process_or_crash(job: IngestJob) -> list[CatalogRow]:
     if "segfault" in Path(job.path).name:
         ctypes.string_at(0)
     return process_file(job)
+
+
+def run_in_daemon(payloads: list[str], limits: Limits, out: Queue) -> None:
+    """Run ``misbehave`` on the payloads through the sandbox from this (daemonic) process, as
+    a ``dask worker`` process does; put {payload: result or error reason} and whether this
+    process is daemonic on ``out``."""
+    import multiprocessing
+
+    from cadio.sandbox import Job, run_isolated
+
+    found = {}
+    for o in run_isolated(misbehave, [Job(p, p) for p in payloads], limits):
+        found[o.job.key] = o.result if o.error is None else f"error: {o.error.reason}"
+    out.put((multiprocessing.current_process().daemon, found))

@@ -1,8 +1,9 @@
-"""The nightly on a real Dask cluster (a scheduler and two workers on loopback, through
-prefect-dask) writes the same report as on this machine's thread pool."""
+"""The nightly on a real Dask cluster (a scheduler and two workers on loopback, started the
+ordinary way, through prefect-dask) writes the same report as on this machine's thread pool."""
 
 from __future__ import annotations
 
+import multiprocessing
 import os
 import subprocess
 import sys
@@ -17,15 +18,16 @@ from conftest import finish_night, free_port, start_night
 pytestmark = pytest.mark.server
 
 ROOT = Path(__file__).resolve().parents[1]
-# The CAD stages read each file in a child process with its own limits: a Dask worker process
-# must not be daemonic to have children (docker/compose.yaml sets the same).
-WORKER_ENV = {**os.environ, "DASK_DISTRIBUTED__WORKER__DAEMON": "False", "OMP_NUM_THREADS": "1"}
+# The workers' own settings, untouched: their processes are daemonic, as on any cluster.
+WORKER_ENV = {k: v for k, v in os.environ.items() if not k.startswith("DASK_")}
+WORKER_ENV["OMP_NUM_THREADS"] = "1"
 COMPARED = ["completion_categories.csv", "relations_summary.csv", "assembly_mates.csv"]
 
 
 @pytest.fixture(scope="module")
 def dask_cluster(tmp_path_factory: pytest.TempPathFactory) -> Iterator[str]:
-    """``dask scheduler`` and two ``dask worker`` processes; yields the scheduler address."""
+    """``dask scheduler`` and two ``dask worker`` processes (each a nanny and its daemonic
+    worker process); yields the scheduler address."""
     port, log = free_port(), tmp_path_factory.mktemp("dask") / "dask.log"
     address = f"tcp://127.0.0.1:{port}"
     dask = str(Path(sys.executable).with_name("dask"))
@@ -64,7 +66,9 @@ def test_the_nightly_on_dask_reports_what_the_local_runner_does(
 
     with Client(dask_cluster, timeout=10) as client:  # both workers did some of the work
         done = client.run(lambda dask_worker: dask_worker.state.transition_counter)
+        daemonic = client.run(lambda: multiprocessing.current_process().daemon)
     assert len(done) == 2 and all(n > 0 for n in done.values()), done
+    assert all(daemonic.values()), daemonic  # where multiprocessing children are refused
     for name in COMPARED:
         table = pd.read_csv(local / name)
         assert len(table) > 0, name

@@ -13,6 +13,7 @@ import jsonschema
 import numpy as np
 import pandas as pd
 import pytest
+from cad_oracle import oracle_record
 
 from cadio.cad.step import read_step
 from cadio.errors import StepReadError
@@ -199,18 +200,6 @@ def test_the_cadquery_script_solves_back_to_the_step_placements(local_night: Pat
             assert np.abs(got - step[part["index"]]).max() < 1e-3
 
 
-def _oracle(mates: pd.DataFrame) -> pd.DataFrame:
-    """The CAD's own answers as predictions (one view, confident): its part-level relations,
-    and concentric or coincident wherever it has such a face mate."""
-    rows = []
-    for (a, b), g in mates.groupby(["part_a", "part_b"], sort=False):
-        held = set(g[g["level"].isin(["part", "face"])]["relation"])
-        rows += [{"scene": "assembly-x", "view": 0, "part_a": a, "part_b": b, "relation": rel,
-                  "truth": rel in held, "predicted": rel in held, "confidence": 0.99}
-                 for rel in RELATIONS]
-    return pd.DataFrame(rows)
-
-
 @pytest.fixture(params=["real arbor press", "sample swivel caster"])
 def cad_assembly(request: pytest.FixtureRequest, shared_step_dir: Path,
                  tmp_path: Path) -> Path:
@@ -231,19 +220,7 @@ def test_every_cad_mate_as_a_constraint_pulls_perturbed_parts_back(cad_assembly:
     """With the CAD's own answers as predictions, every concentric and coincident face mate
     is a constraint: parts started 1 mm off come back to the file's placements; a mate moved
     by 1 mm moves its part (the check can fail)."""
-    from cadio.truth.mates import read_assembly_mates
-
-    solids = read_step(cad_assembly)
-    catalog = pd.DataFrame({
-        "part_id": [f"p-{s.info.index}" for s in solids],
-        "solid_index": [s.info.index for s in solids],
-        "name": [s.info.name for s in solids],
-        "path_in_assembly": [s.info.path_in_assembly for s in solids],
-        "placement": [json.dumps(s.info.placement.ravel().tolist()) for s in solids]})
-    mates = read_assembly_mates(cad_assembly, part_ids=dict(
-        zip(catalog["solid_index"], catalog["part_id"], strict=True))).table
-    oracle = assembly_mates(cad_assembly.stem, "assemblies", str(cad_assembly), "", catalog,
-                            mates, _oracle(mates))
+    oracle, solids, mates = oracle_record(cad_assembly)
     assert oracle.status == OK
     constrained = sum(len(p.constraints()) for p in oracle.pairs)
     assert constrained == int(((mates["level"] == "face")

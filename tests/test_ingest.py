@@ -176,7 +176,8 @@ def test_jobs_start_with_the_largest_file(tmp_path: Path) -> None:
 
 
 def test_the_supervisor_and_fresh_workers_load_no_heavy_library() -> None:
-    """The supervisor has no use for them, and every spawned worker re-imports flows.cli."""
+    """The supervisor has no use for them, and a fresh worker imports the job's module (here
+    ingest's) before its first file."""
     heavy = ("OCP", "open3d", "pandas", "pydantic")
     probe = ("import sys, flows.cli, cadio.cad.ingest; "
              f"print(sorted(m for m in {heavy} if m in sys.modules))")

@@ -110,9 +110,10 @@ def test_stage_report_without_scenes() -> None:
     assert "## Scenes" in report.markdown()
 
 
-def test_markdown_table_escapes_pipes() -> None:
-    text = markdown_table(pd.DataFrame({"a": ["x|y"], "b": [1]}))
-    assert text.splitlines() == ["| a | b |", "|---|---|", "| x\\|y | 1 |"]
+def test_markdown_table_escapes_pipes_newlines_and_markup() -> None:
+    text = markdown_table(pd.DataFrame({"a": ["x|y", "two\nlines <b>"], "b|c": [1, 2]}))
+    assert text.splitlines() == ["| a | b\\|c |", "|---|---|", "| x\\|y | 1 |",
+                                 "| two\\nlines &lt;b&gt; | 2 |"]
 
 
 def test_reports_import_no_cad_kernel_torch_or_renderer() -> None:

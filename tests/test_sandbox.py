@@ -2,10 +2,16 @@
 
 from __future__ import annotations
 
-from sandbox_targets import misbehave
+import multiprocessing
+import threading
+import time
+
+import psutil
+import pytest
+from sandbox_targets import misbehave, run_in_daemon
 
 from cadio.errors import WorkerError
-from cadio.sandbox import Job, Limits, run_isolated
+from cadio.sandbox import Job, Limits, Outcome, kill_workers, run_isolated
 
 
 def _run(payloads: list[str], limits: Limits) -> dict[str, object]:
@@ -42,3 +48,56 @@ def test_exceptions_are_reported_and_workers_run_in_parallel() -> None:
     assert len(out) == 7
     assert "ValueError: bad payload" in str(out["raise"])
     assert [out[f"ok:{i}"] for i in range(6)] == [str(i) for i in range(6)]
+
+
+def test_the_sandbox_runs_inside_a_daemonic_process() -> None:
+    """A ``dask worker`` process is daemonic, and multiprocessing gives such a process no
+    children: the sandbox's workers are plain subprocesses, with the same limits there."""
+    ctx = multiprocessing.get_context("spawn")
+    out = ctx.Queue()
+    payloads = ["ok:a", "segfault", "hang", "memory", "ok:b"]
+    proc = ctx.Process(target=run_in_daemon, daemon=True,
+                       args=(payloads, Limits(seconds=10, memory_mb=1024, workers=2), out))
+    proc.start()
+    proc.join(300)
+    assert proc.exitcode == 0  # multiprocessing children: "daemonic processes are not ..."
+    daemonic, found = out.get(timeout=10)
+    assert daemonic
+    assert found["ok:a"] == "a" and found["ok:b"] == "b"
+    assert "SIGSEGV" in found["segfault"]
+    assert "timed out after 10 s" in found["hang"]
+    assert "memory" in found["memory"]
+
+
+def _workers() -> list[psutil.Process]:
+    return [p for p in psutil.Process().children() if "cadio.sandbox" in " ".join(p.cmdline())]
+
+
+def test_no_worker_outlives_the_batch_even_when_it_is_abandoned() -> None:
+    outcomes = run_isolated(misbehave, [Job(p, p) for p in ["ok:a", "hang", "ok:b"]],
+                            Limits(seconds=600, workers=2))
+    first = next(outcomes)
+    assert first.result == "a" and len(_workers()) == 2
+    outcomes.close()  # the caller stops early (an error, a cancelled task): the hang is killed
+    assert _workers() == []
+
+
+def test_kill_workers_ends_running_jobs_at_once() -> None:
+    outcomes = run_isolated(misbehave, [Job("hang", "hang")], Limits(seconds=3600, workers=1))
+    done: list[Outcome[str, str]] = []
+    batch = threading.Thread(target=lambda: done.extend(outcomes))
+    batch.start()
+    deadline = time.monotonic() + 300  # a guard against a hang, not a speed check
+    while not _workers():
+        assert time.monotonic() < deadline, "no worker started"
+        time.sleep(0.1)
+    assert kill_workers() == 1  # what a night's stop on SIGTERM calls
+    batch.join(300)
+    assert not batch.is_alive() and _workers() == []
+    (outcome,) = done
+    assert isinstance(outcome.error, WorkerError) and "SIGKILL" in outcome.error.reason
+
+
+def test_a_job_must_be_importable_by_name() -> None:
+    with pytest.raises(ValueError, match="module-level function"):
+        next(run_isolated(lambda p: p, [Job("x", "x")]))

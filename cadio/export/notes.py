@@ -13,12 +13,20 @@ Each comment's text is a JSON object (``kind``: part, pair or assembly, and a on
 ``summary`` for people). XBF is the format that keeps them: the XML format overwrites the
 comment text with its time stamp and STEP export drops notes (OCCT behaviour). Reopen a
 saved document with ``read_notes`` (``Retrieve``: ``Open`` leaves it empty).
+
+OpenCascade takes a "|" in a path for a separator of its own (it cannot save to or retrieve
+from ``exports/a|b/``), and folder and file names come from the assembly's file name: documents
+are saved and retrieved in a temporary folder of plain name and copied from or to their place.
 """
 
 from __future__ import annotations
 
 import json
+import shutil
+import tempfile
 from collections import defaultdict
+from collections.abc import Iterator
+from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -70,6 +78,13 @@ def _application() -> XCAFApp_Application:
         BinXCAFDrivers.DefineFormat_s(app)
         _FORMATS.add(id(app))
     return app
+
+
+@contextmanager
+def _plain_path() -> Iterator[Path]:
+    """A path in a fresh temporary folder, named so that OpenCascade reads it as written."""
+    with tempfile.TemporaryDirectory(prefix="mateqa-xbf-") as folder:
+        yield Path(folder) / "document.xbf"
 
 
 def _text(value: str) -> TCollection_ExtendedString:
@@ -176,10 +191,11 @@ def write_xbf(step: Path, mates: AssemblyMates, out: Path,
                       for s in solids}.values())
         attach(assembly_note(mates), roots)
         out.parent.mkdir(parents=True, exist_ok=True)
-        with atomic_path(out) as tmp:
-            status = app.SaveAs(doc, _text(str(tmp)))
+        with atomic_path(out) as tmp, _plain_path() as plain:
+            status = app.SaveAs(doc, _text(str(plain)))
             if status != PCDM_StoreStatus.PCDM_SS_OK:
                 raise OSError(f"{out}: OpenCascade could not save the document ({status.name})")
+            shutil.copyfile(plain, tmp)
         return count, solids
     finally:
         if doc.IsOpened():  # saving opens it in the application; a failure before does not
@@ -202,10 +218,13 @@ def read_notes(path: Path) -> list[Note]:
     if not path.is_file():
         raise OSError(f"{path}: no such document")
     app = _application()
-    try:
-        doc = app.Retrieve(_text(str(path.parent)), _text(path.name))
-    except Exception as exc:  # OCCT raises its own Standard_Failure types
-        raise OSError(f"{path}: OpenCascade could not retrieve the document ({exc})") from exc
+    with _plain_path() as plain:
+        shutil.copyfile(path, plain)
+        try:
+            doc = app.Retrieve(_text(str(plain.parent)), _text(plain.name))
+        except Exception as exc:  # OCCT raises its own Standard_Failure types
+            raise OSError(f"{path}: OpenCascade could not retrieve the document ({exc})") \
+                from exc
     try:
         tool: XCAFDoc_NotesTool = XCAFDoc_DocumentTool.NotesTool_s(doc.Main())
         attached: dict[str, list[tuple[str, int]]] = defaultdict(list)

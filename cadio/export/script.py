@@ -12,12 +12,17 @@ with a CAD face mate behind it becomes constraints on that face geometry:
 
 A predicted mate without a CAD face mate has no geometry to constrain and a CAD face mate whose
 relation was not predicted is not a constraint: both stay in the sidecar and the notes with
-their status, and the script lists them in its docstring. The part of each connected group of
+their status, and the script lists them in its data. The part of each connected group of
 constrained parts with the largest volume is ``Fixed`` (the anchor); a part without any
 constraint keeps its placement. ``python script.py --json out.json`` solves and writes the
 solved placements, their differences from the file's, and every constraint's residual;
 ``--perturb MM`` starts each constrained part MM away along a direction its constraints fix,
 so the solve has work to do.
+
+Names, paths and every other string read from input (a supplier's STEP file may name a part
+anything, quotes and newlines included) go only into the script's data: one JSON document, all
+printable ASCII, in a raw string literal that no JSON text can close. The rest of the script is
+the same text for every assembly with the same tolerances.
 """
 
 from __future__ import annotations
@@ -230,37 +235,43 @@ def _anchors(edges: list[tuple[int, int]], volume: dict[int, float]) -> list[int
     return sorted(max(g, key=lambda i: (volume[i], -i)) for g in groups.values())
 
 
+def data_block(data: dict[str, Any]) -> str:
+    """The script's data as the text between ``r\"\"\"`` and ``\"\"\"``: JSON with every
+    character outside printable ASCII escaped, so no string in it holds a newline, a quote
+    that is not escaped, or a trailing backslash (nothing in it can end the literal)."""
+    text = json.dumps(data, indent=1, ensure_ascii=True, allow_nan=False)
+    assert '"""' not in text and text.isascii() and "\r" not in text  # JSON escapes these
+    return text
+
+
 def write_script(path: Path, mates: AssemblyMates, step: Path,
                  props: dict[int, tuple[float, list[float]]], tolerance_mm: float,
                  tolerance_deg: float) -> Path:
     """Write the assembly's CadQuery script atomically; its path."""
-    data = script_data(mates, step, props)
-    left = "\n".join(f"#   {line}" for line in data["unconstrained"]) or "#   (none)"
     text = (_TEMPLATE
-            .replace("@ASSEMBLY@", mates.assembly)
-            .replace("@UNCONSTRAINED@", left)
-            .replace("@DATA@", json.dumps(data, indent=1))
             .replace("@TOL_MM@", repr(float(tolerance_mm)))
-            .replace("@TOL_DEG@", repr(float(tolerance_deg))))
+            .replace("@TOL_DEG@", repr(float(tolerance_deg)))
+            .replace("@DATA@", data_block(script_data(mates, step, props))))  # last: data
     with atomic_write(path, "w") as fh:
         fh.write(text)
     return path
 
 
 _TEMPLATE = '''#!/usr/bin/env python3
-"""CadQuery assembly of @ASSEMBLY@ with the mates mateqa predicted as constraints.
+"""CadQuery assembly of a STEP file with the mates mateqa predicted as constraints.
 
-Run:  python this_script.py [--step FILE] [--json OUT] [--perturb MM]
+Run:  python this_script.py [--step FILE] [--json OUT] [--perturb MM] [--list]
+
+DATA below holds everything about the assembly: its name, the STEP file, the parts and the
+constraints (mateqa's sidecar JSON beside this script has the same and more).
 
 Parts come from the STEP file (found by volume and centroid), each in its own frame at its
 placement; each predicted mate with a CAD face mate behind it constrains that face geometry
 (coincident: Axis + PointInPlane; concentric: Axis + PointOnLine); the largest part of each
 constrained group is Fixed, and holds keep the motions the mates leave free (a joint's angle
 or travel) where the file has them. The solve must give back the file's placements (within
-TOL_MM and TOL_DEG) and satisfy every constraint.
-
-Mates that are not constraints here (see the sidecar JSON for all of them):
-@UNCONSTRAINED@
+TOL_MM and TOL_DEG) and satisfy every constraint. Mates that are not constraints here, with
+the reason, are in DATA["unconstrained"] (--list prints them).
 """
 
 import argparse
@@ -379,7 +390,13 @@ def main(argv=None):
     parser.add_argument("--json", help="write the solved placements and residuals here")
     parser.add_argument("--perturb", type=float, default=0.0,
                         help="start constrained parts this many mm off their placement")
+    parser.add_argument("--list", action="store_true",
+                        help="print the mates that are not constraints here, and stop")
     args = parser.parse_args(argv)
+    if args.list:
+        for line in DATA["unconstrained"]:
+            print(repr(line))
+        return 0
     assy, starts = build(Path(args.step), args.perturb)
     if DATA["constraints"]:
         assy.solve()
@@ -406,7 +423,7 @@ def main(argv=None):
            "tolerance_mm": TOL_MM, "tolerance_deg": TOL_DEG}
     if args.json:
         Path(args.json).write_text(json.dumps(out, indent=1))
-    print(f"{DATA['assembly']}: {len(parts)} parts, {len(residuals)} constraints, "
+    print(f"{DATA['assembly']!r}: {len(parts)} parts, {len(residuals)} constraints, "
           f"placements reproduced: {ok}, constraints hold: {held}")
     return 0 if held else 1
 
