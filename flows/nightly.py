@@ -29,7 +29,7 @@ from cadio.capture.scan import ScanConfig
 from cadio.catalog import read_catalog
 from cadio.contracts import CaptureSummary, MatesSummary
 from cadio.export.job import model_digests
-from cadio.truth.scenes import SceneConfig, read_scenes
+from cadio.truth.scenes import night_scene_config, read_scenes
 from cadio.workspace import Workspace, write_json
 from flows.config import DEFAULT_NIGHT, ConfigError, NightConfig, RuntimeOptions
 from flows.preflight import check_night
@@ -251,8 +251,7 @@ def stages_of(config: NightConfig) -> NightlySummary:
     mates = mates_stage(catalog, run, tolerances, cfg.limits)
     log.info("mates: %d assemblies, %d failed, %d face mates (%.1f s)", len(mates),
              sum(not m.ok for m in mates), sum(m.face_mates for m in mates), clock.lap("mates"))
-    scene_cfg = SceneConfig(seed=cap.seed, pairs_per_relation=cap.pairs_per_relation,
-                            tolerances=tolerances)
+    scene_cfg = night_scene_config(cap.seed, cap.pairs_per_relation, tolerances)
     scenes = scenes_task(catalog, run.workspace, scene_cfg)
     log.info("scenes: %d from %d parts (%.1f s)", scenes.scenes, scenes.parts,
              clock.lap("scenes"))

@@ -19,7 +19,7 @@ from cadio.capture.scan import ScanConfig
 from cadio.catalog import read_catalog
 from cadio.export.job import model_digests
 from cadio.tolerances import DEFAULT_TOLERANCES, Tolerances
-from cadio.truth.scenes import SceneConfig
+from cadio.truth.scenes import night_scene_config
 from cadio.workspace import Workspace
 from flows.config import ConfigError, Count, Views, VoxelSide
 from flows.preflight import check_finished_run
@@ -100,8 +100,7 @@ def capture(workspace: str = "workspace", tolerances: Tolerances = DEFAULT_TOLER
         ws = Workspace(Path(run.workspace))
         if not ws.catalog.exists():
             raise FileNotFoundError(f"{ws.catalog}: no catalog; run the ingest flow first")
-        scene_cfg = SceneConfig(seed=seed, pairs_per_relation=pairs_per_relation,
-                                tolerances=tolerances)
+        scene_cfg = night_scene_config(seed, pairs_per_relation, tolerances)
         scenes = scenes_task(str(ws.catalog), run.workspace, scene_cfg)
         scan_cfg = ScanConfig(views_per_scene=views_per_scene, noise=noise, tolerances=tolerances)
         mates = mates_stage(str(ws.catalog), run, tolerances,  # cached: the ingest's own results

@@ -109,6 +109,21 @@ def box_step(tmp_path_factory: pytest.TempPathFactory) -> Path:
     return path
 
 
+@pytest.fixture(scope="session")
+def pin_step(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """A second small valid STEP part (a 4 x 12 mm pin), so that a night of ``box_step`` and
+    this one has a pair to place: a night never pairs a part with itself."""
+    import build123d as bd
+
+    from cadio.cad.step import write_step
+
+    path = tmp_path_factory.mktemp("pin") / "pin.step"
+    part = bd.Cylinder(2, 12)
+    part.label = "pin"
+    write_step(part, path)
+    return path
+
+
 # Three small real parts in two categories and one small real assembly: enough for every stage
 # of the nightly (scenes need two categories of single parts; the assembly gives CAD mates).
 # Files the shipped checkpoints never trained on (their corpus holds these out), so that a

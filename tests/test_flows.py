@@ -24,7 +24,7 @@ def harness() -> object:
 
 
 def test_nightly_ingests_reports_and_caches(harness: object, tmp_path: Path,
-                                            box_step: Path) -> None:
+                                            box_step: Path, pin_step: Path) -> None:
     from flows.config import night_config
     from flows.nightly import nightly
 
@@ -32,6 +32,7 @@ def test_nightly_ingests_reports_and_caches(harness: object, tmp_path: Path,
     (lib / "fasteners").mkdir(parents=True)
     (lib / "casters-wheels-trolleys").mkdir()
     shutil.copy(box_step, lib / "fasteners" / "box.step")
+    shutil.copy(pin_step, lib / "fasteners" / "pin.step")
     (lib / "casters-wheels-trolleys" / "broken.stp").write_bytes(b"ISO-10303-21;\nHEADER;")
     ws = tmp_path / "ws"
 
@@ -39,8 +40,8 @@ def test_nightly_ingests_reports_and_caches(harness: object, tmp_path: Path,
                            "runtime": {"workspace": str(ws)},
                            "capture": {"views_per_scene": 2}})
     first = nightly(config)
-    assert first.ingest.files == 2
-    assert first.ingest.ok == 1 and first.ingest.failed == 1
+    assert first.ingest.files == 3
+    assert first.ingest.ok == 2 and first.ingest.failed == 1
     report = Path(first.ingest_report).read_text()
     assert "truncated STEP file" in report and "casters-wheels-trolleys" in report
     written = json.loads((Path(first.run_dir) / "ingest.json").read_text())
@@ -78,7 +79,7 @@ def test_nightly_ingests_reports_and_caches(harness: object, tmp_path: Path,
     # unchanged files: the ingest tasks are cached on content hashes, nothing is rewritten
     assert second.ingest == first.ingest
     assert [m.stat().st_mtime_ns for m in meshes] == stamps and meshes
-    assert len(read_catalog(ws / "catalog.parquet")) == 2
+    assert len(read_catalog(ws / "catalog.parquet")) == 3
     # read back instead of rendered: same captures, same frames
     assert second.stages.captures == stages.captures
     assert second.stages.frames == stages.frames

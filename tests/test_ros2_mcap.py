@@ -455,7 +455,7 @@ def test_the_nightly_capture_stage_reads_ros2_recordings(tmp_path: Path,
     assert got["sim"].error == "" and got["sim"].frames == len(frames)
     assert got["sim"].input_parts == 2 and got["sim"].warnings == ()
     for part in pair():
-        with np.load(ws.inputs("sim", part.part_id) / "points.npz") as z:
+        with np.load(ws.inputs("sim", part.instance_id) / "points.npz") as z:
             assert z["points"].shape[1:] == (600, 3) and len(z["view"]) >= 1
             # observed points of the part lie in its world box (the tf chain's world)
             lo, hi = _world_box(meta, part.part_id, part.mesh.vertices)

@@ -87,7 +87,7 @@ def test_the_shipped_thresholds_read_and_bad_files_name_themselves(tmp_path: Pat
     shipped = read_thresholds(DEFAULT_THRESHOLDS)
     assert set(shipped.limits) <= set(METRICS) and shipped.limit("completion_iou", "x").floor
     cases = {"unknown.toml": ("[iou]\nfloor = 1\n", "unknown metric 'iou'"),
-             "text.toml": ("[completion_iou]\nfloor = 'high'\n", "must be a number"),
+             "text.toml": ("[completion_iou]\nfloor = 'high'\n", "must be a finite number"),
              "broken.toml": ("[completion_iou\n", "cannot read thresholds")}
     for name, (text, reason) in cases.items():
         (tmp_path / name).write_text(text)

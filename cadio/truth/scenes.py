@@ -127,6 +127,15 @@ class SceneConfig:
                 "val": self.val_fraction, "test": self.test_fraction}
 
 
+def night_scene_config(seed: int, pairs_per_relation: int,
+                       tolerances: Tolerances = DEFAULT_TOLERANCES) -> SceneConfig:
+    """The scenes of a night: every part in one pool ("test"), so any two parts of the library
+    may pair. A night scores what the checkpoints never trained on (``models.evaluate``), not a
+    split of its own; drawing pairs within 70/10/20 splits left a small library without scenes."""
+    return SceneConfig(seed=seed, pairs_per_relation=pairs_per_relation, val_fraction=0.0,
+                       test_fraction=1.0, tolerances=tolerances)
+
+
 def assign_splits(part_ids: Sequence[str], seed: int, val_fraction: float,
                   test_fraction: float) -> dict[str, str]:
     """Split of each part: a uniform draw from sha256(seed, part id), stable per part."""
