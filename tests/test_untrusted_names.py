@@ -215,6 +215,8 @@ def night(hostile_step: Path, box_step: Path,
     limits.write_text("min_n = 1\n\n[ingest_ok_fraction]\nfloor = 0.9\n")
     report = write_run_report(run_dir, [], read_thresholds(limits), ws.catalog,
                               {"library": str(lib)})
+    # the run completed as far as the export is concerned: a night writes summary.json last
+    (run_dir / "summary.json").write_text(json.dumps({"run_dir": str(run_dir)}))
     export_console = _mateqa("export", "--workspace", str(ws.root), "--run", run_dir.name)
     names = [s.info.name for s in read_step(hostile_step)]
     return Night(lib, ws.root, run_dir, names, broken, ingest_console, export_console, report)
