@@ -205,3 +205,24 @@ def local_night(small_library: Path, prefect_api: dict[str, str],
     workspace = tmp_path_factory.mktemp("local-night")
     finish_night(start_night(small_library, workspace, prefect_api))
     return (workspace / "runs" / "latest").resolve()
+
+
+# Test files that share the session's Prefect server or its uninterrupted night: the test run
+# (`pytest -n 2`) gives them to one worker together, so that each is started once.
+SERVER_GROUP = {"test_bad_inputs", "test_dask", "test_docker", "test_export", "test_resume",
+                "test_verdict"}
+
+
+@pytest.hookimpl(optionalhook=True)
+def pytest_xdist_make_scheduler(config: pytest.Config, log: object) -> object:
+    """pytest-xdist's scheduler by test file (a file's module fixtures are set up once), with
+    the files of ``SERVER_GROUP`` one unit (xdist's own ``loadgroup`` marks are not honoured
+    under this pytest: it no longer lets a plugin rename a test's node id)."""
+    from xdist.scheduler import LoadScopeScheduling
+
+    class FileScheduling(LoadScopeScheduling):  # type: ignore[misc]
+        def _split_scope(self, nodeid: str) -> str:
+            path = nodeid.split("::", 1)[0]
+            return "server" if Path(path).stem in SERVER_GROUP else path
+
+    return FileScheduling(config, log)
