@@ -133,6 +133,7 @@ def _stop_serve(port: int, home: Path) -> int:
 
 
 def _run_nightly(args: argparse.Namespace) -> int:
+    from flows.config import ConfigError
     from flows.nightly import ThresholdFailure, nightly
 
     state = nightly(config=args.config, return_state=True)
@@ -142,6 +143,9 @@ def _run_nightly(args: argparse.Namespace) -> int:
             _print_verdict(Path(failure.run_dir), args.json)
             print(f"mateqa nightly: {failure}", file=sys.stderr)
             return 3
+        if isinstance(failure, ConfigError):  # found once the inputs were read (recordings)
+            print(f"mateqa nightly: {failure}", file=sys.stderr)
+            return 2
         print(f"mateqa nightly: the run failed: {state.message}", file=sys.stderr)
         return 1
     _print_verdict(Path(state.result().run_dir), args.json)

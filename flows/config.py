@@ -176,6 +176,9 @@ class ConfigError(ValueError):
         self.problems = problems
         super().__init__("; ".join(f"{f}: {r}" for f, r in problems))
 
+    def __reduce__(self) -> tuple[type[ConfigError], tuple[list[tuple[str, str]]]]:
+        return ConfigError, (self.problems,)  # pickles with its fields, as a state's data
+
 
 @cache
 def _schema() -> dict[str, Any]:

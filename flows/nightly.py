@@ -202,7 +202,12 @@ def nightly(config: NightConfig = DEFAULT_NIGHT) -> NightlySummary:
         address = load_settings().dask_address if address is None else address
         stages = run_stages if not address else run_stages.with_options(
             task_runner=_dask_runner(address))
-        summary = stages(config)
+        state = stages(config, return_state=True)
+        if not state.is_completed():  # the recordings named no part: the reason, no traceback
+            failure = state.result(raise_on_failure=False)
+            if isinstance(failure, ConfigError):
+                return Failed(message=str(failure), data=failure)  # type: ignore[return-value]
+        summary = state.result()
     if config.thresholds.fail_on_threshold and summary.failed_checks:
         # a returned Failed state, not a raised error: no crash's traceback on the console
         failure = ThresholdFailure(summary.run_dir, summary.failed_checks)
@@ -232,7 +237,10 @@ def run_stages(config: NightConfig) -> NightlySummary:
     """Every stage of the nightly in order (one log line each): a subflow, so that its task
     runner can be a Dask cluster's while the code stays the same."""
     with stop_on_signal():
-        return stages_of(config)
+        try:
+            return stages_of(config)
+        except ConfigError as err:  # an input's fault, answered by name (returned, not raised)
+            return Failed(message=str(err), data=err)  # type: ignore[return-value]
 
 
 def stages_of(config: NightConfig) -> NightlySummary:

@@ -153,8 +153,12 @@ def test_a_failed_threshold_exits_3_with_a_complete_report(
 
 
 def test_a_night_whose_recordings_are_all_unusable_fails_naming_them(
-        harness: object, tmp_path: Path, box_step: Path) -> None:
+        harness: object, tmp_path: Path, box_step: Path, pin_step: Path,
+        monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]) -> None:
+    from prefect.settings import PREFECT_API_URL
+
     from cadio.capture.scan import ScanConfig, capture_step
+    from flows.cli import main
     from flows.config import ConfigError, night_config
     from flows.nightly import nightly
 
@@ -163,7 +167,7 @@ def test_a_night_whose_recordings_are_all_unusable_fails_naming_them(
     shutil.copy(box_step, lib / "box.step")
     recordings = tmp_path / "recordings"
     recordings.mkdir()
-    other = capture_step(str(box_step), tmp_path / "elsewhere", ScanConfig(views_per_scene=1))
+    other = capture_step(str(pin_step), tmp_path / "elsewhere", ScanConfig(views_per_scene=1))
     shutil.copy(other.path, recordings / "of-another-library.mcap")
     config = night_config({"library": {"path": str(lib.parent), "voxel_sizes": [16]},
                            "runtime": {"workspace": str(tmp_path / "ws")},
@@ -172,3 +176,17 @@ def test_a_night_whose_recordings_are_all_unusable_fails_naming_them(
         nightly(config)
     assert "of-another-library.mcap: shows parts that are not in the library" in str(err.value)
     assert not list((tmp_path / "ws").glob("runs/*/summary.json"))
+    # the command line: the reason in one line, exit 2 as for a bad option, no traceback
+    monkeypatch.setenv("PREFECT_API_URL", str(PREFECT_API_URL.value()))
+    capsys.readouterr()
+    assert main(["nightly", "--library", str(lib.parent), "--workspace", str(tmp_path / "ws"),
+                 "--voxel-sizes", "16", "--captures", str(recordings)]) == 2
+    out = capsys.readouterr()
+    assert "of-another-library.mcap: shows parts that are not in the library" in out.err
+    assert "Traceback" not in out.out + out.err
+    # a recording of the library's own file (`mateqa capture FILE`) names its parts as ingest
+    # does: beside the foreign one, the night scores it and reports the other
+    ours = capture_step(str(lib / "box.step"), tmp_path / "here", ScanConfig(views_per_scene=1))
+    shutil.copy(ours.path, recordings / "of-this-library.mcap")
+    stages = nightly(config).stages
+    assert (stages.captures, stages.captures_failed, stages.input_parts) == (2, 1, 1)

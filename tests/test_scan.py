@@ -9,7 +9,7 @@ import pandas as pd
 import pytest
 from scipy import ndimage
 
-from cadio.cad.ingest import IngestConfig, ingest
+from cadio.cad.ingest import IngestConfig, file_sha256, ingest, part_id
 from cadio.cad.step import write_step
 from cadio.capture.examples import part_views, read_example
 from cadio.capture.mcap_io import read_capture, read_scene_meta
@@ -132,6 +132,10 @@ def test_capture_a_step_file(tmp_path: Path, box_step: Path) -> None:
     assert summary.frames == 3 and summary.parts == 1
     frames = list(read_capture(Path(summary.path)))
     assert len(frames) == 3 and all((f.depth > 0).any() for f in frames)
+    # its part is named as ingest names it, so a night reading the recording scores it
+    meta = read_scene_meta(summary.path)
+    assert meta is not None
+    assert [p["part_id"] for p in meta["parts"]] == [part_id(file_sha256(box_step), 0)]
 
 
 def test_a_part_a_capture_does_not_score_gets_only_its_views_inputs(ws: Workspace) -> None:

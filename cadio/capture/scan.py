@@ -413,12 +413,16 @@ def capture_step(target: str, workspace: Path, cfg: ScanConfig,
 
 def _capture_file(path: Path, ws: Workspace, cfg: ScanConfig,
                   on_frame: Callable[[str], None] | None) -> CaptureSummary:
+    from cadio.cad.ingest import file_sha256, part_id
     from cadio.cad.step import read_step
     from cadio.cad.tessellate import tessellate
 
+    # the ids ingest gives the file's solids: a night reading this recording scores them
+    sha = file_sha256(path)
     parts = [PlacedPart(instance_id=s.info.index + 1, mesh=tessellate(s.shape, cfg.tolerances),
                         pose=np.eye(4), colour=s.info.colour or "#b4b4b4",
-                        part_id=str(s.info.index), label=s.info.name) for s in read_step(path)]
+                        part_id=part_id(sha, s.info.index), label=s.info.name)
+             for s in read_step(path)]
     out = ws.capture(path.stem)
     frames = write_views(out, parts, cfg, {"source": str(path)}, on_frame)
     return CaptureSummary(scene_id=path.stem, path=str(out), frames=frames, parts=len(parts),
