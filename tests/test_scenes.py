@@ -24,6 +24,7 @@ from cadio.truth.scenes import (
     generate_scenes,
     is_eligible,
     label_pair,
+    night_scene_config,
     read_scenes,
     scene_part,
     scene_poses,
@@ -169,6 +170,18 @@ def test_a_part_is_never_paired_with_itself() -> None:
     assert (df.part_a != df.part_b).all()
     assert "concentric" not in set(df.intended)  # only the cylinder has an axis
     assert set(df.intended) >= {r.value for r in Relation if r is not Relation.CONCENTRIC}
+
+
+def test_a_night_with_too_few_parts_says_so_once(caplog: pytest.LogCaptureFixture) -> None:
+    """A night draws its scenes from one pool: the warning names the relations it could not
+    pair in one line, and no split."""
+    parts = [scene_part("cyl", "x", bd.Cylinder(5.0, 30.0).wrapped)]
+    with caplog.at_level("WARNING", logger="cadio.truth.scenes"):
+        df = generate_scenes(parts, night_scene_config(seed=0, pairs_per_relation=2))
+    assert df.empty
+    lines = [r.getMessage() for r in caplog.records]
+    assert len(lines) == 1 and "split" not in lines[0]
+    assert lines[0].startswith("no scene for left, right,") and "of the 1 parts fit" in lines[0]
 
 
 def test_positives_are_made_the_way_assemblies_make_them(scenes: pd.DataFrame) -> None:

@@ -211,8 +211,10 @@ def generate_scenes(parts: Sequence[ScenePart], cfg: SceneConfig,
     splits = {pid: (splits or {}).get(pid, drawn[pid]) for pid in by_id}
     offers: dict[str, Offers] = {}
     rows: list[dict[str, Any]] = []
+    one_pool = sum(f > 0 for f in cfg.split_fractions().values()) == 1
     for s, split in enumerate(SPLITS):
         members = [by_id[pid] for pid in sorted(by_id) if splits[pid] == split]
+        unfit: list[str] = []
         for r, relation in enumerate(Relation):
             n = _split_count(cfg, split)
             if not n:
@@ -223,11 +225,14 @@ def generate_scenes(parts: Sequence[ScenePart], cfg: SceneConfig,
                         offers[p.part_id] = offers_of(p.model)
             pool = [p for p in members if is_eligible(p, relation, cfg, offers.get(p.part_id))]
             if len(pool) < 2:  # a part beside itself would be one part to later stages
-                log.warning("fewer than two parts in split %s fit %s: skipped", split,
-                            relation.value)
+                unfit.append(relation.value)
                 continue
             rng = np.random.default_rng([cfg.seed, s, r])
             rows += [_scene(pool, offers, relation, split, i, n, rng, cfg) for i in range(n)]
+        if unfit:
+            where = "" if one_pool else f" in split {split}"
+            log.warning("no scene for %s: fewer than two of the %d parts%s fit",
+                        ", ".join(unfit), len(members), where)
     df = pd.DataFrame(rows, columns=list(COLUMNS))
     df.attrs["config"] = json.loads(json.dumps(asdict(cfg)))  # tuples become lists
     return df
