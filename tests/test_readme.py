@@ -21,7 +21,7 @@ README = ROOT / "README.md"
 # and the CadQuery script of an export.
 OTHER_TOOLS = {"--param", "--watch", "--build", "--prefect-file", "--pool", "--scale",
                "--views", "--pairs", "--library", "--categories", "--repeat", "--repeats",
-               "--json", "--perturb", "--list"}
+               "--json", "--perturb", "--list", "--seconds"}
 
 
 def _fenced(text: str) -> list[str]:
