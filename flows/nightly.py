@@ -127,9 +127,13 @@ def report_task(run: Run, catalog: str, mates: list[MatesSummary], scenes: str |
                 captures: list[CaptureSummary]) -> tuple[IngestTotals, StageTotals]:
     """Write the run's reports and publish them as artifacts."""
     out = Path(run.run_dir)
-    ingest = build_ingest_report(read_catalog(Path(catalog)))
+    parts = read_catalog(Path(catalog))
+    ingest = build_ingest_report(parts)
     write_ingest_report(out, ingest)
-    stages = build_stage_report(mates, read_scenes(Path(scenes)) if scenes else None, captures)
+    categories = dict(zip(parts["part_id"].astype(str), parts["category"].astype(str),
+                          strict=True))
+    stages = build_stage_report(mates, read_scenes(Path(scenes)) if scenes else None, captures,
+                                categories)
     write_stage_report(out, stages)
     create_markdown_artifact(key="nightly-ingest", markdown=ingest.markdown(),
                              description="Ingest report")

@@ -7,7 +7,7 @@ Markdown and JSON. The flow publishes the same Markdown as Prefect artifacts.
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Any
@@ -133,13 +133,15 @@ class StageReport:
 
 
 def build_stage_report(mates: Sequence[MatesSummary], scenes: pd.DataFrame | None,
-                       captures: Sequence[CaptureSummary]) -> StageReport:
-    """The stage report of one run (``scenes`` None when no scene table was built)."""
+                       captures: Sequence[CaptureSummary],
+                       part_categories: Mapping[str, str] | None = None) -> StageReport:
+    """The stage report of one run (``scenes`` None when no scene table was built;
+    ``part_categories``, part id -> category, files the captures of no scene)."""
     scene_frame = scenes if scenes is not None else pd.DataFrame(
         columns=["scene_id", "split", "intended", "category_a", "category_b"])
     tables = {"mates": mates_table(mates), "joints": joints_table(mates),
-              "scenes": scenes_table(scene_frame), "captures": captures_table(captures,
-                                                                              scene_frame)}
+              "scenes": scenes_table(scene_frame), "captures": captures_table(captures, scene_frame,
+                                                                              part_categories)}
     failures = pd.DataFrame(
         [{"stage": "mates", "category": m.category, "item": m.source, "error": m.error}
          for m in mates if not m.ok]

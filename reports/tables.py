@@ -6,7 +6,7 @@ outputs are DataFrames that ``reports.render`` puts into the run's report files.
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 
 import pandas as pd
 
@@ -102,20 +102,25 @@ def scenes_table(scenes: pd.DataFrame) -> pd.DataFrame:
     return table
 
 
-def captures_table(captures: Sequence[CaptureSummary], scenes: pd.DataFrame) -> pd.DataFrame:
+def captures_table(captures: Sequence[CaptureSummary], scenes: pd.DataFrame,
+                   part_categories: Mapping[str, str] | None = None) -> pd.DataFrame:
     """Per category: captures, frames and part views captured (a pair counts in both parts'
-    categories), bytes on disk, failures. Captures of no known scene count as "unknown"."""
+    categories), bytes on disk, failures. A capture of no scene (an assembly as placed, a part
+    alone, a recording) counts in the categories of the parts it scored (``part_categories``:
+    part id -> category); one with none known counts as "unknown"."""
     columns = ["category", "captures", "frames", "part_views", "mbytes", "failed"]
     if not captures:
         return pd.DataFrame(columns=columns)
     cats = {str(r["scene_id"]): (str(r["category_a"]), str(r["category_b"]))
             for r in scenes.to_dict("records")}
+    known = part_categories or {}
     rows = []
     for c in captures:
-        pair = cats.get(c.scene_id, ("unknown", "unknown"))
-        for cat in sorted(set(pair)):
+        parts = cats.get(c.scene_id) or tuple(known[p] for p in c.scored if p in known)
+        parts = parts or ("unknown",)
+        for cat in sorted(set(parts)):
             rows.append({"category": cat, "captures": 1, "frames": c.frames,
-                         "part_views": c.frames * pair.count(cat) * (c.error == ""),
+                         "part_views": c.frames * parts.count(cat) * (c.error == ""),
                          "mbytes": c.bytes / 1e6, "failed": int(c.error != "")})
     table = pd.DataFrame(rows).groupby("category", sort=True).sum().reset_index()
     table["mbytes"] = table["mbytes"].round(2)

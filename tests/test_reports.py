@@ -86,6 +86,22 @@ def test_a_pair_capture_counts_in_both_categories() -> None:
     assert table.loc["unknown", "frames"] == 3
 
 
+def test_captures_of_no_scene_count_in_their_scored_parts_categories() -> None:
+    """An assembly as placed and a part alone are filed under the categories of the parts they
+    scored, not "unknown"."""
+    captures = [CaptureSummary("assembly-press", "a.mcap", frames=4,
+                               scored=("bolt-0", "bolt-1", "plate-0")),
+                CaptureSummary("alone-plate-0", "b.mcap", frames=2, scored=("plate-0",)),
+                CaptureSummary("alone-gone", "c.mcap", frames=2, error="unreadable")]
+    categories = {"bolt-0": "fasteners", "bolt-1": "fasteners", "plate-0": "plates"}
+    table = captures_table(captures, pd.DataFrame(columns=["scene_id", "category_a",
+                                                           "category_b"]), categories)
+    table = table.set_index("category")
+    assert table.loc["fasteners", "part_views"] == 8 and table.loc["fasteners", "captures"] == 1
+    assert table.loc["plates", "part_views"] == 6 and table.loc["plates", "captures"] == 2
+    assert table.loc["unknown", "failed"] == 1 and table.loc["unknown", "part_views"] == 0
+
+
 def test_stage_report_files_round_trip(tmp_path: Path) -> None:
     scenes = pd.DataFrame({"scene_id": ["s1"], "split": ["train"], "intended": ["left"],
                            "left": [True], "category_a": ["fasteners"],
