@@ -26,7 +26,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from bench.packed_corpus import unpack
 from models.checkpoint import save_checkpoint
-from models.data import CompletionDataset, Example
+from models.data import CompletionDataset
 from models.train import config_for, train_completion
 
 
@@ -34,13 +34,14 @@ class Budget(Exception):
     """The wall-clock budget is spent: the best checkpoint is already on disk."""
 
 
-def examples(packed: Path) -> tuple[list[Example], list[Example], dict]:
-    """The packed corpus as train and val ``Example`` lists, and its meta."""
+def datasets(packed: Path) -> tuple[CompletionDataset, CompletionDataset, dict]:
+    """The packed corpus as train and val datasets, and its meta."""
     xs, ys, meta = unpack(packed)
-    out: dict[str, list[Example]] = {"train": [], "val": []}
-    for x, y, split in zip(xs, ys, meta["split"], strict=True):
-        out[split].append(Example(x, y))
-    return out["train"], out["val"], meta
+    split = {name: [i for i, s in enumerate(meta["split"]) if s == name]
+             for name in ("train", "val")}
+    train, val = (CompletionDataset.from_arrays([xs[i] for i in idx], [ys[i] for i in idx])
+                  for idx in split.values())
+    return train, val, meta
 
 
 def main() -> None:
@@ -59,7 +60,7 @@ def main() -> None:
     torch.set_num_threads(4)
     device = "cuda" if torch.cuda.is_available() else "cpu"
     clock = time.perf_counter()
-    train, val, meta = examples(args.pack)
+    train, val, meta = datasets(args.pack)
     print(f"{args.method}: {len(train)} train, {len(val)} val examples in "
           f"{time.perf_counter() - clock:.0f} s on {device}", flush=True)
     base = "gan_lstm" if args.method == "lstm" else args.method
@@ -77,7 +78,7 @@ def main() -> None:
     args.out.mkdir(parents=True, exist_ok=True)
     path = args.out / f"completion-{cfg.method}-observed.pt"
     start = time.perf_counter()
-    log = open(args.out / f"{cfg.method}.log", "w")
+    log = (args.out / f"{cfg.method}.log").open("w")
 
     def progress(event) -> None:  # type: ignore[no-untyped-def]
         if event.epoch is None:
@@ -90,11 +91,12 @@ def main() -> None:
         if time.perf_counter() - start > args.seconds:
             raise Budget
 
-    try:
-        train_completion(cfg, CompletionDataset(train), CompletionDataset(val), device=device,
-                         steps=args.steps, progress=progress, data_info=info)
-    except Budget:
-        pass
+    with log:
+        try:
+            train_completion(cfg, train, val, device=device, steps=args.steps,
+                             progress=progress, data_info=info)
+        except Budget:
+            pass
     print(f"{cfg.method}: done in {time.perf_counter() - clock:.0f} s", flush=True)
 
 
