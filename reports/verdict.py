@@ -200,13 +200,17 @@ def console_verdict(run_dir: Path) -> str:
 
 
 def _figure_lines(verdict: Verdict) -> list[str]:
-    """The per-category table (completion, relations, ingest) and the assemblies' line."""
+    """The per-category table (completion, relations, ingest) and the assemblies' line. Pair
+    categories (``a+b``) are listed only where they failed, and counted on a line of their own:
+    a library of ten categories has 45 of them."""
     if not verdict.categories:
         return ["  no metrics in this run"]
     columns = HEADLINE[:3]
+    pairs = pair_categories([c.category for c in verdict.categories])
+    shown = [c for c in verdict.categories if c.category not in pairs or c.status in FAILED]
     rows = [["category", "verdict", *(LABELS[m] for m in columns)]]
     rows += [[printable(c.category), c.status, *(_cell(c.figure(m)) for m in columns)]
-             for c in verdict.categories]
+             for c in shown]
     widths = [max(len(r[k]) for r in rows) for k in range(len(rows[0]))]
     lines = ["  " + "  ".join(v.ljust(w) for v, w in zip(r, widths, strict=True)).rstrip()
              for r in rows]
@@ -215,7 +219,21 @@ def _figure_lines(verdict: Verdict) -> list[str]:
                  if whole is not None and whole.figure(m) is not None]
     if assembled:
         lines.append("  assemblies against the CAD: " + ", ".join(assembled))
+    hidden = [c.status for c in verdict.categories if c.category in pairs
+              and c.status not in FAILED]
+    if hidden:
+        counts = ", ".join(f"{n} {s}" for s, n in sorted(Counter(hidden).items(),
+                                                          key=lambda i: SEVERITY.index(i[0])))
+        lines.append(f"  {len(hidden)} pair categories (a+b) not shown: {counts}; "
+                     "every one is in report.html")
     return lines
+
+
+def pair_categories(categories: Sequence[str]) -> set[str]:
+    """The categories of pairs of two others (``a+b`` where ``a`` and ``b`` are both among
+    ``categories``): the relation figures of parts of two categories scored together."""
+    names = set(categories)
+    return {c for c in names if c.count("+") == 1 and all(p in names for p in c.split("+"))}
 
 
 def _cell(figure: Figure | None) -> str:

@@ -147,3 +147,23 @@ def test_a_threshold_failure_prints_the_verdict_and_exits_3_without_a_traceback(
     latest = (ws / "runs" / "latest").resolve()
     assert latest != run and json.loads(rerun.stdout) == json.loads(
         (latest / "summary.json").read_text())
+
+
+def test_the_console_lists_pair_categories_only_where_they_failed(tmp_path: Path) -> None:
+    singles = [("bolts", "completion_iou", 0.5, 20), ("gears", "completion_iou", 0.5, 20),
+               ("shafts", "completion_iou", 0.5, 20), ("all", "completion_iou", 0.5, 60)]
+    pairs = [("bolts+gears", "relation_accuracy", 0.95, 40),
+             ("bolts+shafts", "relation_accuracy", 0.50, 40),  # fails the 0.8 floor
+             ("gears+shafts", "relation_accuracy", 0.90, 4),  # too few to check
+             ("nuts+bolts", "relation_accuracy", 0.90, 40)]  # "nuts" is no category: shown
+    run = tmp_path / "20260103T000000Z"
+    run.mkdir()
+    check_metrics(_metrics(singles + pairs), [], LIMITS).to_csv(run / "categories.csv",
+                                                                 index=False)
+    text = console_verdict(run)
+    shown = [line.split()[0] for line in text.splitlines()[2:] if line.startswith("  ")
+             and len(line.split()) > 1 and line.split()[1] in ("pass", "fail", "too-few")]
+    assert shown == ["bolts", "bolts+shafts", "gears", "nuts+bolts", "shafts", "all"], text
+    assert "  2 pair categories (a+b) not shown: 1 pass, 1 too-few; every one is in " \
+        "report.html" in text.splitlines()
+    assert "  failed: bolts+shafts relation_accuracy fail: 0.5 (floor 0.8)" in text
