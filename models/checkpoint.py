@@ -52,15 +52,28 @@ Checkpoint = dict[str, Any]
 
 
 def code_version() -> str:
-    """``<package version>+<first 12 hex of a SHA-256 over models/*.py>``."""
+    """``<package version>+<first 12 hex of a SHA-256 over models/*.py>``. The version is the
+    installed package's, or where it is not installed (a copy of the tree on a GPU machine)
+    that of the tree's ``pyproject.toml``; ``unknown`` where neither says."""
     try:
         version = metadata.version("mateqa")
     except metadata.PackageNotFoundError:
-        version = "unknown"
+        version = _tree_version(Path(__file__).resolve().parents[1] / "pyproject.toml")
     digest = hashlib.sha256()
     for path in sorted(Path(__file__).parent.glob("*.py")):
         digest.update(path.name.encode() + b"\0" + path.read_bytes())
     return f"{version}+{digest.hexdigest()[:12]}"
+
+
+def _tree_version(pyproject: Path) -> str:
+    """``[project] version`` of a ``pyproject.toml``, or ``unknown``."""
+    import tomllib
+
+    try:
+        version = tomllib.loads(pyproject.read_text())["project"]["version"]
+    except (OSError, tomllib.TOMLDecodeError, KeyError, TypeError):
+        return "unknown"
+    return str(version)
 
 
 def config_from_dict(method: str, config: Mapping[str, Any]) -> Config:

@@ -243,3 +243,26 @@ def test_surface_dropout_thins_the_seen_surface_only(parts: CompletionDataset) -
     assert (thinned.inputs[:, :, 0] <= plain.inputs[:, :, 0]).all()
     with pytest.raises(ValueError, match="surface_dropout"):
         small("gan_lstm", surface_dropout=1.0)
+
+
+def test_a_checkpoint_made_from_an_uninstalled_tree_names_the_trees_version(
+        monkeypatch: pytest.MonkeyPatch, tmp_path: Path) -> None:
+    """A copy of the tree on a GPU machine has no installed package: the version comes from its
+    pyproject.toml, not ``unknown``."""
+    import tomllib
+    from importlib import metadata
+
+    import models.checkpoint as checkpoint
+
+    root = Path(checkpoint.__file__).resolve().parents[1]
+    version = tomllib.loads((root / "pyproject.toml").read_text())["project"]["version"]
+    installed = checkpoint.code_version()
+
+    def absent(name: str) -> str:
+        raise metadata.PackageNotFoundError(name)
+
+    monkeypatch.setattr(checkpoint.metadata, "version", absent)
+    assert checkpoint.code_version() == f"{version}+{installed.split('+')[1]}"
+    (tmp_path / "pyproject.toml").write_text("[project]\nname = 'x'\n")
+    assert checkpoint._tree_version(tmp_path / "pyproject.toml") == "unknown"
+    assert checkpoint._tree_version(tmp_path / "absent.toml") == "unknown"
