@@ -97,7 +97,7 @@ def corpus_fractions(library: Path, shared: Path | None) -> Callable[[str], tupl
 def prepare_corpus(ws: Workspace, shared: Path | None, variants: int, seed: int,
                    ingest_cfg: IngestConfig, corpus_cfg: CorpusConfig,
                    progress: Progress | None = None, pairs_per_relation: int = 150,
-                   assemblies: int = 180) -> Corpus:
+                   assemblies: int = 200) -> Corpus:
     """Library with variants of its parts and assemblies (+ shared parts), ingest, pair
     scenes, the corpus of shots (``cadio.capture.corpus``). Reruns reuse every step; a stopped
     build resumes."""

@@ -44,12 +44,13 @@ SMALL, SMALL_SEED = ("bearing-shaft", "caster", "sleeve-coupling"), 4
 
 
 def test_draws_depend_only_on_seed_family_and_index() -> None:
-    first, again = draw_assembly_variants(18, seed=5), draw_assembly_variants(18, seed=5)
+    count = 2 * len(FAMILIES)
+    first, again = draw_assembly_variants(count, seed=5), draw_assembly_variants(count, seed=5)
     assert [v.description for v in first] == [v.description for v in again]
     assert [v.description for v in first] != [v.description for v in draw_assembly_variants(
-        18, seed=6)]
-    assert [v.family for v in first[:9]] == list(FAMILIES)
-    assert len({v.name for v in first}) == 18
+        count, seed=6)]
+    assert [v.family for v in first[:len(FAMILIES)]] == list(FAMILIES)
+    assert len({v.name for v in first}) == count
     for v in first:  # the same variant whatever the count or the families asked for
         alone = draw_assembly_variants(v.index + 1, seed=5, families=[v.family])[-1]
         assert (alone.name, alone.description) == (v.name, v.description)
@@ -132,6 +133,24 @@ def test_parts_do_not_interfere_and_the_designed_mates_exist(family: str, audite
     assert missing_mates(v.mates, face) == []
     kinds = set(zip(face["relation"], face["fit"].fillna(""), strict=True))
     assert {("concentric", "fit"), ("coincident", "")} <= kinds
+
+
+def test_an_open_ball_bearing_has_round_contacts_and_no_mate_of_its_balls_or_rings(
+        audited: Path) -> None:
+    """The family's point: balls touch both rings (a sphere in a groove, within 0.01 mm) and
+    the rings share an axis, but neither makes a face mate; only the bore, the outside and
+    the shoulder do."""
+    v = draw_assembly_variant("ball-bearing", 0, AUDIT_SEED)
+    balls = [p for p in v.parts if p.startswith("ball-")]
+    assert len(balls) >= 5
+    face = read_assembly_mates(audited / f"{v.name}.step").level("face")
+    named = set(face["name_a"]) | set(face["name_b"])
+    assert not named & set(balls)
+    assert not face[face[["name_a", "name_b"]].isin(["inner-ring", "outer-ring"]).all(axis=1)
+                    ].size
+    solids = {s.info.name: bd.Solid(s.shape) for s in read_step(audited / f"{v.name}.step")}
+    for ring in ("inner-ring", "outer-ring"):
+        assert solids[balls[0]].distance_to(solids[ring]) < 0.01, ring
 
 
 @pytest.fixture(scope="module")

@@ -1,8 +1,9 @@
 """Seeded parametric variants of the sample assembly families, written as STEP assemblies.
 
 Five fixed assemblies are too few to train on parts as they are placed in assemblies. Each
-family here (bearings in a housing, bolted lap joints, casters, gear pairs, pillow blocks,
-sleeve, jaw and flange couplings, pulleys on studs) draws its sizes, counts and options from a
+family here (bearings in a housing, open ball bearings with their balls apart, bolted lap
+joints, casters, gear pairs, pillow blocks, sleeve, jaw and flange couplings, pulleys on studs)
+draws its sizes, counts and options from a
 seeded generator and places named, coloured parts as a real assembly has them: faces in contact
 without interference, shafts coaxial with their bores, parts resting on one another. A variant
 also says which face mates its layout is built to have (``Mate``), so the ground truth can be
@@ -45,6 +46,7 @@ from cadio.samples.joint_assemblies import (
 from cadio.samples.library import SampleConfig, _sha256, package_versions
 from cadio.samples.parts import dress_solid
 from cadio.samples.shaft_assemblies import (
+    draw_ball_bearing,
     draw_bearing_shaft,
     draw_gear_pair,
     draw_pillow_blocks,
@@ -70,6 +72,7 @@ FAMILIES: dict[str, Callable[[np.random.Generator], Design]] = {
     "jaw-coupling": draw_jaw_coupling,
     "flange-coupling": draw_flange_coupling,
     "pulley-drive": draw_pulley_drive,
+    "ball-bearing": draw_ball_bearing,
 }
 
 

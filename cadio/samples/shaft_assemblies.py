@@ -1,5 +1,6 @@
-"""Assembly families built around shafts: bearings in a housing, pillow blocks, gear and pulley
-pairs on studs. Each ``draw_*`` takes a seeded generator and returns a ``Design``.
+"""Assembly families built around shafts: bearings in a housing, open ball bearings, pillow
+blocks, gear and pulley pairs on studs. Each ``draw_*`` takes a seeded generator and returns a
+``Design``.
 
 Layouts follow the fits of real machines: a bearing's outer ring sits in a bore of its own
 diameter on a shoulder, the shaft in its inner ring; collars sit on the shaft against the inner
@@ -94,7 +95,7 @@ def _count(n: int, noun: str) -> str:
     return f"{n} {noun}{'s' if n > 1 else ''}"
 
 
-def _collar_od(rng: np.random.Generator, b: _Bearing, limit: float) -> float:
+def _collar_od(rng: np.random.Generator, b: _Bearing | _BallBearing, limit: float) -> float:
     """A collar bearing on the inner ring only and staying inside radius ``limit``."""
     return float(math.floor(2 * (b.inner_ring + _u(rng, 0.0, 0.7, 0.1)
                                  * (limit - b.inner_ring))))
@@ -103,7 +104,8 @@ def _collar_od(rng: np.random.Generator, b: _Bearing, limit: float) -> float:
 # --------------------------------------------------------------------------- bearings on a shaft
 
 
-def _housing(b: _Bearing, two: bool, lip: float, wall: float, square: bool) -> bd.Solid:
+def _housing(b: _Bearing | _BallBearing, two: bool, lip: float, wall: float,
+             square: bool) -> bd.Solid:
     """Housing along Z from z = 0: a bearing seat of the bearing's width above a lip (or a seat
     at each end of a middle web), a through hole behind, four corner holes when square."""
     height = b.width * (2 if two else 1) + lip
@@ -151,6 +153,109 @@ def draw_bearing_shaft(rng: np.random.Generator) -> Design:
     return Design(f"{_count(len(names), 'bearing')} {b.d:g}x{b.od:g}x{b.width:g} in a {kind} "
                   f"housing, {_count(n_collars, 'collar')} {co:g}x{cw:g}", tuple(parts),
                   tuple(mates))
+
+
+# --------------------------------------------------------------------------- open ball bearings
+# Rings, balls and a shaft as separate parts, the way vendors' bearing assemblies come: balls touch
+# the rings' grooves at a point (sphere in a torus, no face mate), the rings share an axis without
+# touching (no mate), and only the bore, the outside and the shoulder make mates.
+
+# Bearing sizes of bd_warehouse's deep groove table (d, D, B, d1, D1: bore, outside, width, inner
+# ring's and outer ring's shoulder diameters), read there so that the layout cannot disagree.
+_BALL_SIZES = ("M5-16-5", "M6-19-6", "M7-22-7", "M8-22-7", "M8-24-8", "M9-24-7", "M9-26-8",
+               "M10-26-8", "M10-28-8", "M10-30-9", "M10-35-11")
+_CONFORMITY = 0.52  # groove radius over ball diameter (deep groove bearings: 0.515-0.53)
+
+
+@dataclass(frozen=True)
+class _BallBearing:
+    """An open deep groove ball bearing on the Z axis, centred on z = 0: ``n`` balls of
+    diameter ``ball`` on the pitch circle between rings whose shoulders are at ``inner_ring``
+    and ``outer_ring`` (radii); the rings' grooves conform to the ball (``_CONFORMITY``)."""
+
+    d: float
+    od: float
+    width: float
+    inner_ring: float
+    outer_ring: float
+    ball: float
+    n: int
+
+    @property
+    def pitch(self) -> float:
+        return (self.inner_ring + self.outer_ring) / 2
+
+    @property
+    def through(self) -> float:  # a housing's hole behind its shoulder, between the rings
+        return self.pitch
+
+    def _groove(self, sign: int) -> bd.Shape[Any]:
+        """The torus whose tube touches the ball at its innermost (sign -1) or outermost
+        (+1) point."""
+        rg, rb = _CONFORMITY * self.ball, self.ball / 2
+        return bd.Torus(self.pitch - sign * (rg - rb), rg)
+
+    def inner(self) -> bd.Solid:
+        ring = bd.Pos(0, 0, -self.width / 2) * bd.Cylinder(
+            self.inner_ring, self.width, align=_Z0) - _cyl(self.d / 2, self.width + 2,
+                                                          z=-self.width / 2 - 1)
+        return _cut(ring, self._groove(-1))
+
+    def outer(self) -> bd.Solid:
+        ring = bd.Pos(0, 0, -self.width / 2) * bd.Cylinder(
+            self.od / 2, self.width, align=_Z0) - _cyl(self.outer_ring, self.width + 2,
+                                                       z=-self.width / 2 - 1)
+        return _cut(ring, self._groove(1))
+
+    def ball_at(self, k: int) -> Build:
+        angle = 2 * math.pi * k / self.n
+        where = bd.Pos(self.pitch * math.cos(angle), self.pitch * math.sin(angle), 0)
+        return lambda: where * bd.Solid.make_sphere(self.ball / 2)
+
+
+def _draw_ball_bearing(rng: np.random.Generator) -> _BallBearing:
+    from bd_warehouse.bearing import SingleRowDeepGrooveBallBearing
+
+    size = _BALL_SIZES[int(rng.integers(len(_BALL_SIZES)))]
+    table = SingleRowDeepGrooveBallBearing.bearing_data[size]
+    d, od, width, d1, big_d1 = (float(table[f"SKT:{k}"]) for k in ("d", "D", "B", "d1", "D1"))
+    ball = round((big_d1 - d1) * _u(rng, 0.58, 0.66, 0.01), 3)
+    pitch = (d1 + big_d1) / 4
+    # as many balls as the pitch circle holds with at least 0.5 mm between neighbours
+    most = int(math.pi / math.asin(min(1.0, (ball + 0.5) / (2 * pitch))))
+    n = int(rng.integers(max(5, most - 3), most + 1))
+    return _BallBearing(d, od, width, d1 / 2, big_d1 / 2, ball, n)
+
+
+def draw_ball_bearing(rng: np.random.Generator) -> Design:
+    """An open ball bearing (rings and balls apart) in a housing on a shaft, with a collar or
+    none."""
+    b = _draw_ball_bearing(rng)
+    square, lip, wall = bool(rng.random() < 0.5), _u(rng, 2, 5), _u(rng, 5, 12, 1.0)
+    height = b.width + lip
+    centre = height - b.width / 2
+    collar, cw = bool(rng.random() < 0.5), _u(rng, 4, 10, 1.0)
+    co = _collar_od(rng, b, b.pitch - b.ball / 2 - 0.5)  # clear of the balls
+    low = -_u(rng, 3, 20, 1.0)
+    length = height + (cw if collar else 0.0) + _u(rng, 3, 20, 1.0) - low
+    body = _pick(rng, _BODY_COLOURS)
+    parts = [PartSpec("housing", body, MOTION, lambda: _housing(b, False, lip, wall, square)),
+             PartSpec("outer-ring", "steel", MOTION, placed(bd.Pos(0, 0, centre), b.outer)),
+             PartSpec("inner-ring", "steel", MOTION, placed(bd.Pos(0, 0, centre), b.inner)),
+             *[PartSpec(f"ball-{k + 1:02d}", "steel", MOTION,
+                        placed(bd.Pos(0, 0, centre), b.ball_at(k))) for k in range(b.n)],
+             PartSpec("shaft", "orange", MOTION,
+                      placed(bd.Pos(0, 0, low), lambda: _shaft([(b.d, length)])))]
+    mates = [fit("inner-ring", "shaft"), fit("outer-ring", "housing"),
+             seat("outer-ring", "housing")]
+    if collar:
+        parts.append(PartSpec("collar", "dark", MOTION,
+                              placed(bd.Pos(0, 0, height), lambda: _shaft_collar(b.d, co, cw))))
+        mates += [fit("collar", "shaft"), seat("collar", "inner-ring")]
+    kind = "square" if square else "round"
+    return Design(f"open ball bearing {b.d:g}x{b.od:g}x{b.width:g} with {b.n} balls of "
+                  f"{b.ball:g} in a {kind} housing, {'a collar' if collar else 'no collar'}"
+                  f"{f' {co:g}x{cw:g}' if collar else ''}", tuple(parts), tuple(mates))
 
 
 # --------------------------------------------------------------------------- pillow blocks
