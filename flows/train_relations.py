@@ -15,6 +15,7 @@ in the same training workspace (it reuses that corpus, its split and the complet
 
 from __future__ import annotations
 
+import hashlib
 import json
 import time
 from collections.abc import Callable
@@ -91,14 +92,15 @@ def label_corpus(ws: Workspace, limits: Limits, progress: Progress | None = None
 def build_dataset(ws: Workspace, completion_models: Path, limits: Limits,
                   progress: Progress | None = None) -> dict[str, int]:
     """Pair views of every labelled corpus shot into ``datasets/relations/<split>.npz``;
-    reused when the labels and the completion network are those it was built from."""
+    reused when the labels and the completion network are those it was built from (the
+    labels' content, not only their shots: a shot redrawn under its id is labelled anew)."""
     from models.evaluate import load_models
     from models.relation_data import build_relation_dataset, read_split
 
     labels = label_corpus(ws, limits, progress)
     models = load_models(completion_models)
     key = ("gan_lstm", "observed")
-    stamp = {"shots": sorted(labels),
+    stamp = {"shots": sorted(labels), "labels": labels_digest(labels),
              "completion": models.cards[key]["code_version"] if key in models.cards else "",
              "completion_step": models.cards[key]["step"] if key in models.cards else -1}
     out = relations_dir(ws)
@@ -110,6 +112,17 @@ def build_dataset(ws: Workspace, completion_models: Path, limits: Limits,
                                   out, progress=progress)
     (out / "stamp.json").write_text(json.dumps(stamp))
     return rows
+
+
+def labels_digest(labels: dict[str, ShotLabels]) -> str:
+    """SHA-256 over every shot's labelled pairs, views and truth, in shot order."""
+    digest = hashlib.sha256()
+    for shot in sorted(labels):
+        lab = labels[shot]
+        digest.update(shot.encode() + b"\0")
+        for array in (lab.pairs, lab.views, lab.truth):
+            digest.update(np.ascontiguousarray(array).tobytes())
+    return digest.hexdigest()
 
 
 @dataclass(frozen=True)

@@ -116,6 +116,7 @@ def test_the_train_flow_trains_and_reports_the_relation_networks(corpus, tmp_pat
     rows = relation_dataset_task.fn(str(ws.root), str(completion), 2)
     assert rows["train"] > 0
     folder = relations_dir(ws)
+    split_positives = read_split(folder / "train.npz").labels.sum()
     for split in ("val", "test"):  # the fixture's one assembly is all training
         (folder / f"{split}.npz").write_bytes((folder / "train.npz").read_bytes())
     out = tmp_path / "relations"
@@ -130,6 +131,15 @@ def test_the_train_flow_trains_and_reports_the_relation_networks(corpus, tmp_pat
     assert relation_dataset_task.fn(str(ws.root), str(completion), 2) == {
         "test": rows["train"], "train": rows["train"], "val": rows["train"]}
     assert (folder / "stamp.json").stat().st_mtime_ns == stamp
+    # a shot labelled anew under its id (a family redrawn) rebuilds it
+    labelled = ws.root / "datasets" / "corpus" / "labels"
+    (path,) = labelled.glob("*.npz")
+    with np.load(path) as z:
+        old = {k: z[k] for k in z.files}
+    np.savez(path, **{**old, "truth": ~old["truth"]})
+    relation_dataset_task.fn(str(ws.root), str(completion), 2)
+    assert (folder / "stamp.json").stat().st_mtime_ns != stamp
+    assert read_split(folder / "train.npz").labels.sum() != split_positives
 
 
 def test_an_assembly_shot_labels_its_distant_pairs_too() -> None:
