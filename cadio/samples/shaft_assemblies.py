@@ -228,33 +228,37 @@ def _draw_ball_bearing(rng: np.random.Generator) -> _BallBearing:
 
 
 def draw_ball_bearing(rng: np.random.Generator) -> Design:
-    """An open ball bearing (rings and balls apart) in a housing on a shaft, with a collar or
-    none."""
+    """An open ball bearing (rings and balls apart) on a shaft, in a housing (half of them: the
+    balls of the others are in sight, as on a bench), with a collar on the inner ring (always
+    where there is no housing)."""
     b = _draw_ball_bearing(rng)
-    square, lip, wall = bool(rng.random() < 0.5), _u(rng, 2, 5), _u(rng, 5, 12, 1.0)
+    housed, square = bool(rng.random() < 0.5), bool(rng.random() < 0.5)
+    lip, wall = _u(rng, 2, 5), _u(rng, 5, 12, 1.0)
     height = b.width + lip
     centre = height - b.width / 2
-    collar, cw = bool(rng.random() < 0.5), _u(rng, 4, 10, 1.0)
+    collar, cw = bool(rng.random() < 0.5) or not housed, _u(rng, 4, 10, 1.0)
     co = _collar_od(rng, b, b.pitch - b.ball / 2 - 0.5)  # clear of the balls
     low = -_u(rng, 3, 20, 1.0)
     length = height + (cw if collar else 0.0) + _u(rng, 3, 20, 1.0) - low
     body = _pick(rng, _BODY_COLOURS)
-    parts = [PartSpec("housing", body, MOTION, lambda: _housing(b, False, lip, wall, square)),
-             PartSpec("outer-ring", "steel", MOTION, placed(bd.Pos(0, 0, centre), b.outer)),
+    parts = [PartSpec("outer-ring", "steel", MOTION, placed(bd.Pos(0, 0, centre), b.outer)),
              PartSpec("inner-ring", "steel", MOTION, placed(bd.Pos(0, 0, centre), b.inner)),
              *[PartSpec(f"ball-{k + 1:02d}", "steel", MOTION,
                         placed(bd.Pos(0, 0, centre), b.ball_at(k))) for k in range(b.n)],
              PartSpec("shaft", "orange", MOTION,
                       placed(bd.Pos(0, 0, low), lambda: _shaft([(b.d, length)])))]
-    mates = [fit("inner-ring", "shaft"), fit("outer-ring", "housing"),
-             seat("outer-ring", "housing")]
+    mates = [fit("inner-ring", "shaft")]
+    if housed:
+        parts.insert(0, PartSpec("housing", body, MOTION,
+                                 lambda: _housing(b, False, lip, wall, square)))
+        mates += [fit("outer-ring", "housing"), seat("outer-ring", "housing")]
     if collar:
         parts.append(PartSpec("collar", "dark", MOTION,
                               placed(bd.Pos(0, 0, height), lambda: _shaft_collar(b.d, co, cw))))
         mates += [fit("collar", "shaft"), seat("collar", "inner-ring")]
-    kind = "square" if square else "round"
+    where = f"in a {'square' if square else 'round'} housing" if housed else "without housing"
     return Design(f"open ball bearing {b.d:g}x{b.od:g}x{b.width:g} with {b.n} balls of "
-                  f"{b.ball:g} in a {kind} housing, {'a collar' if collar else 'no collar'}"
+                  f"{b.ball:g} {where}, {'a collar' if collar else 'no collar'}"
                   f"{f' {co:g}x{cw:g}' if collar else ''}", tuple(parts), tuple(mates))
 
 
