@@ -125,33 +125,6 @@ def test_a_tolerance_set_on_the_cli_reaches_the_mates_of_the_run(
     assert coincident(tmp_path / "loose", "contact_mm=0.3") == (1, 0.3)
 
 
-def test_a_failed_threshold_exits_3_with_a_complete_report(
-        harness: object, tmp_path: Path, monkeypatch: pytest.MonkeyPatch,
-        capsys: pytest.CaptureFixture[str]) -> None:
-    import xml.etree.ElementTree as ET
-
-    from prefect.settings import PREFECT_API_URL
-
-    from flows.cli import main
-
-    monkeypatch.setenv("PREFECT_API_URL", str(PREFECT_API_URL.value()))
-    lib = tmp_path / "lib" / "assemblies"
-    lib.mkdir(parents=True)
-    _gap_assembly(lib / "gap.step", 0.0)
-    strict = tmp_path / "strict.toml"
-    strict.write_text("min_n = 0\n[ingest_ok_fraction]\nfloor = 1.5\n")
-    args = ["nightly", "--library", str(lib.parent), "--workspace", str(tmp_path / "ws"),
-            "--voxel-sizes", "16", "--views-per-scene", "1", "--thresholds", str(strict)]
-    assert main(args) == 3
-    assert "ingest_ok_fraction fail" in capsys.readouterr().err
-    run = max((tmp_path / "ws" / "runs").glob("2*"))
-    assert (run / "report.html").is_file() and (run / "summary.json").is_file()
-    suite = ET.parse(run / "junit.xml").getroot().find("testsuite")
-    assert suite is not None and int(suite.get("failures", "0")) >= 1
-    (tmp_path / "bad.toml").write_text("[iou]\n")
-    assert main([*args[:-1], str(tmp_path / "bad.toml")]) == 2
-
-
 def test_a_night_whose_recordings_are_all_unusable_fails_naming_them(
         harness: object, tmp_path: Path, box_step: Path, pin_step: Path,
         monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]) -> None:

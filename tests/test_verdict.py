@@ -11,6 +11,7 @@ import sys
 from pathlib import Path
 
 import pandas as pd
+import pytest
 
 from reports.html import verdict_table
 from reports.run_report import write_run_report
@@ -110,8 +111,12 @@ def test_the_console_verdict_is_a_dozen_lines_with_the_failed_inputs_and_the_rep
 
 
 def test_a_threshold_failure_prints_the_verdict_and_exits_3_without_a_traceback(
-        tmp_path: Path, prefect_api: dict[str, str]) -> None:
+        tmp_path: Path, prefect_api: dict[str, str], capsys: pytest.CaptureFixture[str]) -> None:
+    import xml.etree.ElementTree as ET
+
     from test_flows import _gap_assembly
+
+    from flows.cli import main
 
     lib = tmp_path / "lib" / "assemblies"
     lib.mkdir(parents=True)
@@ -141,12 +146,23 @@ def test_a_threshold_failure_prints_the_verdict_and_exits_3_without_a_traceback(
     assert "  failed: assemblies ingest_ok_fraction fail: 1 (floor 1.5)" in verdict
     assert "Failed inputs: none" in verdict and f"Report: {run / 'report.html'}" in verdict
     assert "ingest_ok_fraction fail" in failed.stderr  # the one-line reason of exit 3
+    assert (run / "report.html").is_file() and (run / "summary.json").is_file()
+    suite = ET.parse(run / "junit.xml").getroot().find("testsuite")
+    assert suite is not None and int(suite.get("failures", "0")) >= 1
 
     rerun = night("--no-fail-on-threshold", "--json")  # cached: only the reports are new
     assert rerun.returncode == 0, rerun.stderr[-4000:]
     latest = (ws / "runs" / "latest").resolve()
     assert latest != run and json.loads(rerun.stdout) == json.loads(
         (latest / "summary.json").read_text())
+
+    bad = tmp_path / "bad.toml"  # a thresholds file that names no limit: exit 2, no night
+    bad.write_text("[iou]\n")
+    assert main(["nightly", "--library", str(lib.parent), "--workspace", str(ws),
+                 "--thresholds", str(bad)]) == 2
+    err = capsys.readouterr().err
+    assert f"{bad}: unknown metric 'iou'" in err, err
+    assert (ws / "runs" / "latest").resolve() == latest
 
 
 def test_the_console_lists_pair_categories_only_where_they_failed(tmp_path: Path) -> None:
