@@ -50,6 +50,7 @@ from cadio.truth.scenes import (
     generate_scenes,
     read_scene_parts,
     read_scenes,
+    scenes_stamp,
     write_scenes,
 )
 from cadio.workspace import Workspace
@@ -132,14 +133,18 @@ def _corpus_scenes(ws: Workspace, catalog: pd.DataFrame,
                    fractions: Callable[[str], tuple[float, float]], seed: int,
                    pairs_per_relation: int, out: Path) -> pd.DataFrame:
     """The pair scenes of the corpus's single parts (each part in its corpus split), kept in
-    the corpus folder and reused."""
+    the corpus folder and reused while their stamp holds (the same config and placement rules;
+    a table drawn by other rules is drawn anew, and its shots with it)."""
     path = out / "scenes.parquet"
+    cfg = SceneConfig(seed=seed, pairs_per_relation=pairs_per_relation)
     if path.exists():
-        return read_scenes(path)
+        kept = read_scenes(path)
+        if kept.attrs["config"] == scenes_stamp(cfg):
+            return kept
+        log.info("%s: drawn by other rules or another config; drawing the scenes anew", path)
     _, part_split = plan_splits(catalog, fractions, seed)
     parts = [p for p in read_scene_parts(catalog, ws.root) if p.part_id in part_split]
-    scenes = generate_scenes(parts, SceneConfig(seed=seed, pairs_per_relation=pairs_per_relation),
-                             part_split)
+    scenes = generate_scenes(parts, cfg, part_split)
     write_scenes(path, scenes)
     return scenes
 

@@ -98,6 +98,21 @@ def test_shots_of_three_kinds_give_examples_and_relation_inputs(ws: Workspace,
         s.shot_id for s in shots]
     again = build_corpus(shots, tmp_path, CFG, Limits(workers=2))  # nothing left to render
     assert len(again) == len(index)
+    # a scene drawn anew under its id is a new shot; the old one leaves the index and the
+    # shot table (by id alone, the corpus kept the renders of the old placement)
+    moved = scenes.head(1).copy()
+    moved["pose_b"] = [list(np.asarray(moved["pose_b"].iloc[0]) + np.r_[[0.0] * 3, 1.0,
+                                                                         [0.0] * 12])]
+    redrawn = pair_shots(moved, splits, ws.mesh)[0]
+    assert redrawn.group == pairs[0].group and redrawn.shot_id != pairs[0].shot_id
+    assert pair_shots(scenes.head(1), splits, ws.mesh)[0].shot_id == pairs[0].shot_id
+    later = build_corpus([*alone, redrawn, pairs[1], *assembly], tmp_path, CFG,
+                         Limits(workers=2))
+    assert pairs[0].shot_id not in set(later["shot"]) and redrawn.shot_id in set(later["shot"])
+    assert len(later) == len(index) - (index["shot"] == pairs[0].shot_id).sum() + (
+        later["shot"] == redrawn.shot_id).sum()
+    assert [s.shot_id for s in read_shots(tmp_path / "shots.parquet")] == [
+        s.shot_id for s in (*alone, redrawn, pairs[1], *assembly)]
 
 
 def test_an_instance_of_another_split_gives_no_example(ws: Workspace, tmp_path: Path) -> None:

@@ -28,6 +28,7 @@ from cadio.truth.scenes import (
     read_scenes,
     scene_part,
     scene_poses,
+    scenes_stamp,
     write_scenes,
 )
 
@@ -226,6 +227,10 @@ def test_write_read_round_trip(scenes: pd.DataFrame, tmp_path: Path) -> None:
     pd.testing.assert_frame_equal(back, scenes)
     assert back.attrs["config"]["tolerances"]["coplanar_mm"] == TOL.coplanar_mm
     assert back.attrs["config"]["seed"] == CFG.seed
+    # a kept table is reused only while its stamp is the generator's: the config and the
+    # placement rules it was drawn by (a corpus reused scenes drawn by older rules before)
+    assert back.attrs["config"] == scenes_stamp(CFG) != scenes_stamp(replace(CFG, seed=1))
+    assert len(back.attrs["config"]["generator"]) == 16
     assert not list(tmp_path.glob(".*tmp"))
 
 

@@ -188,7 +188,9 @@ def alone_shots(parts: pd.DataFrame, splits: Mapping[str, str],
 
 def pair_shots(scenes: pd.DataFrame, splits: Mapping[str, str],
                mesh_of: Callable[[str], Path]) -> list[Shot]:
-    """One shot per row of a scene table (its poses, mm)."""
+    """One shot per row of a scene table (its poses, mm). The shot's id holds a digest of its
+    parts and poses: a scene drawn anew under the same scene id is a new shot, rendered and
+    labelled anew (by id alone, a corpus kept the renders of the old placement)."""
     out = []
     for scene in scenes.to_dict("records"):
         parts = []
@@ -198,7 +200,10 @@ def pair_shots(scenes: pd.DataFrame, splits: Mapping[str, str],
             parts.append(ShotPart(i + 1, pid, str(scene[f"category_{role}"]),
                                   splits.get(pid, "test"), str(mesh_of(pid)), _pose_tuple(pose)))
         sid = str(scene["scene_id"])
-        out.append(Shot(f"pair-{sid}", "pair", sid, str(scene["split"]), tuple(parts)))
+        placed = ";".join(f"{p.part_id}:" + ",".join(f"{v:.6f}" for v in p.pose_mm)
+                          for p in parts)
+        digest = hashlib.sha256(placed.encode()).hexdigest()[:8]
+        out.append(Shot(f"pair-{sid}-{digest}", "pair", sid, str(scene["split"]), tuple(parts)))
     return out
 
 
@@ -352,13 +357,17 @@ def build_corpus(shots: Sequence[Shot], out_dir: Path, cfg: CorpusConfig,
 
 def _save(out_dir: Path, old: pd.DataFrame | None, rows: Sequence[IndexRow],
           shots: Sequence[Shot]) -> pd.DataFrame:
+    """The index and shot table of ``shots``: what was rendered before for a shot no longer
+    planned (a scene drawn anew, a part gone from the catalog) leaves both, so training never
+    reads it."""
+    planned = {s.shot_id for s in shots}
     new = index_frame(rows)
+    if old is not None:
+        old = old[old["shot"].isin(planned)]
     merged = new if old is None else pd.concat([old, new], ignore_index=True)
     with atomic_path(out_dir / INDEX) as tmp:
         merged.to_parquet(tmp, index=False)
-    table = pd.DataFrame([s.to_row() for s in shots])
-    if (out_dir / SHOTS).exists():
-        table = pd.concat([pd.read_parquet(out_dir / SHOTS), table]).drop_duplicates("shot")
+    table = pd.DataFrame([s.to_row() for s in shots]).drop_duplicates("shot")
     with atomic_path(out_dir / SHOTS) as tmp:
         table.to_parquet(tmp, index=False)
     return merged

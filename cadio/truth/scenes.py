@@ -234,8 +234,16 @@ def generate_scenes(parts: Sequence[ScenePart], cfg: SceneConfig,
             log.warning("no scene for %s: fewer than two of the %d parts%s fit",
                         ", ".join(unfit), len(members), where)
     df = pd.DataFrame(rows, columns=list(COLUMNS))
-    df.attrs["config"] = json.loads(json.dumps(asdict(cfg)))  # tuples become lists
+    df.attrs["config"] = scenes_stamp(cfg)
     return df
+
+
+def scenes_stamp(cfg: SceneConfig) -> dict[str, Any]:
+    """What a scene table is drawn with: the config (tuples as lists, as JSON gives them back)
+    and a digest of this module's source, its placement rules. A kept table whose stamp differs
+    is stale: ``read_scenes(path).attrs["config"] != scenes_stamp(cfg)``."""
+    generator = hashlib.sha256(Path(__file__).read_bytes()).hexdigest()[:16]
+    return {**json.loads(json.dumps(asdict(cfg))), "generator": generator}
 
 
 def scene_poses(row: Any) -> tuple[FloatArray, FloatArray]:
