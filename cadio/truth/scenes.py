@@ -39,6 +39,7 @@ from OCP.TopoDS import TopoDS_Shape
 from cadio.contracts import ScenesSummary
 from cadio.records import DIRECTIONAL, Features, FloatArray, Relation
 from cadio.tolerances import DEFAULT_TOLERANCES, Tolerances
+from cadio.truth import placement
 from cadio.truth.labels import PartModel, label_placed, part_model
 from cadio.truth.placement import (
     Nested,
@@ -240,9 +241,13 @@ def generate_scenes(parts: Sequence[ScenePart], cfg: SceneConfig,
 
 def scenes_stamp(cfg: SceneConfig) -> dict[str, Any]:
     """What a scene table is drawn with: the config (tuples as lists, as JSON gives them back)
-    and a digest of this module's source, its placement rules. A kept table whose stamp differs
-    is stale: ``read_scenes(path).attrs["config"] != scenes_stamp(cfg)``."""
-    generator = hashlib.sha256(Path(__file__).read_bytes()).hexdigest()[:16]
+    and a digest of the placement rules' source (this module and ``cadio.truth.placement``).
+    A kept table whose stamp differs is stale: ``read_scenes(path).attrs["config"] !=
+    scenes_stamp(cfg)``."""
+    digest = hashlib.sha256()
+    for source in (Path(__file__), Path(placement.__file__)):
+        digest.update(source.read_bytes())
+    generator = digest.hexdigest()[:16]
     return {**json.loads(json.dumps(asdict(cfg))), "generator": generator}
 
 
