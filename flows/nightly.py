@@ -108,6 +108,10 @@ def relations_report_task(run: Run, batches: list[RelateBatch]) -> str:
     failed = [f for b in batches for f in b.failed]
     notes = [f"{sum(b.pair_views for b in batches)} pair views of "
              f"{sum(b.captures for b in batches)} captures; {len(failed)} captures failed."]
+    left_out = sum(b.left_out for b in batches)
+    if left_out:  # a library of training parts would otherwise read as a night of no pairs
+        notes.append(f"{left_out} pair views left out: a network trained on one of their parts "
+                     "(their scores would not be held out).")
     notes += [f"- {f}" for f in failed]
     pairs = combine_pairs([Path(b.path) for b in batches])
     joints = combine_pairs([Path(b.joints_path) for b in batches if b.joints_path], joints=True)

@@ -271,6 +271,7 @@ class RelateBatch:
     rows: int
     failed: tuple[str, ...]
     joints_path: str = ""
+    left_out: int = 0  # pair views not scored: a network trained on one of their parts
 
 
 def relate_batch(captures: Sequence[Path], ws: Workspace, relations_dir: Path,
@@ -291,7 +292,9 @@ def relate_batch(captures: Sequence[Path], ws: Workspace, relations_dir: Path,
     rows, failed = relate_captures(captures, ws, categories, models, completion, cfg)
     failed = [*models.errors, *failed]
     seen = models.trained_on() | completions.trained_on()  # a part a network learned from
-    frame = pairs_frame(r for r in rows if r["part_a"] not in seen and r["part_b"] not in seen)
+    held = [r for r in rows if r["part_a"] not in seen and r["part_b"] not in seen]
+    frame = pairs_frame(held)
+    left_out = len({_view_key(r) for r in rows} - {_view_key(r) for r in held})
     joints = out.with_name(f"{out.stem}-joints.parquet")
     with atomic_path(joints) as tmp:  # the joints first: the rows' file marks the batch done
         cad_joints(captures, ws).to_parquet(tmp, index=False)
@@ -299,7 +302,11 @@ def relate_batch(captures: Sequence[Path], ws: Workspace, relations_dir: Path,
         frame.to_parquet(tmp, index=False)
     views = frame[["scene", "view", "part_a", "part_b"]].drop_duplicates()
     return RelateBatch(str(out), len(captures), len(views), len(frame), tuple(failed),
-                       str(joints))
+                       str(joints), left_out)
+
+
+def _view_key(row: Mapping[str, Any]) -> tuple[Any, ...]:
+    return row["scene"], row["view"], row["part_a"], row["part_b"]
 
 
 def cad_joints(captures: Sequence[Path], ws: Workspace) -> pd.DataFrame:

@@ -18,7 +18,7 @@ from cadio.sandbox import Limits
 from cadio.truth.scenes import SceneConfig, generate_scenes, read_scene_parts
 from cadio.workspace import Workspace
 from models.evaluate import SHIPPED
-from models.relate import METHODS, relate_batch
+from models.relate import METHODS, SHIPPED_RELATIONS, relate_batch
 from models.relations import RelationConfig
 from models.relations_train import save_relation_checkpoint, train_relations
 from models.synthetic import relation_pairs
@@ -89,6 +89,10 @@ def test_pairs_of_parts_a_network_trained_on_are_left_out(ws: Workspace, tmp_pat
     models = _checkpoints(tmp_path / "models", seen)
     batch = relate_batch(captures, ws, models, SHIPPED, tmp_path / "rows.parquet")
     assert batch.rows == 0 and len(pd.read_parquet(batch.path)) == 0
+    # counted, so that the report can say why a night of training parts scored no pair
+    everything = relate_batch(captures, ws, SHIPPED_RELATIONS, SHIPPED, tmp_path / "all.parquet")
+    assert everything.left_out == 0 and everything.pair_views > 0
+    assert batch.left_out == everything.pair_views and batch.pair_views == 0
 
 
 def test_a_broken_capture_is_reported_and_the_others_go_on(ws: Workspace,
