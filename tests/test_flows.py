@@ -38,7 +38,7 @@ def test_nightly_ingests_reports_and_caches(harness: object, tmp_path: Path,
 
     config = night_config({"library": {"path": str(lib), "voxel_sizes": [16], "batch_size": 1},
                            "runtime": {"workspace": str(ws)},
-                           "capture": {"views_per_scene": 2}})
+                           "capture": {"views_per_scene": 2, "pairs_per_relation": 1}})
     first = nightly(config)
     assert first.ingest.files == 3
     assert first.ingest.ok == 2 and first.ingest.failed == 1
