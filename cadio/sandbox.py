@@ -10,8 +10,16 @@ next job.
 Workers are plain subprocesses (``subprocess.Popen`` of this interpreter), not
 ``multiprocessing`` children: the supervisor may itself be a daemonic process, as every
 ``dask worker`` process is, and ``multiprocessing`` refuses children to those. The job
-function travels by its qualified name and payloads and results as pickles over a socket pair
-that only the worker inherits; the worker's end closing is how the supervisor sees it die.
+function (by its qualified name) and payload of each job, and its result, travel as pickles over
+a socket pair that only the worker inherits; the worker's end closing is how the supervisor sees
+it die.
+
+A worker costs 3-4 s of CPU before its first job (OCP, open3d and the job's module), and a night
+runs pool after pool (ingest batches, mates, export). So a pool that ran its jobs to the end
+leaves its live, idle workers to the next pool of this process with the same memory limit; a
+kept worker leaves by itself after ``KEEP_IDLE_S`` without a job, or when this process ends (its
+socket closes), and ``release_idle_workers`` stops the kept ones at once. A pool closed early
+(its caller stopped iterating) keeps nothing.
 """
 
 from __future__ import annotations
@@ -23,6 +31,7 @@ import signal
 import socket
 import subprocess
 import sys
+import threading
 import time
 from collections import deque
 from collections.abc import Callable, Iterable, Iterator
@@ -101,6 +110,12 @@ def run_isolated(
         pool.close()
 
 
+# Seconds an idle kept worker waits for its next job before it leaves; a pool takes a kept
+# worker only while it has at least ``_TAKE_MARGIN_S`` of that left.
+KEEP_IDLE_S = 60.0
+_TAKE_MARGIN_S = 15.0
+
+
 # What a worker runs first: take the supervisor's import path from the socket before
 # importing anything of this package (the job's module may live on that path only).
 _BOOT = ("import sys\n"
@@ -113,6 +128,32 @@ _BOOT = ("import sys\n"
 
 # Worker processes started and not yet reaped, in every pool of this process.
 _LIVE: set[subprocess.Popen[bytes]] = set()
+# Idle workers kept for the next pool, by memory limit, oldest first (``_Pool.close``).
+_IDLE: dict[int, list[_Worker[Any]]] = {}
+_IDLE_LOCK = threading.Lock()
+
+
+def release_idle_workers() -> int:
+    """Stop the idle workers kept for later pools now; returns how many there were."""
+    with _IDLE_LOCK:
+        kept = [w for workers in _IDLE.values() for w in workers]
+        _IDLE.clear()
+    for worker in kept:
+        worker.stop()
+    return len(kept)
+
+
+def _take_idle(memory_mb: int) -> _Worker[Any] | None:
+    """A kept worker of this memory limit that is alive and not about to leave, or None."""
+    with _IDLE_LOCK:
+        kept = _IDLE.get(memory_mb, [])
+        while kept:
+            worker = kept.pop()  # the most recently idle
+            if worker.alive() and time.monotonic() - worker.idle_since < (
+                    KEEP_IDLE_S - _TAKE_MARGIN_S):
+                return worker
+            worker.kill()
+    return None
 
 
 def kill_workers() -> int:
@@ -126,7 +167,7 @@ def kill_workers() -> int:
 
 
 class _Worker(Generic[P]):
-    def __init__(self, fn: Callable[[Any], Any], memory_mb: int) -> None:
+    def __init__(self, memory_mb: int) -> None:
         mine, theirs = socket.socketpair()
         with mine, theirs:
             fd = theirs.fileno()
@@ -137,9 +178,8 @@ class _Worker(Generic[P]):
             _LIVE.add(self.process)
             self.conn = Connection(mine.detach())
         self._send(list(sys.path))
-        self._send(fn)
         self.job: Job[P] | None = None
-        self.started = 0.0
+        self.started = self.idle_since = 0.0
 
     def _send(self, value: Any) -> None:
         try:
@@ -150,9 +190,18 @@ class _Worker(Generic[P]):
     def alive(self) -> bool:
         return self.process.poll() is None
 
-    def submit(self, job: Job[P]) -> None:
+    def submit(self, fn: Callable[[P], Any], job: Job[P]) -> None:
         self.job, self.started = job, time.monotonic()
-        self._send(job.payload)
+        self._send((fn, job.payload))
+
+    def stop(self) -> None:
+        """Ask an idle worker to leave; kill it when it does not within 2 s."""
+        self._send(None)
+        try:
+            self.process.wait(2)
+        except subprocess.TimeoutExpired:
+            pass
+        self.kill()
 
     def kill(self) -> None:
         if self.alive():
@@ -173,8 +222,10 @@ class _Pool(Generic[P, R]):
     def __init__(self, fn: Callable[[P], R], limits: Limits) -> None:
         self.fn, self.limits = fn, limits
         self.workers: list[_Worker[P]] = []
+        self.queue: deque[Job[P]] = deque()
 
     def run(self, queue: deque[Job[P]]) -> Iterator[Outcome[P, R]]:
+        self.queue = queue
         while queue or any(w.job for w in self.workers):
             self._fill(queue)
             busy = [w for w in self.workers if w.job is not None]
@@ -188,11 +239,15 @@ class _Pool(Generic[P, R]):
         for worker in [w for w in self.workers if w.job is None and not w.alive()]:
             worker.kill()  # died between jobs: reap it and close its socket
             self.workers.remove(worker)
-        while len(self.workers) < self.limits.workers and queue:
-            self.workers.append(_Worker(self.fn, self.limits.memory_mb))
+        while len(self.workers) < min(self.limits.workers, len(queue) + self._busy()):
+            kept = _take_idle(self.limits.memory_mb)
+            self.workers.append(kept or _Worker(self.limits.memory_mb))
         for worker in self.workers:
             if worker.job is None and queue:
-                worker.submit(queue.popleft())
+                worker.submit(self.fn, queue.popleft())
+
+    def _busy(self) -> int:
+        return sum(w.job is not None for w in self.workers)
 
     def _next_deadline(self, busy: list[_Worker[P]]) -> float:
         now = time.monotonic()
@@ -214,6 +269,11 @@ class _Pool(Generic[P, R]):
                 return Outcome(job, error=_rebuild_error(job.key, value), seconds=elapsed)
         if worker.conn in ready or not worker.alive():  # its socket closed: it died
             worker.reap(5)
+            if worker.process.returncode == 0:  # a kept worker that left idle as it was sent
+                worker.kill()  # the job: no crash, the job goes to another worker
+                self.workers.remove(worker)
+                self.queue.appendleft(job)
+                return None
             reason = _death_reason(worker.process.returncode, self.limits)
             return self._retire(worker, reason, elapsed)
         if elapsed >= self.limits.seconds:
@@ -231,6 +291,17 @@ class _Pool(Generic[P, R]):
 
     def close(self) -> None:
         idle = [w for w in self.workers if w.job is None and w.alive()]
+        if not self.queue and len(idle) == len(self.workers):  # ran to the end: keep them
+            now = time.monotonic()
+            with _IDLE_LOCK:
+                kept = _IDLE.setdefault(self.limits.memory_mb, [])
+                for worker in idle:
+                    worker.idle_since = now
+                kept.extend(idle)
+                surplus = kept[:max(0, len(kept) - self.limits.workers)]
+                del kept[:len(surplus)]
+            self.workers = surplus  # beyond one pool's worth: stopped below
+            idle = surplus
         for worker in idle:  # all told first, so that they wind down side by side
             try:
                 worker.conn.send(None)
@@ -265,8 +336,8 @@ def _rebuild_error(key: str, value: tuple[str, str]) -> InputFileError:
 
 
 def _worker_main(conn: Connection, memory_mb: int) -> None:
-    """Entry point of a worker (after ``_BOOT``): limit memory, take the job function, serve
-    payloads until told to stop or the supervisor's end closes.
+    """Entry point of a worker (after ``_BOOT``): limit memory, serve (function, payload) jobs
+    until told to stop, the supervisor's end closes or no job came for ``KEEP_IDLE_S``.
 
     The worker leaves with ``os._exit``: every result is sent by then, and tearing down an
     interpreter that holds OCP and open3d costs about half a second of CPU (exit handlers do
@@ -274,8 +345,8 @@ def _worker_main(conn: Connection, memory_mb: int) -> None:
     """
     _limit_memory(memory_mb)
     try:
-        fn = conn.recv()
-        while (payload := conn.recv()) is not None:
+        while conn.poll(KEEP_IDLE_S) and (job := conn.recv()) is not None:
+            fn, payload = job
             conn.send(_serve(fn, payload, memory_mb))
     except (EOFError, OSError):
         pass  # the supervisor is gone or gave up on this worker

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import ctypes
+import os
 import time
 from pathlib import Path
 from typing import TYPE_CHECKING
@@ -16,7 +17,7 @@ if TYPE_CHECKING:
 
 
 def misbehave(payload: str) -> str:
-    """Do what the payload says; ``ok:<x>`` returns x."""
+    """Do what the payload says; ``ok:<x>`` returns x, ``pid`` the worker's process id."""
     if payload == "segfault":
         ctypes.string_at(0)  # a real SIGSEGV in this process
     if payload == "hang":
@@ -26,6 +27,8 @@ def misbehave(payload: str) -> str:
         return str(len(blocks))
     if payload == "raise":
         raise ValueError("bad payload")
+    if payload == "pid":
+        return str(os.getpid())
     return payload.removeprefix("ok:")
 
 

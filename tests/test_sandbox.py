@@ -11,7 +11,15 @@ import pytest
 from sandbox_targets import misbehave, run_in_daemon
 
 from cadio.errors import WorkerError
-from cadio.sandbox import Job, Limits, Outcome, kill_workers, run_isolated
+from cadio.sandbox import (
+    _IDLE,
+    Job,
+    Limits,
+    Outcome,
+    kill_workers,
+    release_idle_workers,
+    run_isolated,
+)
 
 
 def _run(payloads: list[str], limits: Limits) -> dict[str, object]:
@@ -73,7 +81,34 @@ def _workers() -> list[psutil.Process]:
     return [p for p in psutil.Process().children() if "cadio.sandbox" in " ".join(p.cmdline())]
 
 
+def test_a_pool_run_to_the_end_leaves_its_workers_to_the_next_pool() -> None:
+    release_idle_workers()
+    (first,) = _run(["pid"], Limits(seconds=60, workers=1)).values()
+    assert [p.pid for p in _workers()] == [int(first)]  # kept, idle
+    (second,) = _run(["pid"], Limits(seconds=60, workers=1)).values()
+    assert second == first  # no new interpreter: the kept worker served the next pool
+    (other,) = _run(["pid"], Limits(seconds=60, memory_mb=2048, workers=1)).values()
+    assert other != first  # a worker is only kept for pools of its memory limit
+    both = _run(["pid", "ok:x"], Limits(seconds=60, workers=2))
+    assert first in both.values()
+    assert release_idle_workers() == 3 and _workers() == []
+
+
+def test_a_kept_worker_leaving_as_a_job_is_sent_loses_no_job() -> None:
+    release_idle_workers()
+    _run(["ok:a"], Limits(seconds=60, workers=1))
+    (kept,) = _IDLE[Limits().memory_mb]
+    kept.conn.send(None)  # it leaves with exit code 0, as after KEEP_IDLE_S without a job
+    assert kept.process.wait(30) == 0
+    kept.alive = lambda: True  # seen alive when taken: the job is sent to a leaver
+    out = _run(["ok:b", "ok:c"], Limits(seconds=60, workers=1))
+    assert out == {"ok:b": "b", "ok:c": "c"}  # not a crash: both jobs ran on a new worker
+    assert kept not in _IDLE[Limits().memory_mb]
+    release_idle_workers()
+
+
 def test_no_worker_outlives_the_batch_even_when_it_is_abandoned() -> None:
+    release_idle_workers()
     outcomes = run_isolated(misbehave, [Job(p, p) for p in ["ok:a", "hang", "ok:b"]],
                             Limits(seconds=600, workers=2))
     first = next(outcomes)
@@ -83,6 +118,7 @@ def test_no_worker_outlives_the_batch_even_when_it_is_abandoned() -> None:
 
 
 def test_kill_workers_ends_running_jobs_at_once() -> None:
+    release_idle_workers()
     outcomes = run_isolated(misbehave, [Job("hang", "hang")], Limits(seconds=3600, workers=1))
     done: list[Outcome[str, str]] = []
     batch = threading.Thread(target=lambda: done.extend(outcomes))
