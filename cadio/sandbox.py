@@ -16,10 +16,11 @@ it die.
 
 A worker costs 3-4 s of CPU before its first job (OCP, open3d and the job's module), and a night
 runs pool after pool (ingest batches, mates, export). So a pool that ran its jobs to the end
-leaves its live, idle workers to the next pool of this process with the same memory limit; a
-kept worker leaves by itself after ``KEEP_IDLE_S`` without a job, or when this process ends (its
-socket closes), and ``release_idle_workers`` stops the kept ones at once. A pool closed early
-(its caller stopped iterating) keeps nothing.
+leaves its live, idle workers to the next pool of this process started in the same context
+(memory limit, umask, working folder, import path and environment: what a worker takes from its
+supervisor when it starts). A kept worker leaves by itself after ``KEEP_IDLE_S`` without a job
+or when this process ends (its socket closes); ``release_idle_workers`` stops the kept ones at
+once. A pool closed early (its caller stopped iterating) keeps nothing.
 """
 
 from __future__ import annotations
@@ -128,8 +129,8 @@ _BOOT = ("import sys\n"
 
 # Worker processes started and not yet reaped, in every pool of this process.
 _LIVE: set[subprocess.Popen[bytes]] = set()
-# Idle workers kept for the next pool, by memory limit, oldest first (``_Pool.close``).
-_IDLE: dict[int, list[_Worker[Any]]] = {}
+# Idle workers kept for the next pool, by context (``_context``), oldest first (``_Pool.close``).
+_IDLE: dict[tuple[object, ...], list[_Worker[Any]]] = {}
 _IDLE_LOCK = threading.Lock()
 
 
@@ -143,10 +144,30 @@ def release_idle_workers() -> int:
     return len(kept)
 
 
-def _take_idle(memory_mb: int) -> _Worker[Any] | None:
-    """A kept worker of this memory limit that is alive and not about to leave, or None."""
+def _context(memory_mb: int) -> tuple[object, ...]:
+    """What a worker inherits from this process when it starts, beside its memory limit: a kept
+    worker serves a later pool only where all of it is still the same."""
+    return (memory_mb, _umask(), os.getcwd(), tuple(sys.path), tuple(sorted(os.environ.items())))
+
+
+def _umask() -> int:
+    """This process's umask, read without setting it (Linux), else set and restored."""
+    try:
+        with open("/proc/self/status") as status:
+            for line in status:
+                if line.startswith("Umask:"):
+                    return int(line.split()[1], 8)
+    except OSError:
+        pass
+    mask = os.umask(0o022)
+    os.umask(mask)
+    return mask
+
+
+def _take_idle(context: tuple[object, ...]) -> _Worker[Any] | None:
+    """A kept worker of this context that is alive and not about to leave, or None."""
     with _IDLE_LOCK:
-        kept = _IDLE.get(memory_mb, [])
+        kept = _IDLE.get(context, [])
         while kept:
             worker = kept.pop()  # the most recently idle
             if worker.alive() and time.monotonic() - worker.idle_since < (
@@ -223,6 +244,7 @@ class _Pool(Generic[P, R]):
         self.fn, self.limits = fn, limits
         self.workers: list[_Worker[P]] = []
         self.queue: deque[Job[P]] = deque()
+        self.context = _context(limits.memory_mb)
 
     def run(self, queue: deque[Job[P]]) -> Iterator[Outcome[P, R]]:
         self.queue = queue
@@ -240,7 +262,7 @@ class _Pool(Generic[P, R]):
             worker.kill()  # died between jobs: reap it and close its socket
             self.workers.remove(worker)
         while len(self.workers) < min(self.limits.workers, len(queue) + self._busy()):
-            kept = _take_idle(self.limits.memory_mb)
+            kept = _take_idle(self.context)
             self.workers.append(kept or _Worker(self.limits.memory_mb))
         for worker in self.workers:
             if worker.job is None and queue:
@@ -294,7 +316,7 @@ class _Pool(Generic[P, R]):
         if not self.queue and len(idle) == len(self.workers):  # ran to the end: keep them
             now = time.monotonic()
             with _IDLE_LOCK:
-                kept = _IDLE.setdefault(self.limits.memory_mb, [])
+                kept = _IDLE.setdefault(self.context, [])
                 for worker in idle:
                     worker.idle_since = now
                 kept.extend(idle)
