@@ -29,6 +29,7 @@ import trimesh
 from scipy.spatial import cKDTree
 
 from cadio.catalog import read_catalog
+from reports.relations import scores
 
 BANDS = (-np.inf, 0.1, 0.5, 1.0, 2.0, 5.0, np.inf)  # mm
 NEAR_MISS_MM = 2.0  # gaps above the tolerance and up to this are near misses
@@ -59,9 +60,7 @@ class PlacedSurfaces:
 
 
 def f1(frame: pd.DataFrame) -> float:
-    tp = int((frame["truth"] & frame["predicted"]).sum())
-    wrong = int((frame["truth"] != frame["predicted"]).sum())
-    return 2 * tp / (2 * tp + wrong) if tp + wrong else float("nan")
+    return scores(frame["truth"].to_numpy(), frame["predicted"].to_numpy())["f1"]
 
 
 def main() -> None:

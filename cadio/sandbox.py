@@ -139,8 +139,7 @@ def release_idle_workers() -> int:
     with _IDLE_LOCK:
         kept = [w for workers in _IDLE.values() for w in workers]
         _IDLE.clear()
-    for worker in kept:
-        worker.stop()
+    _stop(kept)
     return len(kept)
 
 
@@ -198,11 +197,11 @@ class _Worker(Generic[P]):
                 stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL)
             _LIVE.add(self.process)
             self.conn = Connection(mine.detach())
-        self._send(list(sys.path))
+        self.send(list(sys.path))
         self.job: Job[P] | None = None
         self.started = self.idle_since = 0.0
 
-    def _send(self, value: Any) -> None:
+    def send(self, value: Any) -> None:
         try:
             self.conn.send(value)
         except OSError:
@@ -213,16 +212,7 @@ class _Worker(Generic[P]):
 
     def submit(self, fn: Callable[[P], Any], job: Job[P]) -> None:
         self.job, self.started = job, time.monotonic()
-        self._send((fn, job.payload))
-
-    def stop(self) -> None:
-        """Ask an idle worker to leave; kill it when it does not within 2 s."""
-        self._send(None)
-        try:
-            self.process.wait(2)
-        except subprocess.TimeoutExpired:
-            pass
-        self.kill()
+        self.send((fn, job.payload))
 
     def kill(self) -> None:
         if self.alive():
@@ -322,21 +312,24 @@ class _Pool(Generic[P, R]):
                 kept.extend(idle)
                 surplus = kept[:max(0, len(kept) - self.limits.workers)]
                 del kept[:len(surplus)]
-            self.workers = surplus  # beyond one pool's worth: stopped below
-            idle = surplus
-        for worker in idle:  # all told first, so that they wind down side by side
-            try:
-                worker.conn.send(None)
-            except OSError:
-                pass
-        for worker in idle:
-            try:
-                worker.process.wait(2)
-            except subprocess.TimeoutExpired:
-                pass  # killed below
+            self.workers = idle = surplus  # beyond one pool's worth: stopped below
+        _stop(idle)
         for worker in self.workers:
             worker.kill()
         self.workers = []
+
+
+def _stop(idle: list[_Worker[Any]]) -> None:
+    """Ask idle workers to leave, all told first so that they wind down side by side; kill
+    those that did not within 2 s."""
+    for worker in idle:
+        worker.send(None)
+    for worker in idle:
+        try:
+            worker.process.wait(2)
+        except subprocess.TimeoutExpired:
+            pass
+        worker.kill()
 
 
 def _death_reason(exitcode: int | None, limits: Limits) -> str:

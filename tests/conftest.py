@@ -232,8 +232,8 @@ def _scope(path: str) -> str:
 def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
     """Collect the heaviest scopes first (``HEAVY_FIRST``); the rest keep their order."""
     def rank(item: pytest.Item) -> int:
-        scope = _scope(item.nodeid.split("::", 1)[0])
-        key = scope if scope == "server" else Path(scope).stem
+        stem = Path(item.nodeid.split("::", 1)[0]).stem
+        key = "server" if stem in SERVER_GROUP else stem
         return HEAVY_FIRST.index(key) if key in HEAVY_FIRST else len(HEAVY_FIRST)
 
     items.sort(key=rank)  # stable: a file's tests keep their order
