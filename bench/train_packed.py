@@ -9,6 +9,8 @@ epoch the best checkpoint so far is written, so a run stopped by its budget keep
     python bench/train_packed.py PACK OUT_DIR METHOD --seconds 420 --batch 32
 
 METHOD: gan_lstm, ae, or lstm (gan_lstm without its critic, the critic's ablation).
+``--width``, ``--mirror`` and ``--adv-weight`` override the config's fields; ``--tag`` names
+the checkpoint and log apart when several runs of one method share OUT_DIR.
 """
 
 from __future__ import annotations
@@ -55,9 +57,16 @@ def main() -> None:
     ap.add_argument("--lr", type=float, default=1e-3)
     ap.add_argument("--lr-d", type=float, default=1e-4)
     ap.add_argument("--steps", type=int, default=100_000)
+    ap.add_argument("--width", type=int, default=None)
+    ap.add_argument("--mirror", type=float, default=None)
+    ap.add_argument("--adv-weight", type=float, default=None)
+    ap.add_argument("--tag", default="", help="suffix of the checkpoint and log names")
+    ap.add_argument("--init", type=Path, default=None,
+                    help="a checkpoint whose weights start the run (a fine-tune)")
     args = ap.parse_args()
     os.environ.setdefault("CUBLAS_WORKSPACE_CONFIG", ":4096:8")
     torch.set_num_threads(4)
+    torch.backends.cudnn.benchmark = True  # fixed shapes per view count: pick the fastest kernels
     device = "cuda" if torch.cuda.is_available() else "cpu"
     clock = time.perf_counter()
     train, val, meta = datasets(args.pack)
@@ -69,22 +78,26 @@ def main() -> None:
         overrides["lr_d"] = args.lr_d
     if args.method == "lstm":
         overrides["gan"] = False
+    for field in ("width", "mirror", "adv_weight"):
+        if getattr(args, field) is not None:
+            overrides[field] = getattr(args, field)
     cfg = config_for(base, **overrides)
     parts = sorted({p for p, s in zip(meta["part_id"], meta["split"], strict=True) if s == "train"})
-    name = torch.cuda.get_device_name() if device == "cuda" else "cpu"
+    device_name = torch.cuda.get_device_name() if device == "cuda" else "cpu"
     info = {"protocol": "observed", "train_parts": parts, "train_examples": len(train),
-            "val_examples": len(val), "dataset": "datasets/corpus (packed)", "device": name,
+            "val_examples": len(val), "dataset": "datasets/corpus (packed)", "device": device_name,
             "seconds": args.seconds}
     args.out.mkdir(parents=True, exist_ok=True)
-    path = args.out / f"completion-{cfg.method}-observed.pt"
+    name = f"{cfg.method}{args.tag}"
+    path = args.out / f"completion-{name}-observed.pt"
     start = time.perf_counter()
-    log = (args.out / f"{cfg.method}.log").open("w")
+    log = (args.out / f"{name}.log").open("w")
 
     def progress(event) -> None:  # type: ignore[no-untyped-def]
         if event.epoch is None:
             return
         print(json.dumps(event.epoch), file=log, flush=True)
-        print(cfg.method, json.dumps({k: round(v, 4) for k, v in event.epoch.items()}), flush=True)
+        print(name, json.dumps({k: round(v, 4) for k, v in event.epoch.items()}), flush=True)
         best = event.snapshot["train_state"]["best"]
         if best is not None and int(best["step"]) == event.step:
             save_checkpoint(best, path)
@@ -94,10 +107,10 @@ def main() -> None:
     with log:
         try:
             train_completion(cfg, train, val, device=device, steps=args.steps,
-                             progress=progress, data_info=info)
+                             progress=progress, data_info=info, init=args.init)
         except Budget:
             pass
-    print(f"{cfg.method}: done in {time.perf_counter() - clock:.0f} s", flush=True)
+    print(f"{name}: done in {time.perf_counter() - clock:.0f} s", flush=True)
 
 
 if __name__ == "__main__":

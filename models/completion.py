@@ -41,6 +41,9 @@ class BaseConfig:
     lr: float = 1e-4  # Adam, generator (the paper's)
     # Training inputs lose up to this share of their seen-surface voxels (``training_batch``).
     surface_dropout: float = 0.3
+    # Share of training examples mirrored across the observer's right axis, views and truth
+    # alike (``training_batch``): a mirrored part seen by a mirrored camera is as real a view.
+    mirror: float = 0.0
 
     def __post_init__(self) -> None:
         if self.n_in < 8 or self.n_in & (self.n_in - 1):
@@ -56,6 +59,8 @@ class BaseConfig:
             raise ValueError("loss weights and learning rate must be positive")
         if not 0 <= self.surface_dropout < 1:
             raise ValueError(f"surface_dropout must be in [0, 1), got {self.surface_dropout}")
+        if not 0 <= self.mirror <= 1:
+            raise ValueError(f"mirror must be in [0, 1], got {self.mirror}")
 
 
 @dataclass(frozen=True)

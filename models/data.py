@@ -211,7 +211,8 @@ def sample_views(n_views: int, k: int, rng: np.random.Generator) -> list[int]:
 
 
 def training_batch(data: CompletionDataset, counts: Sequence[int], step: int, batch_size: int,
-                   max_views: int, seed: int, surface_dropout: float = 0.0) -> Batch:
+                   max_views: int, seed: int, surface_dropout: float = 0.0,
+                   mirror: float = 0.0) -> Batch:
     """The batch of training step ``step``: a pure function of (seed, step).
 
     The batch shares one view count k: 1 with probability one half (the single scan is the
@@ -223,6 +224,10 @@ def training_batch(data: CompletionDataset, counts: Sequence[int], step: int, ba
     With ``surface_dropout`` > 0, each example loses a share of its seen-surface voxels drawn
     uniformly up to that share (they become unknown): a part far away or behind others is seen
     by fewer pixels, and the network must not need every surface voxel.
+
+    With ``mirror`` > 0, that share of the examples is mirrored across the observer's right
+    axis (grid x), every view, depth view and the truth alike: the grid is Z up and yawed to
+    the first camera, so the mirror image is a mirrored part seen by a mirrored camera.
 
     Args:
         counts: the view count of every example (``data.view_counts()``, computed once).
@@ -237,6 +242,16 @@ def training_batch(data: CompletionDataset, counts: Sequence[int], step: int, ba
         batch = data.batch(indices, [list(range(k))] * batch_size)
     else:
         batch = data.batch(indices, [sample_views(counts[i], k, rng) for i in indices])
+    if mirror > 0:
+        flip = torch.from_numpy(rng.random(batch_size) < mirror)
+        inputs, target = batch.inputs.clone(), batch.target.clone()
+        inputs[flip] = inputs[flip].flip(-3)  # x of (n, n, n)
+        target[flip] = target[flip].flip(-3)
+        depth = batch.depth
+        if depth is not None:
+            depth = depth.clone()
+            depth[flip] = depth[flip].flip(-2)  # x of the (x, z) depth cells
+        batch = Batch(inputs, depth, target)
     if surface_dropout <= 0:
         return batch
     drop = rng.uniform(0.0, surface_dropout, size=(batch_size, 1, 1, 1, 1))

@@ -43,6 +43,7 @@ from models.completion import (
     voxel_loss,
 )
 from models.data import Batch, CompletionDataset, Example, eval_batches, training_batch
+from models.errors import CheckpointError
 
 logger = logging.getLogger(__name__)
 
@@ -250,7 +251,7 @@ class _Run:
         """Train step ``step``; at an epoch's end also validate, keep the best, snapshot."""
         cfg = self.cfg
         batch = training_batch(self.train, self.counts, step, cfg.batch_size, cfg.max_views,
-                               cfg.seed, cfg.surface_dropout)
+                               cfg.seed, cfg.surface_dropout, cfg.mirror)
         self.losses.append(self.learner.step(batch.to(self.learner.device), step))
         done = step + 1
         event = TrainEvent(done, steps, self.losses[-1])
@@ -308,7 +309,8 @@ def train_completion(cfg: Config, train_data: Data, val_data: Data | None,
                      device: torch.device | str = "cpu",
                      steps: int = 1000, progress: Callable[[TrainEvent], None] | None = None,
                      resume: Mapping[str, Any] | Path | str | None = None,
-                     data_info: Mapping[str, Any] | None = None) -> TrainResult:
+                     data_info: Mapping[str, Any] | None = None,
+                     init: Mapping[str, Any] | Path | str | None = None) -> TrainResult:
     """Train one completion method for ``steps`` steps (in total, counting resumed ones).
 
     Args:
@@ -322,22 +324,39 @@ def train_completion(cfg: Config, train_data: Data, val_data: Data | None,
         resume: a resumable snapshot (``TrainResult.last``, ``TrainEvent.snapshot``) or its
             path; the run then repeats exactly the losses of an uninterrupted one.
         data_info: stored as the checkpoints' ``data`` (split sizes, sources); plain values.
+        init: a checkpoint (or its path) whose weights start the model, a fine-tune: its
+            modules must be the config's (the other fields, such as augmentation, may differ);
+            the optimisers and the critic start fresh. Its step and creation time are
+            recorded in the checkpoints' ``data`` as ``init``.
 
     Returns:
         A ``TrainResult``: best model and checkpoint, resumable last checkpoint, history.
 
     Raises:
         ValueError: no training examples, grids differ from cfg, examples lack the views the
-            model reads, a resume snapshot of another config or without training state.
+            model reads, a resume snapshot of another config or without training state, an
+            init checkpoint whose modules are not the config's, or both resume and init.
     """
     train, val = _dataset(train_data, cfg), _dataset(val_data, cfg)
     if train is None:
         raise ValueError("no training examples")
+    if resume is not None and init is not None:
+        raise ValueError("resume continues a run and init starts one: give one of them")
+    start = None if init is None else dict(
+        load_checkpoint(init) if isinstance(init, Path | str) else init)
     info = {"train": len(train), "val": len(val or ()), **(data_info or {})}
+    if start is not None:
+        info["init"] = {"method": start.get("method"), "step": start.get("step"),
+                        "created": start.get("created")}
     with seeded(cfg.seed):
         run = _Run(Learner(cfg, torch.device(device)), train, val, info)
         if resume is not None:
             run.restore(_resume_state(resume, cfg))
+        if start is not None:
+            try:
+                run.learner.model.load_state_dict(model_from_checkpoint(start).state_dict())
+            except (CheckpointError, RuntimeError) as exc:
+                raise ValueError(f"the init checkpoint does not fit {cfg.method}: {exc}") from exc
         for step in range(run.start, steps):
             event = run.step(step, steps)
             if progress is not None:

@@ -245,6 +245,40 @@ def test_surface_dropout_thins_the_seen_surface_only(parts: CompletionDataset) -
         small("gan_lstm", surface_dropout=1.0)
 
 
+def test_mirror_flips_views_and_truth_of_the_same_examples_across_x(
+        parts: CompletionDataset) -> None:
+    counts = parts.view_counts()
+    plain = training_batch(parts, counts, 5, 8, 3, seed=0)
+    mirrored = training_batch(parts, counts, 5, 8, 3, seed=0, mirror=0.5)
+    flipped = [not torch.equal(a, b) for a, b in zip(plain.target, mirrored.target, strict=True)]
+    assert any(flipped) and not all(flipped)  # about half, drawn per example
+    for i, f in enumerate(flipped):
+        source = plain.inputs[i].flip(-3) if f else plain.inputs[i]
+        assert torch.equal(mirrored.inputs[i], source)
+        assert torch.equal(mirrored.target[i], plain.target[i].flip(-3) if f else plain.target[i])
+        if plain.depth is not None:
+            assert mirrored.depth is not None
+            depth = plain.depth[i].flip(-2) if f else plain.depth[i]
+            assert torch.equal(mirrored.depth[i], depth)
+    with pytest.raises(ValueError, match="mirror"):
+        small("ae", mirror=1.5)
+
+
+def test_a_run_started_from_a_checkpoint_starts_from_its_weights(
+        two_parts: CompletionDataset) -> None:
+    first = train_completion(small("ae"), two_parts, None, steps=2)
+    tuned = train_completion(small("ae", mirror=0.5), two_parts, None, steps=0,
+                             init=first.checkpoint)
+    for k, v in first.model.state_dict().items():
+        assert torch.equal(tuned.model.state_dict()[k], v), k
+    assert tuned.checkpoint["data"]["init"]["step"] == first.checkpoint["step"]
+    with pytest.raises(ValueError, match="does not fit"):
+        train_completion(small("ae", width=6), two_parts, None, steps=0, init=first.checkpoint)
+    with pytest.raises(ValueError, match="one of them"):
+        train_completion(small("ae"), two_parts, None, steps=0, init=first.checkpoint,
+                         resume=first.last)
+
+
 def test_a_checkpoint_made_from_an_uninstalled_tree_names_the_trees_version(
         monkeypatch: pytest.MonkeyPatch, tmp_path: Path) -> None:
     """A copy of the tree on a GPU machine has no installed package: the version comes from its
