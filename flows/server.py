@@ -7,6 +7,10 @@ One server story: a server mateqa starts (for a night or for ``serve``) has its 
 port (one an older version left) is replaced by one with the UI, unless a flow run is in flight
 on it. ``mateqa serve --stop`` stops whatever Prefect server answers on the port.
 
+Prefect migrates a new home's empty SQLite database on its first start, about 12 s of CPU. The
+first migrated database of a Prefect version is kept (``template_database``) and a later new
+home starts from a copy of it; a server that does not start from the copy starts again without.
+
 Prefect's ``--background`` mode never drains its output pipes and dies, so the server runs as a
 plain child process in its own session with output to a log file, and we wait for
 ``/api/health``. The pid of a server mateqa started is kept in ``HOME/mateqa-server.pid``.
@@ -14,9 +18,11 @@ plain child process in its own session with output to a log file, and we wait fo
 
 from __future__ import annotations
 
+import contextlib
 import json
 import logging
 import os
+import sqlite3
 import subprocess
 import sys
 import time
@@ -29,6 +35,7 @@ import psutil
 logger = logging.getLogger(__name__)
 
 PID_FILE = "mateqa-server.pid"
+DATABASE = "prefect.db"  # Prefect's SQLite database under PREFECT_HOME (its default URL)
 # States of a flow run that a replaced server would cut short.
 _IN_FLIGHT = ["PENDING", "RUNNING", "CANCELLING"]
 
@@ -171,6 +178,8 @@ def _why_not_replace(port: int, proc: psutil.Process | None) -> str | None:
 def _launch(home: Path, port: int, timeout_s: float, ui: bool,
             replaced: int | None = None) -> LocalServer:
     home.mkdir(parents=True, exist_ok=True)
+    fresh = not (home / DATABASE).exists()
+    seeded = fresh and _seed_database(home)
     log_path = home / "server.log"
     with log_path.open("ab") as log_file:
         proc = subprocess.Popen(
@@ -183,6 +192,8 @@ def _launch(home: Path, port: int, timeout_s: float, ui: bool,
     while time.monotonic() < deadline:
         if is_healthy(api_url(port)):
             (home / PID_FILE).write_text(f"{proc.pid}\n")
+            if fresh and not seeded:
+                keep_template(home)
             return LocalServer(port, proc.pid, ui, started=True, replaced=replaced,
                                home=home, process=proc)
         if proc.poll() is not None:
@@ -190,7 +201,58 @@ def _launch(home: Path, port: int, timeout_s: float, ui: bool,
         time.sleep(0.5)
     proc.kill()
     proc.wait()
+    if seeded:  # the copy may be at fault: drop it and migrate afresh
+        logger.warning("the Prefect server did not start from the kept database %s; starting "
+                       "it on a new one", template_database())
+        template_database().unlink(missing_ok=True)
+        (home / DATABASE).unlink(missing_ok=True)
+        return _launch(home, port, timeout_s, ui, replaced)
     raise RuntimeError(f"Prefect server did not start on port {port}; see {log_path}")
+
+
+def template_database() -> Path:
+    """Where the first migrated database of this Prefect version is kept for new homes."""
+    from importlib.metadata import version
+
+    cache = Path(os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache")
+    return cache / "mateqa" / f"prefect-{version('prefect')}.db"
+
+
+def _seed_database(home: Path) -> bool:
+    """Give a new home a copy of the kept database; True when it got one.
+
+    Not where the environment points Prefect at another database, which the copy would not be.
+    """
+    template = template_database()
+    if "PREFECT_API_DATABASE_CONNECTION_URL" in os.environ or not template.is_file():
+        return False
+    tmp = home / f"{DATABASE}.{os.getpid()}.tmp"
+    try:
+        tmp.write_bytes(template.read_bytes())
+        os.replace(tmp, home / DATABASE)
+    except OSError as exc:
+        tmp.unlink(missing_ok=True)
+        logger.debug("cannot copy %s into %s: %s", template, home, exc)
+        return False
+    return True
+
+
+def keep_template(home: Path) -> None:
+    """Keep a consistent copy of a home's just migrated database, unless one is kept already."""
+    db, template = home / DATABASE, template_database()
+    if template.exists() or not db.is_file():
+        return
+    tmp = template.with_name(f"{template.name}.{os.getpid()}.tmp")
+    try:
+        template.parent.mkdir(parents=True, exist_ok=True)
+        with contextlib.closing(sqlite3.connect(db)) as src, \
+                contextlib.closing(sqlite3.connect(tmp)) as dst:
+            src.backup(dst)  # consistent while the server writes
+            dst.execute("PRAGMA journal_mode=DELETE")  # one file, whole once closed
+        os.replace(tmp, template)
+    except (OSError, sqlite3.Error) as exc:
+        tmp.unlink(missing_ok=True)
+        logger.debug("cannot keep %s as %s: %s", db, template, exc)
 
 
 def _marked_pid(home: Path) -> int | None:

@@ -4,8 +4,10 @@ one; `serve --stop` stops the server on the port. Real servers on free loopback 
 
 from __future__ import annotations
 
+import contextlib
 import re
 import socket
+import sqlite3
 import subprocess
 import sys
 import urllib.error
@@ -17,13 +19,16 @@ import pytest
 from conftest import free_port
 
 from flows.server import (
+    DATABASE,
     PID_FILE,
     api_url,
     is_healthy,
+    keep_template,
     server_env,
     start_server,
     stop_port,
     stop_server,
+    template_database,
     ui_answers,
 )
 
@@ -99,6 +104,33 @@ def test_a_headless_server_is_replaced_by_one_with_its_ui_and_stop_port_stops_it
     finally:
         stop_server(headless)
         stop_port(port)
+
+
+def test_a_new_home_starts_from_the_kept_database_and_a_bad_copy_is_dropped(
+        prefect_api: dict[str, str], tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path / "cache"))
+    monkeypatch.delenv("PREFECT_API_DATABASE_CONNECTION_URL", raising=False)
+    template = template_database()
+    keep_template(Path(prefect_api["PREFECT_HOME"]))  # a migrated database, its server running
+    assert template.read_bytes().startswith(b"SQLite format 3")
+    with contextlib.closing(sqlite3.connect(template)) as db:  # a mark only a copy has
+        db.execute("CREATE TABLE probe (x)")
+        db.commit()
+    port = free_port()
+    server = start_server(tmp_path / "second", port, timeout_s=600)
+    try:
+        assert server.started and is_healthy(api_url(port))
+        with contextlib.closing(sqlite3.connect(tmp_path / "second" / DATABASE)) as db:
+            assert db.execute("SELECT name FROM sqlite_master WHERE name = 'probe'").fetchone()
+    finally:
+        stop_server(server)
+    template.write_bytes(b"not a database")
+    server = start_server(tmp_path / "third", port, timeout_s=600)
+    try:
+        assert server.started and is_healthy(api_url(port))
+    finally:
+        stop_server(server)
+    assert template.read_bytes().startswith(b"SQLite format 3")  # kept anew by the third
 
 
 def test_stop_port_leaves_a_port_that_another_program_holds(tmp_path: Path) -> None:
