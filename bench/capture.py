@@ -27,13 +27,12 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # run from anywher
 
 from cadio.capture.mcap_io import write_capture
 from cadio.capture.noise import NoiseConfig
+from cadio.capture.raycast import camera_rays, pixel_grid
 from cadio.capture.render import (
     CaptureConfig,
     PlacedPart,
     camera_intrinsics,
     camera_pose,
-    camera_rays,
-    pixel_grid,
     render_view,
     render_views,
     scene_meta,
@@ -109,15 +108,16 @@ def share_of_rays(parts: list[PlacedPart], cfg: CaptureConfig) -> tuple[float, f
     """The shares of the rays ``render_views`` casts and of those it meets the support plane
     with in closed form: the others miss everything (the floor casts them all, as open3d
     would be asked without those tests)."""
-    from cadio.capture.render import _CAST, _ON_TABLE, _cast
+    from cadio.capture.raycast import CAST, ON_TABLE
+    from cadio.capture.render import _cast
 
     staged = stage_scene(parts, cfg)
     grid = pixel_grid(camera_intrinsics(cfg))
     rays = np.empty((len(grid.x), 6), dtype=np.float32)
     states = [_cast(staged, cfg, grid, view, rays).hit[3] for view in range(cfg.n_views)]
     total = len(grid.x) * cfg.n_views
-    return (sum(int(np.count_nonzero(s == _CAST)) for s in states) / total,
-            sum(int(np.count_nonzero(s == _ON_TABLE)) for s in states) / total)
+    return (sum(int(np.count_nonzero(s == CAST)) for s in states) / total,
+            sum(int(np.count_nonzero(s == ON_TABLE)) for s in states) / total)
 
 
 def mcap_bytes_per_view(parts: list[PlacedPart], cfg: CaptureConfig, folder: Path) -> float:

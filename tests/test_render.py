@@ -12,13 +12,12 @@ from scipy import stats
 from scipy.ndimage import binary_dilation
 
 from cadio.capture.noise import NoiseConfig, apply_noise
+from cadio.capture.raycast import camera_rays, pixel_grid
 from cadio.capture.render import (
     CaptureConfig,
     PlacedPart,
     camera_intrinsics,
     camera_pose,
-    camera_rays,
-    pixel_grid,
     render_view,
     render_views,
     scene_bounds_mm,
@@ -304,7 +303,8 @@ def test_rays_left_out_beside_the_scene_box_change_no_pixel(cfg: CaptureConfig) 
     table's depth comes from a closed form within float32 rounding of open3d's."""
     from dataclasses import replace
 
-    from cadio.capture.render import _CAST, _ON_TABLE, _cast, _frame, stage_scene
+    from cadio.capture.raycast import CAST, ON_TABLE
+    from cadio.capture.render import _cast, _frame, stage_scene
 
     parts = pair_scene()
     staged = stage_scene(parts, cfg)
@@ -314,12 +314,12 @@ def test_rays_left_out_beside_the_scene_box_change_no_pixel(cfg: CaptureConfig) 
     rays = np.empty((len(px.x), 6), dtype=np.float32)
     for view in range(cfg.n_views):
         culled = _cast(staged, cfg, px, view, rays)
-        cast, on_table = culled.hit[3] == _CAST, culled.hit[3] == _ON_TABLE
+        cast, on_table = culled.hit[3] == CAST, culled.hit[3] == ON_TABLE
         assert 0 < np.count_nonzero(cast) < len(cast)  # some left out, some cast
         assert np.any(on_table) == cfg.support_plane
         a = _frame(staged, cfg, px, culled)
         full = _cast(every, cfg, px, view, rays)
-        assert np.all(full.hit[3] == _CAST)
+        assert np.all(full.hit[3] == CAST)
         b = _frame(every, cfg, px, full)
         for image in ("colour", "instance"):
             assert np.array_equal(getattr(a, image), getattr(b, image))
@@ -339,13 +339,13 @@ def test_rays_left_out_beside_the_scene_box_change_no_pixel(cfg: CaptureConfig) 
 def test_the_box_outline_casts_every_ray_the_slab_test_casts() -> None:
     """The outline of the box's projected corners (per pixel row, plus a margin) holds every
     pixel whose ray the exact slab test sends; a camera inside the box has no outline."""
-    from cadio.capture.render import (
-        _box_outline,
-        _camera_axes,
-        _fill_rays_in_box,
-        _fill_rays_in_outline,
-        stage_scene,
+    from cadio.capture.raycast import (
+        box_outline,
+        camera_axes,
+        fill_rays_in_box,
+        fill_rays_in_outline,
     )
+    from cadio.capture.render import stage_scene
 
     cfg = CaptureConfig(n_views=12, step_deg=30.0, elevation_deg=50.0)
     staged = stage_scene(pair_scene(), cfg)
@@ -357,11 +357,11 @@ def test_the_box_outline_casts_every_ray_the_slab_test_casts() -> None:
     lo, hi = np.empty(k.height), np.empty(k.height)
     margin = np.array([2.0 / k.fx, 2.0 / k.fy])
     for view in range(cfg.n_views):
-        rot_cw, eye = _camera_axes(camera_pose(cfg, view, staged.centre_m))
-        _fill_rays_in_box(px.x, px.y, rot_cw, eye, staged.box_m, rays, exact)
-        assert _box_outline(px.x[:k.width], px.y[::k.width], rot_cw, eye.astype(np.float64),
+        rot_cw, eye = camera_axes(camera_pose(cfg, view, staged.centre_m))
+        fill_rays_in_box(px.x, px.y, rot_cw, eye, staged.box_m, rays, exact)
+        assert box_outline(px.x[:k.width], px.y[::k.width], rot_cw, eye.astype(np.float64),
                             staged.box_m, margin, lo, hi)
-        m = _fill_rays_in_outline(px.x, px.y, rot_cw, eye, k.width, lo, hi, None, rays, outline,
+        m = fill_rays_in_outline(px.x, px.y, rot_cw, eye, k.width, lo, hi, None, rays, outline,
                                   table_t)
         assert m == np.count_nonzero(outline)
         assert np.all(outline[exact == 1])  # never a ray left out that the slab test casts
@@ -371,5 +371,5 @@ def test_the_box_outline_casts_every_ray_the_slab_test_casts() -> None:
         assert np.array_equal(directions[:, 0], (px.x[w] * rot_cw[0, 0] + px.y[w] * rot_cw[0, 1]
                                                  + rot_cw[0, 2]).astype(np.float32))
     inside = staged.box_m.mean(axis=0)
-    assert not _box_outline(px.x[:k.width], px.y[::k.width], rot_cw, inside, staged.box_m,
+    assert not box_outline(px.x[:k.width], px.y[::k.width], rot_cw, inside, staged.box_m,
                             margin, lo, hi)
