@@ -7,7 +7,7 @@ One server story: a server mateqa starts (for a night or for ``serve``) has its 
 port (one an older version left) is replaced by one with the UI, unless a flow run is in flight
 on it. ``mateqa serve --stop`` stops whatever Prefect server answers on the port.
 
-Prefect migrates a new home's empty SQLite database on its first start, about 12 s of CPU. The
+Prefect migrates a new home's empty SQLite database on its first start (about 25 s of CPU here). The
 first migrated database of a Prefect version is kept (``template_database``) and a later new
 home starts from a copy of it; a server that does not start from the copy starts again without.
 
