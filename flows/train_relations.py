@@ -28,7 +28,7 @@ import pandas as pd
 
 from cadio.capture.corpus import Shot, read_index, read_shots
 from cadio.capture.pair_features import N_PAIR_FEATURES
-from cadio.capture.pairs import INPUTS
+from cadio.capture.pairs import DEFAULT_PAIRS, INPUTS
 from cadio.catalog import read_catalog
 from cadio.sandbox import Limits
 from cadio.truth.corpus_labels import LabelJob, LabelPart, ShotLabels, label_shots
@@ -102,14 +102,18 @@ def build_dataset(ws: Workspace, completion_models: Path, limits: Limits,
     key = ("gan_lstm", "observed")
     stamp = {"shots": sorted(labels), "labels": labels_digest(labels),
              "completion": models.cards[key]["code_version"] if key in models.cards else "",
-             "completion_step": models.cards[key]["step"] if key in models.cards else -1}
+             "completion_step": models.cards[key]["step"] if key in models.cards else -1,
+             "evidence_points": DEFAULT_PAIRS.evidence_points}
     out = relations_dir(ws)
     if (out / "stamp.json").exists() and json.loads((out / "stamp.json").read_text()) == stamp:
         return {p.stem: len(read_split(p).labels) for p in sorted(out.glob("*.npz"))}
     shots = read_shots(corpus_dir(ws) / "shots.parquet")
     index = read_index(corpus_dir(ws) / "index.parquet")
     rows = build_relation_dataset(corpus_dir(ws), shots, labels, index, models.models.get(key),
-                                  out, progress=progress)
+                                  out, n_points=DEFAULT_PAIRS.n_points,
+                                  min_observed=DEFAULT_PAIRS.min_observed,
+                                  evidence_points=DEFAULT_PAIRS.evidence_points,
+                                  progress=progress)
     (out / "stamp.json").write_text(json.dumps(stamp))
     return rows
 

@@ -216,7 +216,11 @@ def relate_views(views: Sequence[PairView], models: RelationModels,
         keys = [((v.scene, v.part_a, v.view), (v.scene, v.part_b, v.view)) for v in having]
         from cadio.capture.pair_features import pair_features_many
 
-        features = pair_features_many(points, mm, keys)
+        # the evidence is measured on each view's evidence clouds (CAD samples: one per part)
+        cloud_keys = [((v.scene, v.part_a), (v.scene, v.part_b)) if name == "truth" else k
+                      for v, k in zip(having, keys, strict=True)]
+        features = pair_features_many([v.evidence_clouds(name) for v in having], mm,
+                                      cloud_keys)
         for method in methods:
             decided = decide(points, mm, method, models.models.get((method, name)), keys,
                              features)

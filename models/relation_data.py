@@ -11,12 +11,19 @@ the two parts' points in the observer's frame (N, 2, k, 3) float32, their pair e
 a tolerance in that view, and which shot, view, parts and category each row is. Points are kept
 in float32: a tenth of a millimetre in a metre-sized scene needs it (float16 rounds it away).
 
+The pair evidence of ``truth`` and ``completed`` is measured on denser clouds than the k
+points the networks read (``evidence_points``, as the nightly does: ``PairConfig``): up to that
+many CAD surface samples, and surface voxels of the completion. At 600 points per part the
+mating faces of an assembly's parts hold a handful of points, metres apart in a large part
+(``bench/evidence_density.py``). ``partial`` keeps the corpus's stored observed points.
+
 A pair whose parts are not both of the shot's split is left out (a training assembly holding a
 test part does not leak it), as the corpus leaves out their completion examples.
 """
 
 from __future__ import annotations
 
+import hashlib
 import logging
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
@@ -31,10 +38,10 @@ from cadio.capture.corpus import Shot
 from cadio.capture.examples import read_example
 from cadio.capture.observe import observer_rotation
 from cadio.capture.pair_features import encode_features, pair_features_many
-from cadio.capture.pairs import INPUTS, pair_category
+from cadio.capture.pairs import INPUTS, evidence_cloud, pair_category, surface_samples
 from cadio.capture.pointcloud import sample_points
 from cadio.truth.corpus_labels import ShotLabels
-from cadio.workspace import atomic_write
+from cadio.workspace import atomic_write, read_mesh
 from models.relations_train import RelationData, nearest_of_pairs
 from models.train import Model, predict
 from reports.metrics import surface_points
@@ -77,12 +84,14 @@ class _Row:
     scale: float
     w2c: npt.NDArray[np.float64]
     points: dict[str, npt.NDArray[np.float32]]
+    # input -> the two parts' denser clouds of the pair evidence (world metres); absent: points
+    evidence: dict[str, tuple[npt.NDArray[np.float32], npt.NDArray[np.float32]]]
 
 
 def build_relation_dataset(corpus_dir: Path, shots: Sequence[Shot],
                            labels: Mapping[str, ShotLabels], index: pd.DataFrame,
                            completion: Model | None, out_dir: Path, n_points: int = 600,
-                           min_observed: int = 30,
+                           min_observed: int = 30, evidence_points: int = 600,
                            progress: Callable[[str], None] | None = None) -> dict[str, int]:
     """Write ``<split>.npz`` of every split of the shots' labelled pair views; rows per split.
 
@@ -94,6 +103,7 @@ def build_relation_dataset(corpus_dir: Path, shots: Sequence[Shot],
         completion: the completion network (``gan_lstm``, observed protocol); without it a pair
             view has no ``completed`` input and is left out.
         min_observed: a part seen by fewer points in a view gives no pair view there.
+        evidence_points: points per part of the ``truth`` and ``completed`` pair evidence.
     """
     singles = _single_views(index)
     by_split: dict[str, list[_Row]] = {}
@@ -102,11 +112,12 @@ def build_relation_dataset(corpus_dir: Path, shots: Sequence[Shot],
             continue
         try:
             rows = _shot_rows(corpus_dir, shot, labels[shot.shot_id], singles, completion,
-                              n_points, min_observed)
+                              n_points, min_observed, evidence_points)
         except (OSError, ValueError, KeyError) as exc:
             log.warning("shot %s: %s", shot.shot_id, exc)
             continue
-        by_split.setdefault(shot.split, []).extend(rows)
+        if rows:
+            by_split.setdefault(shot.split, []).extend(rows)
         if progress is not None:
             progress(shot.shot_id)
     out_dir.mkdir(parents=True, exist_ok=True)
@@ -125,7 +136,7 @@ def _single_views(index: pd.DataFrame) -> dict[tuple[str, int, int], str]:
 
 def _shot_rows(corpus_dir: Path, shot: Shot, truth: ShotLabels,
                singles: Mapping[tuple[str, int, int], str], completion: Model | None,
-               n_points: int, min_observed: int) -> list[_Row]:
+               n_points: int, min_observed: int, evidence_points: int) -> list[_Row]:
     parts = {p.instance: p for p in shot.parts}
     with np.load(corpus_dir / "views" / f"{shot.shot_id}.npz") as z:
         seen = {(int(i), int(v)): k for k, (i, v) in enumerate(zip(z["instance"], z["view"],
@@ -133,7 +144,9 @@ def _shot_rows(corpus_dir: Path, shot: Shot, truth: ShotLabels,
         partial, observed, w2c = z["partial"], z["observed"], z["world_to_camera"]
         cad = dict(zip(z["truth_instance"].tolist(), z["truth"], strict=True))
         scale = float(z["scale_m_per_mm"])
-    completed: dict[tuple[int, int], npt.NDArray[np.float32]] = {}
+    completed: dict[tuple[int, int], tuple[npt.NDArray[np.float32],
+                                           npt.NDArray[np.float32]]] = {}
+    dense_cad: dict[int, npt.NDArray[np.float32]] = {}
     rows = []
     for (a, b), per_view, near in zip(truth.pairs.tolist(), truth.truth, truth.near,
                                       strict=True):
@@ -146,21 +159,42 @@ def _shot_rows(corpus_dir: Path, shot: Shot, truth: ShotLabels,
             points = {"truth": np.stack([cad[a], cad[b]]),
                       "partial": np.stack([partial[ka], partial[kb]])}
             done_a, done_b = (_completed(corpus_dir, shot.shot_id, k, view, singles,
-                                         completion, completed, n_points) for k in (a, b))
+                                         completion, completed, n_points, evidence_points)
+                              for k in (a, b))
             if done_a is None or done_b is None:
                 continue
-            points["completed"] = np.stack([done_a, done_b])
+            points["completed"] = np.stack([done_a[0], done_b[0]])
+            for k in (a, b):
+                if k not in dense_cad:
+                    dense_cad[k] = placed_samples(shot, k, evidence_points, scale)
+            evidence = {"truth": (dense_cad[a], dense_cad[b]),
+                        "completed": (done_a[1], done_b[1])}
             rows.append(_Row(shot, view, a, b, per_view[v], bool(near[v].any()), scale,
-                             w2c[ka], {k: p.astype(np.float32) for k, p in points.items()}))
+                             w2c[ka], {k: p.astype(np.float32) for k, p in points.items()},
+                             evidence))
     return rows
+
+
+def placed_samples(shot: Shot, instance: int, k: int, scale: float
+                   ) -> npt.NDArray[np.float32]:
+    """k CAD surface samples of one instance placed as in the shot (world metres), seeded by
+    its part as the corpus's own samples are."""
+    part = next(p for p in shot.parts if p.instance == instance)
+    seed = int(hashlib.sha256(part.part_id.encode()).hexdigest()[:8], 16)
+    local = surface_samples(read_mesh(Path(part.mesh_path)), k, seed)
+    pose = part.pose()
+    return np.asarray((local @ pose[:3, :3].T + pose[:3, 3]) * scale, dtype=np.float32)
 
 
 def _completed(corpus_dir: Path, shot: str, instance: int, view: int,
                singles: Mapping[tuple[str, int, int], str], model: Model | None,
-               cache: dict[tuple[int, int], npt.NDArray[np.float32]],
-               n_points: int) -> npt.NDArray[np.float32] | None:
+               cache: dict[tuple[int, int], tuple[npt.NDArray[np.float32],
+                                                  npt.NDArray[np.float32]]],
+               n_points: int, evidence_points: int
+               ) -> tuple[npt.NDArray[np.float32], npt.NDArray[np.float32]] | None:
     """The completion of one instance from one view: ``n_points`` of its solid's surface
-    voxels' centres (world metres); the observed points when the solid is empty."""
+    voxels' centres (world metres) and up to ``evidence_points`` of them for the pair evidence;
+    the observed points when the solid is empty."""
     if (instance, view) in cache:
         return cache[(instance, view)]
     file = singles.get((shot, instance, view))
@@ -171,14 +205,16 @@ def _completed(corpus_dir: Path, shot: str, instance: int, view: int,
     n = solid.shape[-1]
     pts = surface_points(solid, example.grid.voxel_m(n), example.grid.grid_to_world(n)) \
         if solid.any() else example.points
-    out = np.asarray(sample_points(np.asarray(pts), n_points, method="random"), np.float32)
+    out = (np.asarray(sample_points(np.asarray(pts), n_points, method="random"), np.float32),
+           np.asarray(evidence_cloud(np.asarray(pts), evidence_points), np.float32))
     cache[(instance, view)] = out
     return out
 
 
 def write_split(path: Path, rows: Sequence[_Row]) -> None:
-    """One split's arrays: per input the observer-frame points, their raw pair evidence and
-    each point's distance to the other part (mm)."""
+    """One split's arrays: per input the observer-frame points, their raw pair evidence (of
+    the rows' evidence clouds where they have them) and each point's distance to the other
+    part (mm)."""
     arrays: dict[str, Any] = {}
     mm = np.array([1.0 / r.scale for r in rows])
     keys = [((r.shot.shot_id, r.a, r.view), (r.shot.shot_id, r.b, r.view)) for r in rows]
@@ -186,8 +222,11 @@ def write_split(path: Path, rows: Sequence[_Row]) -> None:
         pts = np.stack([r.points[name] @ observer_rotation(r.w2c) for r in rows]
                        ).astype(np.float32)
         arrays[f"points_{name}"] = pts
-        arrays[f"features_{name}"] = pair_features_many(
-            pts, mm, [((name, *ka), (name, *kb)) for ka, kb in keys])
+        clouds = [r.evidence.get(name, tuple(r.points[name])) for r in rows]
+        # CAD samples do not change with the view: each instance's cloud is analysed once
+        cloud_keys = [((name, ka[0], ka[1]), (name, kb[0], kb[1])) if name == "truth"
+                      else ((name, *ka), (name, *kb)) for ka, kb in keys]
+        arrays[f"features_{name}"] = pair_features_many(clouds, mm, cloud_keys)
         arrays[f"near_{name}"] = nearest_of_pairs(pts, mm)
     arrays["labels"] = np.stack([r.labels for r in rows])
     parts = [{p.instance: p for p in r.shot.parts} for r in rows]

@@ -18,7 +18,7 @@ from cadio.capture.corpus import (
     read_shots,
 )
 from cadio.capture.examples import ExampleConfig
-from cadio.capture.pair_features import N_PAIR_FEATURES
+from cadio.capture.pair_features import N_PAIR_FEATURES, PAIR_FEATURES, pair_features_many
 from cadio.catalog import read_catalog
 from cadio.records import Relation
 from cadio.sandbox import Limits
@@ -84,7 +84,7 @@ def test_the_dataset_holds_every_input_of_every_labelled_pair_view(corpus, tmp_p
     torch.manual_seed(0)
     model = build_model(config_for("ae", n_in=16, n_out=32, width=4))  # untrained: any shape
     rows = build_relation_dataset(out, shots, labels, read_index(out / "index.parquet"),
-                                  model, tmp_path)
+                                  model, tmp_path, evidence_points=1500)
     assert rows["train"] > 0
     split = read_split(tmp_path / "train.npz")
     for name in ("truth", "partial", "completed"):
@@ -97,6 +97,14 @@ def test_the_dataset_holds_every_input_of_every_labelled_pair_view(corpus, tmp_p
     # truth points of a pair are where the parts are: the pin's samples meet the plate's
     gaps = split.features["truth"][:, 0]
     assert gaps.min() < 1.0
+    # the evidence of truth and completed is measured on denser clouds than the 600 points
+    spacing = PAIR_FEATURES.index("spacing_mm")
+    mm = 1.0 / split.meta["scale_m_per_mm"].to_numpy()
+    for name in ("truth", "completed"):
+        of_points = pair_features_many(split.inputs[name], mm)
+        assert np.all(split.features[name][:, spacing] < of_points[:, spacing])
+    of_points = pair_features_many(split.inputs["partial"], mm)
+    assert np.allclose(split.features["partial"], of_points, atol=1e-4)
 
 
 def test_the_train_flow_trains_and_reports_the_relation_networks(corpus, tmp_path) -> None:  # type: ignore[no-untyped-def]

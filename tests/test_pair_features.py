@@ -21,8 +21,8 @@ from cadio.capture.pairs import surface_samples
 F = {name: i for i, name in enumerate(PAIR_FEATURES)}
 
 
-def _points(shape, seed: int = 0) -> np.ndarray:  # type: ignore[no-untyped-def]
-    return surface_samples(tessellate(shape.wrapped), 600, seed)
+def _points(shape, seed: int = 0, n: int = 600) -> np.ndarray:  # type: ignore[no-untyped-def]
+    return surface_samples(tessellate(shape.wrapped), n, seed)
 
 
 @pytest.fixture(scope="module")
@@ -50,6 +50,11 @@ def test_a_pin_in_a_bore_is_coaxial_and_near(solids) -> None:  # type: ignore[no
     assert near[F["contact_axis_found"]] == 1 and near[F["contact_axis_flatness"]] < 0.2
     assert near[F["contact_axis_offset_mm"]] < 0.6 and near[F["contact_radius_diff_mm"]] < 1.0
     assert far[F["contact_axis_found"]] == 0 and far[F["gap_mm"]] > 5
+    # five times the points put the bore's and the pin's circles within the mate's 1 mm
+    dense = pair_features(part_cloud(_points(solids["plate"], 1, 3000)),
+                          part_cloud(_points(solids["pin"], 2, 3000)))
+    assert dense[F["contact_axis_offset_mm"]] < min(near[F["contact_axis_offset_mm"]], 0.3)
+    assert dense[F["contact_radius_diff_mm"]] < near[F["contact_radius_diff_mm"]]
 
 
 def test_a_block_resting_on_a_plate_has_opposed_touching_faces(solids) -> None:  # type: ignore[no-untyped-def]
@@ -72,6 +77,20 @@ def test_features_are_symmetric_and_cached(solids) -> None:  # type: ignore[no-u
     out = pair_features_many(pairs, [1000.0, 1000.0], [("p", "q"), ("q", "p")], counted)
     assert np.allclose(out[0], out[1]) and len(calls) == 2
     assert np.allclose(out[0], _features(solids, "plate", "pin"), atol=1e-4)
+
+
+def test_clouds_of_any_sizes_and_frames_give_the_features_of_the_stacked_pair(solids) -> None:  # type: ignore[no-untyped-def]
+    a, b = _points(solids["plate"], 1), _points(solids["pin"], 2)
+    stacked = pair_features_many(np.stack([np.stack([a, b])]), [1.0])[0]
+    assert np.allclose(pair_features_many([(a, b)], [1.0])[0], stacked)
+    # the evidence is rigid-motion invariant: the pair turned and moved reads the same
+    turn = np.array([[0.0, -1.0, 0.0], [0.6, 0.0, -0.8], [0.8, 0.0, 0.6]])
+    moved = [(a @ turn.T + 40.0, b @ turn.T + 40.0)]
+    assert np.allclose(pair_features_many(moved, [1.0])[0], stacked, atol=1e-3)
+    # a denser pin (another size than the plate's cloud) is measured as it is: finer spacing
+    dense = pair_features_many([(a, _points(solids["pin"], 2, 2400))], [1.0])[0]
+    spacing = PAIR_FEATURES.index("spacing_mm")
+    assert dense[spacing] <= stacked[spacing]
 
 
 def test_the_dominant_direction_of_a_plate_is_its_normal(solids) -> None:  # type: ignore[no-untyped-def]

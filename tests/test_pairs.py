@@ -128,6 +128,30 @@ def test_pair_inputs_are_the_observed_points_and_the_cad_surface(ws: Workspace) 
     assert inside.mean() > 0.98 and np.median(off_face) < 0.01 * half.max()
 
 
+def test_the_pair_evidence_reads_denser_clouds_than_the_network(ws: Workspace) -> None:
+    from scipy.spatial import cKDTree
+
+    from cadio.capture.mcap_io import read_scene_meta
+
+    captured = capture_scenes(_side_by_side(ws), read_catalog(ws.catalog), ws, CFG)
+    path = Path(captured[0].path)
+    scan_inputs(path, ws, CFG)
+    # a completion of 5,000 points for every instance and view
+    rng = np.random.default_rng(0)
+    done = {(str(p["instance_id"]), v): rng.random((5000, 3)) * 0.05
+            for p in read_scene_meta(path)["parts"] for v in range(CFG.views_per_scene)}
+    view = capture_pairs(path, ws, {}, PairConfig(evidence_points=2000), done)[0]
+    a, b = view.evidence_clouds("truth")
+    assert view.points["truth"].shape == (2, 600, 3) and len(a) == len(b) == 2000
+    # the same surface placed the same way: the network's 600 samples lie on the 2,000
+    assert cKDTree(a).query(view.points["truth"][0])[0].max() < 0.05 * np.ptp(a, axis=0).max()
+    done_a, _ = view.evidence_clouds("completed")
+    assert view.points["completed"].shape == (2, 600, 3) and len(done_a) == 2000
+    assert len(np.unique(done_a, axis=0)) == 2000  # no repeats: a spacing of zero
+    # the observed points are the capture's: their evidence is measured on them
+    assert np.array_equal(view.evidence_clouds("partial")[0], view.points["partial"][0])
+
+
 def test_surface_samples_are_on_the_mesh_and_seeded(ws: Workspace) -> None:
     catalog = read_catalog(ws.catalog)
     mesh = read_mesh(ws.mesh(str(catalog["part_id"].iloc[0])))

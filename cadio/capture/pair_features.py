@@ -30,6 +30,7 @@ from __future__ import annotations
 import math
 from collections.abc import Callable, Hashable, Sequence
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 import numpy.typing as npt
@@ -316,11 +317,14 @@ def encode_features(features: npt.NDArray[np.floating],
     return x.astype(np.float32)
 
 
-def pair_features_many(points: npt.NDArray[np.floating], mm_per_unit: npt.ArrayLike,
+def pair_features_many(points: npt.NDArray[np.floating] | Sequence[Sequence[npt.NDArray[Any]]],
+                       mm_per_unit: npt.ArrayLike,
                        keys: Sequence[tuple[Hashable, Hashable]] | None = None,
                        cloud: Callable[[FloatArray], PartCloud] = part_cloud
                        ) -> npt.NDArray[np.float32]:
-    """(N, ``N_PAIR_FEATURES``) features of pairs (N, 2, k, 3) in any unit.
+    """(N, ``N_PAIR_FEATURES``) features of pairs (N, 2, k, 3) in any unit, or of N pairs of
+    clouds of any sizes (k_a, 3), (k_b, 3). Every feature is invariant under a rigid motion of
+    the pair: the clouds may be in any frame.
 
     Args:
         mm_per_unit: (N,) millimetres of the parts per unit of ``points``.
@@ -333,7 +337,7 @@ def pair_features_many(points: npt.NDArray[np.floating], mm_per_unit: npt.ArrayL
     def part(i: int, k: int) -> PartCloud:
         key = (i, k) if keys is None else keys[i][k]
         if key not in cache:
-            cache[key] = cloud(np.asarray(points[i, k], dtype=np.float64) * mm[i])
+            cache[key] = cloud(np.asarray(points[i][k], dtype=np.float64) * mm[i])
         return cache[key]
 
     out = np.zeros((len(points), N_PAIR_FEATURES), dtype=np.float32)

@@ -56,6 +56,11 @@ class PairConfig:
     """Knobs of the relation stage's inputs."""
 
     n_points: int = 600  # per part (the paper's grounding MLP reads 600)
+    # Points per part of the pair evidence of ``truth`` (CAD samples) and ``completed`` (the
+    # completion's surface voxels): at 600 a mate's faces hold a few points, a large part's
+    # several millimetres apart, while the mates' tolerances are 0.1-1 mm. The observed points
+    # stay the capture's ``n_points`` (the training corpus stores no more).
+    evidence_points: int = 3000
     # A part showing fewer observed points in a view gives no pair view there (the camera barely
     # saw it; the capture's inputs already drop views under ``examples.MIN_POINTS``).
     min_observed: int = 30
@@ -74,7 +79,9 @@ class PairView:
     labels: (10,) bool in ``Relation`` order, for this view's observer. near: (10,) bool, each
     relation's answer within the margins of a tolerance (near_boundary: any of them). points:
     input name -> (2, k, 3) float32 world metres (part a, part b). world_to_camera: (4, 4) the
-    view's camera.
+    view's camera. evidence: input name -> the two parts' denser clouds (world metres, any
+    sizes) its pair evidence is measured on (``PairConfig.evidence_points``); an input without
+    them is measured on its points.
     """
 
     scene: str
@@ -88,6 +95,13 @@ class PairView:
     scale_m_per_mm: float
     points: dict[str, Cloud]
     near: npt.NDArray[np.bool_] = field(default_factory=lambda: np.zeros(10, dtype=bool))
+    evidence: dict[str, tuple[Cloud, Cloud]] = field(default_factory=dict)
+
+    def evidence_clouds(self, name: str) -> tuple[Cloud, Cloud]:
+        """The two clouds the pair evidence of input ``name`` is measured on (world metres)."""
+        if name in self.evidence:
+            return self.evidence[name]
+        return self.points[name][0], self.points[name][1]
 
     def observer_points(self, name: str) -> Cloud:
         """(2, k, 3) float32: the input's points in the observer frame (right, behind, up),
@@ -187,8 +201,8 @@ def capture_pairs(capture: Path, ws: Workspace, categories: Mapping[str, str],
     seen = {k: read_part_points(folders[k], str(placed[k]["part_id"]))
             for k in needed if folders[k].exists()}
     scale = float(meta["scale_m_per_mm"])
-    parts = {k: _Placed(str(placed[k]["part_id"]), placed[k], ws, scale, cfg.n_points)
-             for k in seen}
+    parts = {k: _Placed(str(placed[k]["part_id"]), placed[k], ws, scale, cfg.n_points,
+                        cfg.evidence_points) for k in seen}
     out = []
     for a, b in pairs:
         if a in parts and b in parts:
@@ -256,16 +270,23 @@ def _labelled_pairs(meta: dict[str, Any]) -> list[tuple[str, str]]:
 
 
 class _Placed:
-    """A part instance of the capture: its features in the CAD frame (mm) and truth samples."""
+    """A part instance of the capture: its features in the CAD frame (mm), k truth samples and
+    ``dense`` of them for the pair evidence (world metres)."""
 
     def __init__(self, part_id: str, meta: dict[str, Any], ws: Workspace, scale: float,
-                 k: int) -> None:
+                 k: int, dense: int) -> None:
         pose = np.asarray(meta["pose_mm"], dtype=np.float64)
         self.part_id = part_id
         self.features: Features = read_features(ws.features(part_id)).transformed(pose)
         seed = int(hashlib.sha256(part_id.encode()).hexdigest()[:8], 16)
-        local = surface_samples(read_mesh(ws.mesh(part_id)), k, seed)
-        self.truth = np.asarray((local @ pose[:3, :3].T + pose[:3, 3]) * scale, dtype=np.float32)
+        mesh = read_mesh(ws.mesh(part_id))
+
+        def placed(n: int) -> Cloud:
+            local = surface_samples(mesh, n, seed)
+            return np.asarray((local @ pose[:3, :3].T + pose[:3, 3]) * scale, dtype=np.float32)
+
+        self.truth = placed(k)
+        self.dense = placed(dense)
 
 
 def _pair_views(scene: str, a: _Placed, b: _Placed, seen_a: CapturedPart, seen_b: CapturedPart,
@@ -282,14 +303,27 @@ def _pair_views(scene: str, a: _Placed, b: _Placed, seen_a: CapturedPart, seen_b
         rr = relate(a.features, b.features, w2c[2, :3], cfg.tolerances, contact, cfg.margins)
         points = {"truth": np.stack([a.truth, b.truth]),
                   "partial": np.stack([seen_a.points[i], seen_b.points[j]])}
+        evidence = {"truth": (a.dense, b.dense)}
         done_a, done_b = (completed.get((k, view)) for k in (0, 1))
         if done_a is not None and done_b is not None:
             points["completed"] = np.stack([_k_points(done_a, cfg.n_points),
                                             _k_points(done_b, cfg.n_points)])
+            evidence["completed"] = (
+                np.asarray(evidence_cloud(done_a, cfg.evidence_points), dtype=np.float32),
+                np.asarray(evidence_cloud(done_b, cfg.evidence_points), dtype=np.float32))
         out.append(PairView(scene, view, seen_a.part_id, seen_b.part_id, category,
                             np.array(rr.truth, dtype=bool), rr.near_boundary(), w2c, scale,
-                            points, np.array(rr.near, dtype=bool)))
+                            points, np.array(rr.near, dtype=bool), evidence))
     return out
+
+
+def evidence_cloud(points: FloatArray, k: int) -> FloatArray:
+    """At most k of a cloud's points, without repeats (seeded): the pair evidence's cloud.
+    Repeated points would read as a spacing of zero."""
+    pts = np.asarray(points)
+    if len(pts) <= k:
+        return pts
+    return pts[np.sort(np.random.default_rng(0).choice(len(pts), k, replace=False))]
 
 
 def _k_points(points: FloatArray, k: int) -> Cloud:
