@@ -103,8 +103,9 @@ def test_the_dataset_holds_every_input_of_every_labelled_pair_view(corpus, tmp_p
     for name in ("truth", "completed"):
         of_points = pair_features_many(split.inputs[name], mm)
         assert np.all(split.features[name][:, spacing] < of_points[:, spacing])
+    # partial's is measured on its own points (in the world frame: the fits' rounding differs)
     of_points = pair_features_many(split.inputs["partial"], mm)
-    assert np.allclose(split.features["partial"], of_points, atol=1e-4)
+    assert np.allclose(split.features["partial"][:, spacing], of_points[:, spacing], rtol=1e-4)
 
 
 def test_the_train_flow_trains_and_reports_the_relation_networks(corpus, tmp_path) -> None:  # type: ignore[no-untyped-def]
