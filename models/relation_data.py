@@ -23,7 +23,6 @@ test part does not leak it), as the corpus leaves out their completion examples.
 
 from __future__ import annotations
 
-import hashlib
 import logging
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
@@ -38,7 +37,7 @@ from cadio.capture.corpus import Shot
 from cadio.capture.examples import read_example
 from cadio.capture.observe import observer_rotation
 from cadio.capture.pair_features import encode_features, pair_features_many
-from cadio.capture.pairs import INPUTS, evidence_cloud, pair_category, surface_samples
+from cadio.capture.pairs import INPUTS, evidence_cloud, pair_category, placed_surface_samples
 from cadio.capture.pointcloud import sample_points
 from cadio.truth.corpus_labels import ShotLabels
 from cadio.workspace import atomic_write, read_mesh
@@ -180,10 +179,8 @@ def placed_samples(shot: Shot, instance: int, k: int, scale: float
     """k CAD surface samples of one instance placed as in the shot (world metres), seeded by
     its part as the corpus's own samples are."""
     part = next(p for p in shot.parts if p.instance == instance)
-    seed = int(hashlib.sha256(part.part_id.encode()).hexdigest()[:8], 16)
-    local = surface_samples(read_mesh(Path(part.mesh_path)), k, seed)
-    pose = part.pose()
-    return np.asarray((local @ pose[:3, :3].T + pose[:3, 3]) * scale, dtype=np.float32)
+    return np.asarray(placed_surface_samples(read_mesh(Path(part.mesh_path)), part.part_id,
+                                             part.pose(), k, scale), dtype=np.float32)
 
 
 def _completed(corpus_dir: Path, shot: str, instance: int, view: int,

@@ -58,7 +58,7 @@ from cadio.capture.examples import (
     write_example,
 )
 from cadio.capture.noise import NoiseConfig
-from cadio.capture.pairs import surface_samples
+from cadio.capture.pairs import placed_surface_samples
 from cadio.capture.pointcloud import sample_points
 from cadio.capture.render import CaptureConfig, PlacedPart, render_views
 from cadio.records import FloatArray
@@ -304,11 +304,9 @@ def _write_views(path: Path, shot: Shot, seen: Mapping[int, list[PartView]],
             w2c.append(v.evidence.world_to_camera)
     truth_ids, truth = [], []
     for part in shot.parts:
-        seed = int(hashlib.sha256(part.part_id.encode()).hexdigest()[:8], 16)
-        local = surface_samples(meshes[part.instance], cfg.n_points, seed)
-        pose = part.pose()
         truth_ids.append(part.instance)
-        truth.append((local @ pose[:3, :3].T + pose[:3, 3]) * scale)
+        truth.append(placed_surface_samples(meshes[part.instance], part.part_id, part.pose(),
+                                            cfg.n_points, scale))
     k = cfg.n_points
     with atomic_write(path) as fh:
         np.savez_compressed(

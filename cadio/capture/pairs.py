@@ -165,6 +165,16 @@ def surface_samples(mesh: Mesh, k: int, seed: int) -> FloatArray:
     return np.asarray(t[:, 0] + u[:, None] * (t[:, 1] - t[:, 0]) + v[:, None] * (t[:, 2] - t[:, 0]))
 
 
+def placed_surface_samples(mesh: Mesh, part_id: str, pose_mm: FloatArray, k: int,
+                           scale: float) -> FloatArray:
+    """k surface samples of a part moved by ``pose_mm`` (4, 4) and scaled by ``scale``
+    (world units per mm), seeded by its part id: every route to a part's CAD samples (the
+    corpus, its relation dataset, the nightly) draws the same points."""
+    seed = int(hashlib.sha256(part_id.encode()).hexdigest()[:8], 16)
+    local = surface_samples(mesh, k, seed)
+    return np.asarray((local @ pose_mm[:3, :3].T + pose_mm[:3, 3]) * scale)
+
+
 def pair_category(a: str, b: str) -> str:
     """The category of a pair: the parts' common category, or both joined by "+"."""
     return a if a == b else "+".join(sorted((a, b)))
@@ -278,12 +288,11 @@ class _Placed:
         pose = np.asarray(meta["pose_mm"], dtype=np.float64)
         self.part_id = part_id
         self.features: Features = read_features(ws.features(part_id)).transformed(pose)
-        seed = int(hashlib.sha256(part_id.encode()).hexdigest()[:8], 16)
         mesh = read_mesh(ws.mesh(part_id))
 
         def placed(n: int) -> Cloud:
-            local = surface_samples(mesh, n, seed)
-            return np.asarray((local @ pose[:3, :3].T + pose[:3, 3]) * scale, dtype=np.float32)
+            return np.asarray(placed_surface_samples(mesh, part_id, pose, n, scale),
+                              dtype=np.float32)
 
         self.truth = placed(k)
         self.dense = placed(dense)
