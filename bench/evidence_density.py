@@ -20,7 +20,6 @@ Nothing is asserted: it prints the figures and the seconds each density's eviden
 from __future__ import annotations
 
 import argparse
-import hashlib
 import json
 import time
 from multiprocessing import Pool
@@ -30,7 +29,7 @@ import numpy as np
 import pandas as pd
 
 from cadio.capture.pair_features import pair_features, part_cloud
-from cadio.capture.pairs import surface_samples
+from cadio.capture.pairs import placed_surface_samples
 from cadio.workspace import read_mesh
 from models.relation_data import read_split
 
@@ -44,10 +43,9 @@ def _shot_features(job: tuple[str, list[dict], list[tuple[str, str]], int]) -> l
     clouds = {}
     for pid in {x for pair in pairs for x in pair}:
         p = by_id[pid]
-        seed = int(hashlib.sha256(pid.encode()).hexdigest()[:8], 16)
-        local = surface_samples(read_mesh(Path(p["mesh_path"])), n, seed)
         pose = np.asarray(p["pose_mm"], dtype=np.float64).reshape(4, 4)
-        clouds[pid] = part_cloud(local @ pose[:3, :3].T + pose[:3, 3])
+        clouds[pid] = part_cloud(placed_surface_samples(read_mesh(Path(p["mesh_path"])), pid,
+                                                        pose, n, 1.0))
     return [pair_features(clouds[a], clouds[b]) for a, b in pairs]
 
 
