@@ -92,10 +92,14 @@ def joints_table(assemblies: Sequence[MatesSummary]) -> pd.DataFrame:
 
 
 def scenes_table(scenes: pd.DataFrame) -> pd.DataFrame:
-    """Scenes per split and intended relation, with the share where the intent holds."""
+    """Scenes per split and intended relation (or ``contact``: touching, meant as no mate),
+    with the share where the intent holds."""
     if scenes.empty:
         return pd.DataFrame(columns=["split", "intended", "scenes", "holds"])
-    holds = [bool(row[row["intended"]]) for row in scenes.to_dict("records")]
+    # a touching pair meant as no relation "holds" when it is no face mate
+    holds = [bool(row[row["intended"]]) if row["intended"] in row
+             else not (row["coincident"] or row["concentric"])
+             for row in scenes.to_dict("records")]
     table = (scenes.assign(holds=holds).groupby(["split", "intended"], sort=True)
              .agg(scenes=("scene_id", "count"), holds=("holds", "mean")).reset_index())
     table["holds"] = table["holds"].round(3)

@@ -14,9 +14,10 @@ from conftest import SHARED_STEP_DIR
 
 from cadio.records import Relation
 from cadio.tolerances import DEFAULT_TOLERANCES as TOL
-from cadio.truth.placement import interfere
+from cadio.truth.placement import exact_gap, interfere
 from cadio.truth.relations import relation_table
 from cadio.truth.scenes import (
+    CONTACT,
     SPLITS,
     SceneConfig,
     ScenePart,
@@ -31,6 +32,7 @@ from cadio.truth.scenes import (
     scenes_stamp,
     write_scenes,
 )
+from reports.tables import scenes_table
 
 log = logging.getLogger(__name__)
 NAMES = [r.value for r in Relation]
@@ -205,6 +207,32 @@ def test_near_misses_of_the_face_mates_are_flagged(scenes: pd.DataFrame) -> None
         rows = near[near.intended == relation]
         assert rows[f"{relation}_near"].all()
         assert (rows[relation] == (rows.near_side == "inside")).all()
+
+
+def test_touching_pairs_meet_without_sharing_volume(parts: list[ScenePart]) -> None:
+    """``contact_pairs`` places parts against each other at random orientations: they touch
+    (within a tenth of the contact tolerance), share no volume, are labelled by the truth, and
+    are seldom face mates, as most touching pairs of an assembly are not."""
+    cfg = replace(CFG, pairs_per_relation=0, contact_pairs=12, val_fraction=0.0,
+                  test_fraction=1.0)
+    df = generate_scenes(parts, cfg)
+    assert len(df) == 12 and (df.intended == CONTACT).all() and df.scene_id.is_unique
+    assert (df.part_a != df.part_b).all()
+    _check_labels(df, parts, cfg)
+    _check_apart(df, parts)
+    by_id = {p.part_id: p for p in parts}
+    gaps = [exact_gap(by_id[r["part_a"]].model, *scene_poses(r)[:1], by_id[r["part_b"]].model,
+                      scene_poses(r)[1]) for _, r in df.iterrows()]
+    assert max(gaps) <= 0.1 * TOL.contact_mm, gaps
+    mates = df.coincident | df.concentric
+    assert mates.mean() <= 0.25, df[mates].scene_id.tolist()
+    table = scenes_table(df)
+    assert table.intended.tolist() == [CONTACT] and table.scenes.tolist() == [12]
+    assert table.holds.iloc[0] == pytest.approx(1.0 - mates.mean(), abs=1e-3)
+    # the relation scenes of a config do not move when touching pairs are added
+    plain = generate_scenes(parts, replace(CFG, pairs_per_relation=6))
+    both = generate_scenes(parts, replace(CFG, pairs_per_relation=6, contact_pairs=3))
+    pd.testing.assert_frame_equal(plain, both[both.intended != CONTACT].reset_index(drop=True))
 
 
 def test_eligibility(parts: list[ScenePart], scenes: pd.DataFrame) -> None:

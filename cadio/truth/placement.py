@@ -12,7 +12,9 @@ truth on the placed parts, never from here):
   exceeds it by less than the gap: a bushing on a shaft, a washer on a bolt), nested placements
   checked for interference with an exact Boolean;
 - parallel / perpendicular: dominant plane directions turned vertical (or one horizontal), the
-  parts apart; directional: centroids offset within the cone of an axis, the parts apart.
+  parts apart; directional: centroids offset within the cone of an axis, the parts apart;
+- touching (no relation meant): both parts turned at random and brought together until they
+  touch, sharing no volume: mostly no face mate, as most touching pairs of an assembly.
 
 Near misses sit just inside or just outside the tolerance: a lift of the upper face, a shift
 of the axis, a tilt, a turn of the offset direction.
@@ -28,6 +30,7 @@ from dataclasses import dataclass, field
 import numpy as np
 import open3d as o3d
 from OCP.BRepAlgoAPI import BRepAlgoAPI_Common
+from OCP.BRepExtrema import BRepExtrema_DistShapeShape
 from OCP.BRepGProp import BRepGProp
 from OCP.GProp import GProp_GProps
 from OCP.TopLoc import TopLoc_Location
@@ -42,6 +45,11 @@ _Z = np.array([0.0, 0.0, 1.0])
 _EXTREME_REL = 1e-6
 # Nested parts interfere when their common volume exceeds this share of the smaller one.
 _INTERFERENCE_REL = 1e-6
+# Touching pairs: the exact gap is closed to this (a tenth of ``contact_mm``), in at most
+# this many steps.
+_CLOSE_MM = 0.01
+_CLOSE_STEPS = 8
+_BACK_OFF_STEPS = 24  # doubling from the slack: far beyond any part
 
 
 # ---------------------------------------------------------------- what a part offers
@@ -180,6 +188,115 @@ def _point_on(rest: Rest, rng: np.random.Generator) -> FloatArray:
     k = int(rng.choice(len(tri), p=area / area.sum())) if area.sum() > 0 else 0
     point: FloatArray = tri[k].mean(axis=0)
     return point
+
+
+# ---------------------------------------------------------------- touching, as parts do
+
+
+def touch(a: Offers, b: Offers, rng: np.random.Generator, steps: int = 32,
+          rounds: int = 30, tries: int = 8) -> tuple[FloatArray, FloatArray]:
+    """a against b, both turned at random, a brought in along a random direction until the
+    meshes meet: a contact that is seldom a face mate (a pin against a race, a ball in a
+    groove, an edge on a face), which assemblies are full of.
+
+    From ``steps`` stations between the boxes' separation and the centres' coincidence, the
+    first at which the meshes overlap is bisected (``rounds`` times) against the last apart;
+    that contact is backed off until the solids are apart and the exact gap closed to within
+    ``_CLOSE_MM``, so the solids touch without sharing volume. The pair's labels come from
+    the exact faces, never from this. A way in that never meets (a small part passing
+    through a hollow one) is drawn again, ``tries`` times at most, and the last one's
+    centres are left together.
+    """
+    for _ in range(tries):
+        ra, rb = turn(rng), turn(rng)
+        u = tilt(_Z, math.degrees(math.acos(rng.uniform(-1.0, 1.0))), rng)
+        placed = _bring_in(a, b, ra, rb, u, steps, rounds)
+        if placed is not None:
+            return placed
+    return pose(ra, -ra @ a.features.centroid), pose(rb, -rb @ b.features.centroid)
+
+
+def _bring_in(a: Offers, b: Offers, ra: FloatArray, rb: FloatArray, u: FloatArray,
+              steps: int, rounds: int) -> tuple[FloatArray, FloatArray] | None:
+    """a (turned by ra) moved along -u onto b (turned by rb, centred) until they meet; None
+    when they never overlap on the way."""
+    ca, cb = ra @ a.features.centroid, rb @ b.features.centroid
+    pose_b = pose(rb, -cb)
+    inv_b = np.linalg.inv(pose_b)
+
+    def clearance(t: float) -> float:
+        """Smallest distance between the meshes with a moved by t u (negative: overlap)."""
+        pose_a = pose(ra, t * u - ca)
+        b_in_a = np.linalg.solve(pose_a, pose_b)
+        a_in_b = inv_b @ pose_a
+        deepest = max(float(b.depth(pa @ a_in_b[:3, :3].T + a_in_b[:3, 3]).max()),
+                      float(a.depth(pb @ b_in_a[:3, :3].T + b_in_a[:3, 3]).max()))
+        return -deepest
+
+    # surface samples, not only the vertices: two plates crossing like a "+" hold no vertex
+    # of one inside the other
+    pa, pb = _surface_samples(a), _surface_samples(b)
+    va, vb = pa @ ra.T - ca, pb @ rb.T - cb
+    far = float(np.ptp(va @ u) + np.ptp(vb @ u))  # boxes along u: apart from here on
+    apart = far
+    for t in np.linspace(far, 0.0, steps + 1)[1:]:
+        if clearance(float(t)) <= 0.0:
+            overlap = float(t)
+            break
+        apart = float(t)
+    else:
+        return None
+    for _ in range(rounds):
+        mid = 0.5 * (apart + overlap)
+        if clearance(mid) > 0.0:
+            apart = mid
+        else:
+            overlap = mid
+    # The meshes miss the faces by up to their slack, and an edge may cross an edge between
+    # vertices: back off until the solids are apart (a gap of exactly 0 is BRepExtrema's
+    # answer for overlapping solids too), then close the exact gap d by steps of d along u,
+    # which cannot make them overlap (the gap shrinks by at most the step).
+    back = max(a.model.proxy().mesh_slack + b.model.proxy().mesh_slack, _CLOSE_MM)
+    t, gap = apart, 0.0
+    for _ in range(_BACK_OFF_STEPS):
+        t += back
+        gap = exact_gap(a.model, pose(ra, t * u - ca), b.model, pose_b)
+        if gap > 0.0:
+            break
+        back *= 2.0
+    for _ in range(_CLOSE_STEPS):
+        if not math.isfinite(gap) or gap <= _CLOSE_MM:
+            break
+        t -= gap
+        gap = exact_gap(a.model, pose(ra, t * u - ca), b.model, pose_b)
+    return pose(ra, t * u - ca), pose_b
+
+
+def _surface_samples(offers: Offers, most: int = 20_000) -> FloatArray:
+    """The part's mesh vertices and its contact proxy's face samples (every point of the
+    surface within the proxy's ``slack`` of one), thinned evenly to ``most``."""
+    proxy = offers.model.proxy()
+    found = [s for i in range(len(proxy.triangles)) if (s := proxy.samples(i)) is not None]
+    points = np.concatenate([offers.vertices, *found]) if found else offers.vertices
+    step = max(1, math.ceil(len(points) / most))
+    return np.asarray(points[::step], dtype=np.float64)
+
+
+def exact_gap(a: PartModel, pose_a: FloatArray, b: PartModel, pose_b: FloatArray) -> float:
+    """The distance between two placed solids, mm (BRepExtrema; infinite when it fails)."""
+    dist = BRepExtrema_DistShapeShape(a.part.shape.Moved(TopLoc_Location(pose_trsf(pose_a))),
+                                      b.part.shape.Moved(TopLoc_Location(pose_trsf(pose_b))))
+    return float(dist.Value()) if dist.IsDone() else math.inf
+
+
+def turn(rng: np.random.Generator) -> FloatArray:
+    """A rotation drawn uniformly (a random unit quaternion)."""
+    w, x, y, z = (q := rng.standard_normal(4)) / np.linalg.norm(q)
+    rot: FloatArray = np.array([
+        [1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
+        [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
+        [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)]])
+    return rot
 
 
 # ---------------------------------------------------------------- concentric

@@ -9,7 +9,10 @@ perpendicular pairs turn the parts' dominant plane directions vertical (or one h
 apart. Every part also turns about the vertical at random, and gaps are random within a range.
 The ten labels of every pair come from the one truth function on the placed parts
 (``cadio.truth.labels.label_placed``: face mates for coincident and concentric), never from
-the intent, which is recorded separately. A part is never paired with itself.
+the intent, which is recorded separately. A part is never paired with itself. Touching pairs
+(``SceneConfig.contact_pairs``: none in a night, drawn by the training corpus) put two parts
+against each other at random orientations (``placement.touch``): contact that is seldom a face
+mate, as most touching pairs of an assembly are not.
 
 Near-boundary pairs sit just inside or just outside a tolerance (the generator's margins), and
 any pair whose truth lies within the margins of a tolerance is flagged too.
@@ -55,6 +58,7 @@ from cadio.truth.placement import (
     spin,
     stack,
     tilt,
+    touch,
 )
 from cadio.truth.relations import (
     CAD_VIEW_AXIS,
@@ -120,6 +124,11 @@ class SceneConfig:
     stack_fraction: float = 0.5
     nest_fraction: float = 0.7
     gap_fraction: float = 0.7
+    # Pairs placed touching at random orientations (``placement.touch``), over all splits like
+    # ``pairs_per_relation``: contact that is seldom a face mate, as most touching pairs of an
+    # assembly are (a pin against a race, a ball in a groove). Every other pair of this
+    # generator is apart unless it is a mate; without these, touching reads as a mate.
+    contact_pairs: int = 0
     tolerances: Tolerances = field(default=DEFAULT_TOLERANCES)
     margins: BoundaryMargins = field(default=DEFAULT_MARGINS)
 
@@ -230,6 +239,7 @@ def generate_scenes(parts: Sequence[ScenePart], cfg: SceneConfig,
                 continue
             rng = np.random.default_rng([cfg.seed, s, r])
             rows += [_scene(pool, offers, relation, split, i, n, rng, cfg) for i in range(n)]
+        rows += _contact_scenes(members, offers, split, s, cfg)
         if unfit:
             where = "" if one_pool else f" in split {split}"
             log.warning("no scene for %s: fewer than two of the %d parts%s fit",
@@ -280,11 +290,42 @@ def read_scenes(path: Path) -> pd.DataFrame:
 # ---------------------------------------------------------------- one scene
 
 
-def _split_count(cfg: SceneConfig, split: str) -> int:
-    """Pairs per relation in a split; train takes the remainder so the total is exact."""
+def _split_count(cfg: SceneConfig, split: str, total: int | None = None) -> int:
+    """Pairs per relation (or ``total``) in a split; train takes the remainder so the total
+    is exact."""
+    total = cfg.pairs_per_relation if total is None else total
     fr = cfg.split_fractions()
-    val, test = (round(cfg.pairs_per_relation * fr[k]) for k in ("val", "test"))
-    return {"val": val, "test": test, "train": max(0, cfg.pairs_per_relation - val - test)}[split]
+    val, test = (round(total * fr[k]) for k in ("val", "test"))
+    return {"val": val, "test": test, "train": max(0, total - val - test)}[split]
+
+
+CONTACT = "contact"  # the intent of the touching pairs (no relation: whatever the truth says)
+
+
+def _contact_scenes(members: Sequence[ScenePart], offers: dict[str, Offers], split: str,
+                    s: int, cfg: SceneConfig) -> list[dict[str, Any]]:
+    """The split's ``contact_pairs`` share of touching pairs (``placement.touch``)."""
+    n = _split_count(cfg, split, cfg.contact_pairs)
+    if not n or len(members) < 2:
+        return []
+    rng = np.random.default_rng([cfg.seed, s, len(Relation)])
+    rows = []
+    for i in range(n):
+        a, b = (members[k] for k in _two(list(range(len(members))), rng))
+        for p in (a, b):
+            if p.part_id not in offers:
+                offers[p.part_id] = offers_of(p.model)
+        pose_a, pose_b = touch(offers[a.part_id], offers[b.part_id], rng)
+        pose_a, pose_b = _centred(a.features, b.features, pose_a, pose_b)
+        result = label_pair(a, b, pose_a, pose_b, cfg)
+        rows.append({
+            "scene_id": f"s{cfg.seed}-{split}-{CONTACT}-{i:05d}", "split": split,
+            "part_a": a.part_id, "part_b": b.part_id,
+            "category_a": a.category, "category_b": b.category,
+            "pose_a": pose_a.ravel().tolist(), "pose_b": pose_b.ravel().tolist(),
+            "intended": CONTACT, "near_boundary": result.near_boundary(), "near_side": "",
+            **result.to_row()})
+    return rows
 
 
 def _scene(pool: Sequence[ScenePart], offers: Mapping[str, Offers], relation: Relation,
