@@ -194,8 +194,11 @@ def _parser() -> argparse.ArgumentParser:
                    "ltn mlp for relations)")
     p.add_argument("--inputs", nargs="+", default=["truth", "partial", "completed"],
                    help="relations: the inputs to train a network for")
-    p.add_argument("--pairs-per-relation", type=bounded(int, 1, 100_000), default=80,
-                   help="relations: corpus scenes per relation (split by part)")
+    p.add_argument("--pairs-per-relation", type=bounded(int, 1, 100_000), default=150,
+                   help="completion: the corpus's pair scenes per relation (split by part)")
+    p.add_argument("--contact-pairs", type=bounded(int, 0, 100_000), default=0,
+                   help="completion: pair scenes of parts touching at random orientations, "
+                   "seldom a face mate (none by default: see the relation model card)")
     p.add_argument("--protocols", nargs="+", default=["observed", "oracle-box"],
                    help="input protocols to train for")
     p.add_argument("--workers", type=bounded(int, 1, 256), default=os.cpu_count() or 1,

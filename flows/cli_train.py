@@ -40,7 +40,8 @@ def cmd_train(args: argparse.Namespace) -> int:
             corpus = prepare_corpus(ws, args.shared, args.variants, args.seed, ingest_cfg,
                                     CorpusConfig(example=ExampleConfig(
                 n_in=args.grids[0], n_out=args.grids[1],
-                grid_margin=args.tolerances.grid_margin), seed=args.seed), advance)
+                grid_margin=args.tolerances.grid_margin), seed=args.seed), advance,
+                pairs_per_relation=args.pairs_per_relation, contact_pairs=args.contact_pairs)
     except (InputFileError, ValueError) as exc:
         print(f"mateqa train: {exc}", file=sys.stderr)
         return 2
@@ -59,7 +60,9 @@ def cmd_train(args: argparse.Namespace) -> int:
     command = "mateqa " + shlex.join(args.argv)
     card = write_model_card(ws, out, run_dir, command,
                             {"steps": args.steps, "variants": args.variants, "seed": args.seed,
-                             "threads": args.threads}, corpus)
+                             "threads": args.threads,
+                             "pairs_per_relation": args.pairs_per_relation,
+                             "contact_pairs": args.contact_pairs}, corpus)
     print(Path(run_dir / "completion.md").read_text())
     print(f"model card: {card}")
     return _trained(args, out)
