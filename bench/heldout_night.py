@@ -10,6 +10,12 @@ checkpoints where users meet them:
         --shared ../shared/data/step --out heldout/library.csv
     .venv/bin/mateqa nightly --library heldout/library.csv --workspace heldout/ws
 
+Without a training workspace (a fresh machine), ``--corpus`` may name a folder without
+``groups.csv``: the files are then drawn by the corpus's own rule (``corpus_splits``: a draw
+from sha256(seed, the file's path), half of the real files held out), with each file keyed by
+its absolute path, as ``mateqa train --shared`` with an absolute folder keys them. A training
+run given a relative ``--shared`` keyed them otherwise; then only its ``groups.csv`` says.
+
 The night itself also leaves out of its scores any part a checkpoint trained on (the
 checkpoints list their training parts), so a file listed here by mistake cannot flatter them.
 """
@@ -34,13 +40,33 @@ def heldout_files(groups_csv: Path, shared: Path) -> list[tuple[Path, str]]:
     return sorted(out)
 
 
+def drawn_heldout_files(shared: Path, seed: int = 0) -> list[tuple[Path, str]]:
+    """(file, category) of every file under ``shared`` that the corpus's split rule holds out,
+    each keyed by its absolute path (no training workspace needed)."""
+    from cadio.cad.ingest import discover
+    from cadio.capture.corpus import corpus_splits
+    from flows.train import corpus_fractions
+
+    shared = shared.resolve()
+    found = {str(f.path): f for f in discover(shared)}
+    groups = {path: [path] for path in found}
+    split, _ = corpus_splits(groups, {}, seed, corpus_fractions(shared / ".none", shared))
+    return sorted((Path(p), found[p].category) for p, s in split.items() if s == "test")
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--corpus", type=Path, default=Path("train-workspace/datasets/corpus"))
     parser.add_argument("--shared", type=Path, default=Path("../shared/data/step"))
     parser.add_argument("--out", type=Path, default=Path("heldout/library.csv"))
+    parser.add_argument("--seed", type=int, default=0, help="the training run's seed")
     args = parser.parse_args()
-    files = heldout_files(args.corpus / "groups.csv", args.shared)
+    groups = args.corpus / "groups.csv"
+    if groups.exists():
+        files = heldout_files(groups, args.shared)
+    else:
+        print(f"{groups}: absent; the held-out files are drawn by the corpus's split rule")
+        files = drawn_heldout_files(args.shared, args.seed)
     args.out.parent.mkdir(parents=True, exist_ok=True)
     with args.out.open("w", newline="") as fh:
         writer = csv.writer(fh)
