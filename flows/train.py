@@ -33,6 +33,7 @@ from prefect import flow, get_run_logger, task
 
 from cadio.cad.ingest import IngestConfig, discover, ingest_files, mark_duplicates
 from cadio.capture.corpus import (
+    KINDS,
     CorpusConfig,
     build_corpus,
     plan_corpus,
@@ -98,11 +99,13 @@ def corpus_fractions(library: Path, shared: Path | None) -> Callable[[str], tupl
 def prepare_corpus(ws: Workspace, shared: Path | None, variants: int, seed: int,
                    ingest_cfg: IngestConfig, corpus_cfg: CorpusConfig,
                    progress: Progress | None = None, pairs_per_relation: int = 150,
-                   assemblies: int = 200, contact_pairs: int = 0) -> Corpus:
+                   assemblies: int = 200, contact_pairs: int = 0,
+                   kinds: tuple[str, ...] = KINDS) -> Corpus:
     """Library with variants of its parts and assemblies (+ shared parts), ingest, pair
     scenes, the corpus of shots (``cadio.capture.corpus``). Reruns reuse every step; a stopped
     build resumes. ``contact_pairs``: touching pairs among the pair scenes
-    (``SceneConfig.contact_pairs``)."""
+    (``SceneConfig.contact_pairs``); ``kinds``: the kinds of shot rendered (the relation
+    networks need no part alone)."""
     clock = time.perf_counter()
     library = corpus_library(ws)
     generate_library(library, SampleConfig(variants=variants, variant_seed=seed))
@@ -119,14 +122,15 @@ def prepare_corpus(ws: Workspace, shared: Path | None, variants: int, seed: int,
     plan = plan_corpus(catalog, ws.mesh, scenes, fractions, seed)
     groups = pd.DataFrame(sorted(plan.group_split.items()), columns=["source", "split"])
     groups.to_csv(out / "groups.csv", index=False)
-    index = build_corpus(plan.shots, out, corpus_cfg, ingest_cfg.limits, progress)
+    shots = [s for s in plan.shots if s.kind in kinds]
+    index = build_corpus(shots, out, corpus_cfg, ingest_cfg.limits, progress)
     ok = index[index["status"] == "ok"]
     per_split = ok.drop_duplicates("part_id")["split"].value_counts().to_dict()
-    kinds = pd.Series([s.kind for s in plan.shots]).value_counts().to_dict()
+    per_kind = pd.Series([s.kind for s in shots]).value_counts().to_dict()
     return Corpus(str(out), int(ok["part_id"].nunique()),
                   {str(k): int(v) for k, v in per_split.items()},
                   int((index["status"] == "failed").sum()),
-                  {str(k): int(v) for k, v in kinds.items()}, len(ok),
+                  {str(k): int(v) for k, v in per_kind.items()}, len(ok),
                   time.perf_counter() - clock)
 
 
