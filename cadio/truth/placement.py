@@ -30,15 +30,15 @@ from dataclasses import dataclass, field
 import numpy as np
 import open3d as o3d
 from OCP.BRepAlgoAPI import BRepAlgoAPI_Common
-from OCP.BRepExtrema import BRepExtrema_DistShapeShape
 from OCP.BRepGProp import BRepGProp
 from OCP.GProp import GProp_GProps
 from OCP.TopLoc import TopLoc_Location
+from OCP.TopoDS import TopoDS_Shape
 from OCP.TopTools import TopTools_ListOfShape
 
 from cadio.records import Features, FloatArray
 from cadio.truth.contact import pose_trsf
-from cadio.truth.proximity import PartModel
+from cadio.truth.proximity import PartModel, exact_distance
 
 _Z = np.array([0.0, 0.0, 1.0])
 # A face reaches a part's extreme along a direction within this share of the part's size.
@@ -284,9 +284,12 @@ def _surface_samples(offers: Offers, most: int = 20_000) -> FloatArray:
 
 def exact_gap(a: PartModel, pose_a: FloatArray, b: PartModel, pose_b: FloatArray) -> float:
     """The distance between two placed solids, mm (BRepExtrema; infinite when it fails)."""
-    dist = BRepExtrema_DistShapeShape(a.part.shape.Moved(TopLoc_Location(pose_trsf(pose_a))),
-                                      b.part.shape.Moved(TopLoc_Location(pose_trsf(pose_b))))
-    return float(dist.Value()) if dist.IsDone() else math.inf
+    return exact_distance(_moved(a, pose_a), _moved(b, pose_b))
+
+
+def _moved(model: PartModel, pose_mm: FloatArray) -> TopoDS_Shape:
+    """The part's solid moved by a (4, 4) pose, mm."""
+    return model.part.shape.Moved(TopLoc_Location(pose_trsf(pose_mm)))
 
 
 def turn(rng: np.random.Generator) -> FloatArray:
@@ -404,8 +407,8 @@ def interfere(a: PartModel, pose_a: FloatArray, b: PartModel, pose_b: FloatArray
     """Whether two placed solids share volume (an exact Boolean common; touching is not
     interference). A Boolean that fails counts as interference."""
     arguments, tools = TopTools_ListOfShape(), TopTools_ListOfShape()
-    arguments.Append(a.part.shape.Moved(TopLoc_Location(pose_trsf(pose_a))))
-    tools.Append(b.part.shape.Moved(TopLoc_Location(pose_trsf(pose_b))))
+    arguments.Append(_moved(a, pose_a))
+    tools.Append(_moved(b, pose_b))
     common = BRepAlgoAPI_Common()
     common.SetArguments(arguments)
     common.SetTools(tools)

@@ -269,7 +269,7 @@ def close_faces(a: ContactProxy, b: ContactProxy, pairs: Sequence[tuple[int, int
     for i, j in pairs:
         if box_distances(a.boxes[i], b.boxes[j]) > limit_mm:
             continue
-        dist = _exact_distance(a.faces[i], b.faces[j])
+        dist = exact_distance(a.faces[i], b.faces[j])
         if dist <= limit_mm * (1.0 + SLACK):
             found[(i, j)] = dist
     return found
@@ -292,11 +292,11 @@ def coaxial_bound(a: ContactProxy, face_a: int, b: ContactProxy, face_b: int,
 def faces_within(faces_a: Sequence[TopoDS_Face], faces_b: Sequence[TopoDS_Face],
                  pairs: Sequence[tuple[int, int]], tol_mm: float) -> bool:
     """True when some listed face pair (ids) is within ``tol_mm`` (exact, in list order)."""
-    return any(_exact_distance(faces_a[i], faces_b[j]) <= tol_mm * (1.0 + SLACK)
+    return any(exact_distance(faces_a[i], faces_b[j]) <= tol_mm * (1.0 + SLACK)
                for i, j in pairs)
 
 
-def _exact_distance(fa: TopoDS_Shape, fb: TopoDS_Shape) -> float:
+def exact_distance(fa: TopoDS_Shape, fb: TopoDS_Shape) -> float:
     """BRepExtrema's distance between two shapes, mm (infinite when it fails)."""
     dist = BRepExtrema_DistShapeShape(fa, fb)
     return float(dist.Value()) if dist.IsDone() else math.inf

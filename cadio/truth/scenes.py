@@ -316,15 +316,7 @@ def _contact_scenes(members: Sequence[ScenePart], offers: dict[str, Offers], spl
             if p.part_id not in offers:
                 offers[p.part_id] = offers_of(p.model)
         pose_a, pose_b = touch(offers[a.part_id], offers[b.part_id], rng)
-        pose_a, pose_b = _centred(a.features, b.features, pose_a, pose_b)
-        result = label_pair(a, b, pose_a, pose_b, cfg)
-        rows.append({
-            "scene_id": f"s{cfg.seed}-{split}-{CONTACT}-{i:05d}", "split": split,
-            "part_a": a.part_id, "part_b": b.part_id,
-            "category_a": a.category, "category_b": b.category,
-            "pose_a": pose_a.ravel().tolist(), "pose_b": pose_b.ravel().tolist(),
-            "intended": CONTACT, "near_boundary": result.near_boundary(), "near_side": "",
-            **result.to_row()})
+        rows.append(_placed_row(a, b, pose_a, pose_b, CONTACT, split, i, False, "", cfg))
     return rows
 
 
@@ -348,14 +340,21 @@ def _scene(pool: Sequence[ScenePart], offers: Mapping[str, Offers], relation: Re
         else:
             pose_a, pose_b = _parallel_or_perpendicular(a.features, b.features, relation,
                                                         side, rng, cfg)
+    return _placed_row(a, b, pose_a, pose_b, relation.value, split, i, near, side, cfg)
+
+
+def _placed_row(a: ScenePart, b: ScenePart, pose_a: FloatArray, pose_b: FloatArray,
+                intended: str, split: str, i: int, near: bool, side: str,
+                cfg: SceneConfig) -> dict[str, Any]:
+    """The table row of a placed pair: centred, labelled by the truth."""
     pose_a, pose_b = _centred(a.features, b.features, pose_a, pose_b)
     result = label_pair(a, b, pose_a, pose_b, cfg)
     return {
-        "scene_id": f"s{cfg.seed}-{split}-{relation.value}-{i:05d}", "split": split,
+        "scene_id": f"s{cfg.seed}-{split}-{intended}-{i:05d}", "split": split,
         "part_a": a.part_id, "part_b": b.part_id,
         "category_a": a.category, "category_b": b.category,
         "pose_a": pose_a.ravel().tolist(), "pose_b": pose_b.ravel().tolist(),
-        "intended": relation.value, "near_boundary": near or result.near_boundary(),
+        "intended": intended, "near_boundary": near or result.near_boundary(),
         "near_side": side, **result.to_row(),
     }
 
