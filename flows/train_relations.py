@@ -27,7 +27,7 @@ import numpy as np
 import pandas as pd
 
 from cadio.capture.corpus import Shot, read_index, read_shots
-from cadio.capture.pair_features import N_PAIR_FEATURES
+from cadio.capture.pair_features import N_PAIR_FEATURES, PAIR_FEATURES
 from cadio.capture.pairs import DEFAULT_PAIRS, INPUTS
 from cadio.catalog import read_catalog
 from cadio.sandbox import Limits
@@ -103,7 +103,8 @@ def build_dataset(ws: Workspace, completion_models: Path, limits: Limits,
     stamp = {"shots": sorted(labels), "labels": labels_digest(labels),
              "completion": models.cards[key]["code_version"] if key in models.cards else "",
              "completion_step": models.cards[key]["step"] if key in models.cards else -1,
-             "evidence_points": DEFAULT_PAIRS.evidence_points}
+             "evidence_points": DEFAULT_PAIRS.evidence_points,
+             "pair_features": evidence_digest()}
     out = relations_dir(ws)
     if (out / "stamp.json").exists() and json.loads((out / "stamp.json").read_text()) == stamp:
         return {p.stem: len(read_split(p).labels) for p in sorted(out.glob("*.npz"))}
@@ -116,6 +117,17 @@ def build_dataset(ws: Workspace, completion_models: Path, limits: Limits,
                                   progress=progress)
     (out / "stamp.json").write_text(json.dumps(stamp))
     return rows
+
+
+def evidence_digest() -> str:
+    """SHA-256 of the pair evidence's code: the dataset stores the evidence measured by it, so
+    a change there must rebuild the dataset rather than reuse vectors of another meaning."""
+    from cadio.capture import fits, pair_features
+
+    digest = hashlib.sha256()
+    for module in (fits, pair_features):
+        digest.update(Path(module.__file__ or "").read_bytes())
+    return digest.hexdigest()
 
 
 def labels_digest(labels: dict[str, ShotLabels]) -> str:
@@ -157,6 +169,7 @@ def train_relation_model(ws: Workspace, method: str, name: str, steps: int, out_
     info = {"input": name, "train_parts": sorted(set(train.meta["part_a"].astype(str))
                                                  | set(train.meta["part_b"].astype(str))),
             "train_pairs": len(train.labels), "val_pairs": len(val.labels),
+            "pair_features": list(PAIR_FEATURES),
             "dataset": str(relations_dir(ws).relative_to(ws.root))}
     result = train_relations(cfg, train.data(name), val.data(name), data_info=info,
                              progress=None if on_step is None else lambda e: on_step())

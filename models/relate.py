@@ -87,10 +87,29 @@ def load_relation_models(folder: Path = SHIPPED_RELATIONS) -> RelationModels:
             errors.append(f"{path.name}: {exc.reason.splitlines()[0]}")
             log.error("relation checkpoint %s left out: %s", path, exc.reason.splitlines()[0])
             continue
+        stale = _stale_evidence(ckpt)
+        if stale:
+            errors.append(f"{path.name}: {stale}")
+            log.error("relation checkpoint %s left out: %s", path, stale)
+            continue
         key = (str(ckpt["method"]), str(ckpt["data"].get("input", "")))
         models[key] = (model, decision)
         cards[key] = {k: v for k, v in ckpt.items() if k != "state_dict"}
     return RelationModels(models, cards, tuple(errors))
+
+
+def _stale_evidence(ckpt: Mapping[str, Any]) -> str:
+    """Why a checkpoint cannot read this code's pair evidence ("" when it can): it was trained
+    on another vector (its names, where it lists them, or its width)."""
+    from cadio.capture.pair_features import PAIR_FEATURES
+
+    width = int(ckpt["config"].get("pair_features", 0))
+    names = ckpt["data"].get("pair_features")
+    if width == 0 or (names is None and width == len(PAIR_FEATURES)) \
+            or list(names or []) == list(PAIR_FEATURES):
+        return ""
+    return (f"trained on {width} pair features, this code measures {len(PAIR_FEATURES)}: "
+            "retrain it (mateqa train relations)")
 
 
 def completed_clouds(folder: Path, model: Model) -> dict[int, FloatArray]:
@@ -130,7 +149,9 @@ class GeometricTests:
 
     spacings: float = 1.0  # a length test passes within tolerance + this many point spacings
     coaxial_deg: float = 5.0  # axes of a fit agree within this (the CAD's 0.5 is far finer)
-    flat_normal: float = 0.9  # both parts meet the contact plane face-on (mean |cos|)
+    # a face pair (planes of the two parts facing each other with overlap) is coincident
+    # within this angle, at most the CAD's 0.1 mm apart plus the spacing, the parts on either side
+    face_deg: float = 5.0
     flatness: float = 0.2  # the contact region's normals share an axis below this
     parallel_deg: float = 3.0  # dominant directions within this of 0 or 90 degrees
     dominant_ratio: float = 1.5  # the truth's own rule for a dominant direction
@@ -144,7 +165,9 @@ def geometric_decisions(points: npt.NDArray[np.float32], mm_per_unit: npt.NDArra
 
     Directional relations: the truth's 15 degree cones on the offset of the clouds' centroids.
     Symmetric ones: fixed tests on the pair evidence, each the CAD definition widened by the
-    points' spacing (``GeometricTests``).
+    points' spacing (``GeometricTests``): coincident, an opposed face pair; concentric, a
+    coaxial contact axis, parts stacked on one axis, or a coaxial cylinder pair (each of the
+    three found mates the others missed on the training corpus's validation split).
 
     Args:
         points: (N, 2, k, 3) observer-frame points (the view axis is +Y there).
@@ -162,14 +185,16 @@ def geometric_decisions(points: npt.NDArray[np.float32], mm_per_unit: npt.NDArra
     offsets = (points[:, 0].mean(axis=1) - points[:, 1].mean(axis=1)) * mm[:, None]
     directional, _ = directional_truth(offsets.astype(np.float64), OBSERVER_VIEW_AXIS)
     slack = tests.spacings * f["spacing_mm"]
-    coincident = ((f["contact_plane_found"] > 0) & (f["gap_mm"] <= 0.1 + slack)
-                  & (f["contact_plane_rms_mm"] <= 0.1 + slack)
-                  & (f["contact_plane_normal"] >= tests.flat_normal))
+    coincident = ((f["face_found"] > 0) & (f["gap_mm"] <= 0.1 + slack)
+                  & (f["face_angle_deg"] <= tests.face_deg)
+                  & (f["face_offset_mm"] <= 0.1 + slack) & (f["face_opposed"] > 0))
     concentric = ((f["contact_axis_found"] > 0) & (f["gap_mm"] <= 1.0 + slack)
                   & (f["contact_axis_flatness"] <= tests.flatness)
                   & (f["contact_axis_offset_mm"] <= 0.1 + slack)) | (
         (f["axis_found"] > 0) & (f["gap_mm"] <= 1.0 + slack)
-        & (f["axis_angle_deg"] <= tests.coaxial_deg) & (f["axis_offset_mm"] <= 0.1 + slack))
+        & (f["axis_angle_deg"] <= tests.coaxial_deg) & (f["axis_offset_mm"] <= 0.1 + slack)) | (
+        (f["cyl_found"] > 0) & (f["gap_mm"] <= 1.0 + slack)
+        & (f["cyl_angle_deg"] <= tests.coaxial_deg) & (f["cyl_offset_mm"] <= 0.1 + slack))
     dominant = (f["dom_found"] > 0) & (f["dom_ratio"] >= tests.dominant_ratio)
     parallel = dominant & (f["dom_angle_deg"] <= tests.parallel_deg) & ~coincident
     perpendicular = dominant & (f["dom_angle_deg"] >= 90.0 - tests.parallel_deg)

@@ -11,6 +11,7 @@ from cadio.cad.tessellate import tessellate
 from cadio.capture.pair_features import (
     N_PAIR_FEATURES,
     PAIR_FEATURES,
+    FeatureConfig,
     dominant_direction,
     pair_features,
     pair_features_many,
@@ -63,6 +64,53 @@ def test_a_block_resting_on_a_plate_has_opposed_touching_faces(solids) -> None: 
     assert resting[F["contact_plane_normal"]] > 0.9 and resting[F["contact_extent_mm"]] > 5
     assert resting[F["gap_mm"]] < 1.0 and lifted[F["gap_mm"]] > 4.0
     assert resting[F["dom_found"]] == 1 and resting[F["dom_angle_deg"]] < 2.0
+
+
+def test_a_block_resting_on_a_plate_is_a_face_pair_and_geometric_says_coincident(solids) -> None:  # type: ignore[no-untyped-def]
+    from models.relate import geometric_decisions
+    from models.relations import RELATIONS
+
+    resting, lifted = _features(solids, "plate", "block"), _features(solids, "plate", "lifted")
+    # the block's bottom on the plate's top: planes within a degree, no offset, a large overlap,
+    # the plate below and the block above the face pair
+    assert resting[F["face_found"]] == 1 and resting[F["face_opposed"]] == 1
+    assert resting[F["face_angle_deg"]] < 1.0 and resting[F["face_offset_mm"]] < 0.1
+    assert resting[F["face_overlap_mm2"]] > 100
+    assert lifted[F["face_found"]] == 0 and lifted[F["face_overlap_mm2"]] == 0
+    # the pin in the bore touches the plate along a cylinder: no face pair is opposed there
+    pin = _features(solids, "plate", "pin")
+    assert pin[F["face_opposed"]] < 1 or pin[F["face_offset_mm"]] > 1.0
+    points = np.stack([np.stack([_points(solids["plate"], 1), _points(solids[b], 2)])
+                       for b in ("block", "lifted", "pin")]).astype(np.float32)
+    features = np.stack([resting, lifted, pin])
+    coincident = geometric_decisions(points, np.ones(3), features)[:, RELATIONS.index(
+        "coincident")]
+    assert coincident.tolist() == [True, False, False]
+
+
+def test_a_face_pair_knows_parts_side_by_side_from_parts_face_to_face() -> None:
+    from cadio.capture.pair_features import _face_pair, face_pairs
+
+    def face_pairs_best(a, b, reach, cfg):  # type: ignore[no-untyped-def]
+        return _face_pair(face_pairs(a, b, reach, cfg))
+
+    # two plates side by side 0.5 mm apart, their tops flush: the tops overlap within reach,
+    # but both parts lie below them (no mate); the facing sides are the opposed pair
+    grid = np.stack(np.meshgrid(np.linspace(-20, 0, 21), np.linspace(-10, 10, 21)), -1)
+    top = np.column_stack([grid.reshape(-1, 2), np.zeros(441)])
+    bottom = top - [0, 0, 4.0]
+    side = np.column_stack([np.zeros(105), np.tile(np.linspace(-10, 10, 21), 5),
+                            np.repeat(np.linspace(-4, 0, 5), 21)])
+    a = np.concatenate([top, bottom, side])
+    b = a * [-1, 1, 1] + [0.5, 0, 0]
+    found, angle, offset, _, opposed = face_pairs_best(part_cloud(a), part_cloud(b), 2.0,
+                                                  FeatureConfig())
+    assert found == 1 and opposed == 1 and angle < 1.0 and abs(offset - 0.5) < 0.05
+    # without their sides only the flush tops and bottoms face each other: not opposed
+    a2, b2 = np.concatenate([top, bottom]), np.concatenate([top, bottom]) * [-1, 1, 1] + [0.5, 0, 0]
+    found, _, offset, _, opposed = face_pairs_best(part_cloud(a2), part_cloud(b2), 2.0,
+                                              FeatureConfig())
+    assert found == 1 and opposed == 0 and offset < 0.05
 
 
 def test_features_are_symmetric_and_cached(solids) -> None:  # type: ignore[no-untyped-def]

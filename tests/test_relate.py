@@ -118,6 +118,27 @@ def test_a_checkpoint_that_does_not_load_is_reported_and_the_baseline_runs(
     assert set(pd.read_parquet(batch.path)["method"]) == {"geometric"}
 
 
+def test_a_checkpoint_trained_on_other_pair_evidence_is_left_out_with_the_reason(
+        ws: Workspace, tmp_path: Path) -> None:
+    """A network trained on an older pair evidence vector would read new numbers with old
+    meanings (or fail mid-batch on the width): it is left out at load, with what to do."""
+    import dataclasses
+
+    torch.set_num_threads(1)
+    data = relation_pairs(16, n_points=64, seed=3)
+    data = dataclasses.replace(data, features=np.zeros((16, 5), dtype=np.float32))
+    cfg = RelationConfig(method="ltn", steps=2, batch_size=8, eval_every=2, train_points=32,
+                         widths=(8, 8, 8, 8), embed=8, ntn_k=2, pair_features=5)
+    folder = tmp_path / "models"
+    res = train_relations(cfg, data, data, data_info={"input": "partial", "train_parts": []})
+    save_relation_checkpoint(folder / "ltn-partial.pt", res.checkpoint)
+    captures = sorted(ws.root.glob("captures/*.mcap"))
+    batch = relate_batch(captures, ws, folder, SHIPPED, tmp_path / "rows.parquet")
+    assert len(batch.failed) == 1 and batch.failed[0].startswith("ltn-partial.pt: trained on 5")
+    assert "retrain" in batch.failed[0]
+    assert set(pd.read_parquet(batch.path)["method"]) == {"geometric"}
+
+
 def test_the_completed_input_is_the_same_where_the_parts_are_not_scored(
         ws: Workspace, tmp_path: Path) -> None:
     """A capture that scores none of its parts keeps only each view's observed input: the

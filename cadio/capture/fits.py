@@ -1,0 +1,277 @@
+"""What a part's points are made of: normals, planes, cylinders and the dominant plane
+direction, fitted to one cloud (the pair evidence of ``cadio.capture.pair_features`` compares
+two). Lengths are millimetres, angles degrees; normals come from local PCA and carry no sign.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+import numpy.typing as npt
+from scipy.spatial import cKDTree
+
+from cadio.records import FloatArray
+
+
+@dataclass(frozen=True)
+class FeatureConfig:
+    """Knobs of the pair evidence. Lengths mm, angles degrees."""
+
+    neighbours: int = 8  # local PCA neighbourhood of a point's normal
+    flat: float = 0.02  # a point may seed a plane when its smallest PCA share is under this
+    # A plane holds the points within this distance of it (the larger of a floor and a multiple
+    # of the points' noise, the median residual of their local PCA) whose normals are within
+    # ``plane_normal_deg``: a cylinder's tangent plane holds a strip of width sqrt(8 r eps), a
+    # face all its points, so the distance is kept as tight as the noise allows.
+    plane_eps_mm: float = 0.02
+    noise_factor: float = 4.0
+    plane_normal_deg: float = 30.0
+    min_plane: int = 8  # points of the smallest plane kept
+    max_planes: int = 12
+    max_seeds: int = 200  # flat points proposing planes
+    # A point is in the contact region when the other part is within this many point spacings
+    # plus the mate's 1 mm (the faces of a concentric mate are within 1 mm).
+    contact_spacings: float = 2.0
+    contact_mm: float = 1.0
+    min_contact: int = 6  # points of each part the contact fits need
+    # Cylinders of a part's curved contact points: hypotheses drawn from pairs of its points
+    # (their normals' cross product is the axis, their normal lines meet on it), at most
+    # ``max_cylinders`` taken greedily by support; a point is on one when its distance from the
+    # axis is within the larger of ``plane_eps_mm`` and half a spacing of the radius and its
+    # normal within ``cylinder_normal_deg`` of perpendicular to the axis.
+    cylinder_hypotheses: int = 64
+    max_cylinders: int = 3
+    cylinder_normal_deg: float = 15.0
+    group_deg: float = 5.0  # plane directions within this angle are one direction
+    dominant_cap: float = 10.0  # a part with a single plane direction has this ratio
+
+
+DEFAULT_FEATURES = FeatureConfig()
+
+
+@dataclass(frozen=True, eq=False)
+class PartCloud:
+    """A part's points (n, 3) mm with unit normals (n, 3), which points lie on a fitted plane
+    (n,) bool, the planes (unit normal, inlier count), the median spacing (mm) and each point's
+    plane (n,) int, an index into ``planes`` or -1."""
+
+    points: FloatArray
+    normals: FloatArray
+    planar: npt.NDArray[np.bool_]
+    planes: tuple[tuple[FloatArray, int], ...]
+    spacing: float
+    plane_of: npt.NDArray[np.int64] | None = None
+
+    def plane_members(self) -> list[npt.NDArray[np.int64]]:
+        """The point indices of each plane, in ``planes`` order."""
+        if self.plane_of is None:
+            return [np.zeros(0, dtype=np.int64) for _ in self.planes]
+        return [np.flatnonzero(self.plane_of == i) for i in range(len(self.planes))]
+
+
+def part_cloud(points_mm: FloatArray, cfg: FeatureConfig = DEFAULT_FEATURES) -> PartCloud:
+    """Normals, planes and spacing of one part's points (mm); non-finite points dropped."""
+    pts = np.asarray(points_mm, dtype=np.float64).reshape(-1, 3)
+    pts = pts[np.all(np.isfinite(pts), axis=1)]
+    if len(pts) < 4:
+        return PartCloud(pts, np.zeros_like(pts), np.zeros(len(pts), dtype=bool), (), 0.0,
+                         np.full(len(pts), -1, dtype=np.int64))
+    k = min(cfg.neighbours, len(pts))
+    dist, nbr = cKDTree(pts).query(pts, k=k)
+    local = pts[nbr] - pts[nbr].mean(axis=1, keepdims=True)  # (n, k, 3)
+    evals, evecs = np.linalg.eigh(np.einsum("nki,nkj->nij", local, local))
+    share = evals[:, 0] / np.maximum(evals.sum(axis=1), 1e-30)
+    normals = evecs[:, :, 0]
+    spacing = float(np.median(dist[:, 1])) if k > 1 else 0.0
+    noise = float(np.median(np.sqrt(np.clip(evals[:, 0], 0.0, None) / k)))
+    eps = max(cfg.plane_eps_mm, cfg.noise_factor * noise)
+    plane_of, planes = _extract_planes(pts, normals, share < cfg.flat, eps, cfg)
+    return PartCloud(pts, normals, plane_of >= 0, planes, spacing, plane_of)
+
+
+def _extract_planes(pts: FloatArray, normals: FloatArray, flat: npt.NDArray[np.bool_],
+                    eps: float, cfg: FeatureConfig
+                    ) -> tuple[npt.NDArray[np.int64], tuple[tuple[FloatArray, int], ...]]:
+    """Planes taken greedily: every flat point proposes the plane through it along its normal;
+    the proposal holding the most unclaimed points wins and claims them, unless its points bend
+    away from it across their narrow side (a strip of a cylinder, which a tangent plane holds
+    within ``eps``): then that proposal is dropped. Returns each point's plane (-1: none) and
+    the planes."""
+    cos = math.cos(math.radians(cfg.plane_normal_deg))
+    seeds = np.flatnonzero(flat)
+    plane_of = np.full(len(pts), -1, dtype=np.int64)
+    if len(seeds) == 0:
+        return plane_of, ()
+    if len(seeds) > cfg.max_seeds:  # evenly spread proposals: a face gives many alike
+        seeds = seeds[np.linspace(0, len(seeds) - 1, cfg.max_seeds).astype(np.int64)]
+    # distance of every point from the plane through each seed along its normal: (S, n)
+    offsets = np.abs(pts @ normals[seeds].T - np.einsum("sj,sj->s", normals[seeds], pts[seeds])).T
+    holds = (offsets <= eps) & (np.abs(normals[seeds] @ normals.T) >= cos)  # (S, n)
+    free = np.ones(len(pts), dtype=bool)
+    counts = holds.sum(axis=1)  # points each proposal holds among the unclaimed ones
+    planes: list[tuple[FloatArray, int]] = []
+    for _ in range(4 * cfg.max_planes):
+        best = int(np.argmax(counts))
+        if counts[best] < cfg.min_plane or len(planes) == cfg.max_planes:
+            break
+        members = holds[best] & free
+        normal = normals[seeds[best]]
+        if _bends(pts[members], normal, eps):
+            counts[members[seeds]] = 0  # no seed on that strip proposes its plane again
+            counts[best] = 0
+            continue
+        plane_of[members] = len(planes)
+        planes.append((normal, int(counts[best])))
+        free &= ~members
+        counts -= holds[:, members].sum(axis=1)
+    return plane_of, tuple(planes)
+
+
+def _bends(points: FloatArray, normal: FloatArray, eps: float) -> bool:
+    """Whether points held by a plane curve away from it across their narrow side: the
+    parabola of their offsets over the narrow coordinate (beside a tilt) sags by more than half
+    ``eps`` and explains most of their spread (a cylinder's strip; a face's offsets are flat
+    noise)."""
+    centred = points - points.mean(axis=0)
+    d = centred @ normal
+    inplane = centred - np.outer(d, normal)
+    _, _, vt = np.linalg.svd(inplane, full_matrices=False)
+    u, w = inplane @ vt[1], inplane @ vt[0]  # the narrow and the long in-plane directions
+    # a linear term in each direction takes up the tilt of the proposal's normal
+    design = np.column_stack([u**2, u, w, np.ones_like(u)])
+    coef, *_ = np.linalg.lstsq(design, d, rcond=None)
+    half = (u.max() - u.min()) / 2
+    sag = abs(float(coef[0])) * half**2
+    spread = float(np.var(d))
+    explained = 1.0 - float(np.var(d - design @ coef)) / spread if spread > 0 else 0.0
+    return sag > 0.5 * eps and explained > 0.5
+
+
+def axis_of(normals: FloatArray) -> tuple[FloatArray, float]:
+    """The direction most perpendicular to the normals, and its flatness: the smallest over
+    the middle eigenvalue of the normals' second moment (0 for a perfect cylinder, where every
+    normal is perpendicular to the axis; about 1 when the normals spread every way)."""
+    evals, evecs = np.linalg.eigh(normals.T @ normals / max(len(normals), 1))
+    return evecs[:, 0], float(evals[0] / max(evals[1], 1e-12))
+
+
+def circle(points: FloatArray, axis: FloatArray) -> tuple[FloatArray, float, float]:
+    """Centre (3,) on the plane through the points' mean, radius and rms residual of a circle
+    fitted (Kasa's algebraic fit) to the points projected along ``axis``."""
+    basis = np.linalg.svd(np.eye(3) - np.outer(axis, axis))[0][:, :2]
+    origin = points.mean(axis=0)
+    uv = (points - origin) @ basis
+    design = np.column_stack([uv, np.ones(len(uv))])
+    rhs = (uv**2).sum(axis=1)
+    sol, *_ = np.linalg.lstsq(design, rhs, rcond=None)
+    centre2 = sol[:2] / 2
+    radius = math.sqrt(max(float(sol[2] + centre2 @ centre2), 0.0))
+    resid = np.linalg.norm(uv - centre2, axis=1) - radius
+    return origin + basis @ centre2, radius, float(np.sqrt(np.mean(resid**2)))
+
+
+def offset_across(p: FloatArray, q: FloatArray, axis: FloatArray) -> float:
+    """Distance between two points measured across ``axis``."""
+    d = q - p
+    return float(np.linalg.norm(d - np.dot(d, axis) * axis))
+
+
+@dataclass(frozen=True)
+class Cylinder:
+    """A cylinder fitted to points: unit axis, a point of the axis line, radius (mm), rms
+    radial residual (mm) and its points (indices into the cloud it was fitted to)."""
+
+    axis: FloatArray
+    centre: FloatArray
+    radius: float
+    rms: float
+    members: npt.NDArray[np.int64]
+
+
+def fit_cylinders(points: FloatArray, normals: FloatArray, spacing: float,
+                  cfg: FeatureConfig = DEFAULT_FEATURES) -> list[Cylinder]:
+    """Up to ``cfg.max_cylinders`` cylinders of the points (mm, normals of any sign), each
+    holding at least ``cfg.min_contact`` points, by falling support. Deterministic: the
+    hypotheses are drawn with a generator seeded by the number of points."""
+    n = len(points)
+    out: list[Cylinder] = []
+    if n < cfg.min_contact:
+        return out
+    eps = max(cfg.plane_eps_mm, 0.5 * spacing)
+    sin_n = math.sin(math.radians(cfg.cylinder_normal_deg))
+    rng = np.random.default_rng(n)
+    free = np.ones(n, dtype=bool)
+    for _ in range(cfg.max_cylinders):
+        idx = np.flatnonzero(free)
+        if len(idx) < cfg.min_contact:
+            break
+        best: tuple[int, npt.NDArray[np.bool_]] | None = None
+        pairs = rng.integers(0, len(idx), size=(cfg.cylinder_hypotheses, 2))
+        for i, j in idx[pairs]:
+            hyp = _cylinder_through(points[i], normals[i], points[j], normals[j])
+            if hyp is None:
+                continue
+            held = free & _on_cylinder(points, normals, *hyp, eps, sin_n)
+            count = int(held.sum())
+            if best is None or count > best[0]:
+                best = (count, held)
+        if best is None or best[0] < cfg.min_contact:
+            break
+        members = np.flatnonzero(best[1])
+        axis, _ = axis_of(normals[members])
+        centre, radius, rms = circle(points[members], axis)
+        out.append(Cylinder(axis, centre, radius, rms, members))
+        free[members] = False
+    return out
+
+
+def _cylinder_through(p: FloatArray, n: FloatArray, q: FloatArray, m: FloatArray
+                      ) -> tuple[FloatArray, FloatArray, float] | None:
+    """(axis, centre, radius) of the cylinder through two points with these normals, or None
+    when the normals are too near parallel to fix an axis."""
+    axis = np.cross(n, m)
+    norm = float(np.linalg.norm(axis))
+    if norm < math.sin(math.radians(10.0)):
+        return None
+    axis = axis / norm
+    # the two normal lines, projected on the plane across the axis, meet at the centre
+    n2, m2 = n - (n @ axis) * axis, m - (m @ axis) * axis
+    rhs = q - p
+    design = np.column_stack([n2, -m2])
+    (t, _), *_ = np.linalg.lstsq(design, rhs - (rhs @ axis) * axis, rcond=None)
+    centre = p + t * n2
+    radius = 0.5 * (offset_across(p, centre, axis) + offset_across(q, centre, axis))
+    return axis, centre, radius
+
+
+def _on_cylinder(points: FloatArray, normals: FloatArray, axis: FloatArray, centre: FloatArray,
+                 radius: float, eps: float, sin_n: float) -> npt.NDArray[np.bool_]:
+    d = points - centre
+    radial = np.linalg.norm(d - np.outer(d @ axis, axis), axis=1)
+    on: npt.NDArray[np.bool_] = (np.abs(radial - radius) <= eps) & (
+        np.abs(normals @ axis) <= sin_n)
+    return on
+
+
+def dominant_direction(part: PartCloud,
+                       cfg: FeatureConfig = DEFAULT_FEATURES) -> tuple[FloatArray | None, float]:
+    """The plane direction carrying the most points of fitted planes (points sample area),
+    and its ratio to the runner-up's (``cfg.dominant_cap`` with one direction only); (None, 0)
+    without planes."""
+    groups: list[tuple[FloatArray, int]] = []
+    cos = math.cos(math.radians(cfg.group_deg))
+    for normal, count in part.planes:
+        for i, (direction, total) in enumerate(groups):
+            if abs(float(direction @ normal)) >= cos:
+                groups[i] = (direction, total + count)
+                break
+        else:
+            groups.append((normal, count))
+    if not groups:
+        return None, 0.0
+    groups.sort(key=lambda g: -g[1])
+    ratio = cfg.dominant_cap if len(groups) == 1 else min(cfg.dominant_cap,
+                                                          groups[0][1] / groups[1][1])
+    return groups[0][0], float(ratio)
