@@ -129,6 +129,10 @@ _BOOT = ("import sys\n"
 
 # Worker processes started and not yet reaped, in every pool of this process.
 _LIVE: set[subprocess.Popen[bytes]] = set()
+# Held while a worker starts and is registered, and while ``kill_workers`` reads the set: a
+# worker whose interpreter has started is never missed by a kill (a pool in another thread
+# could otherwise be between the two).
+_STARTING = threading.Lock()
 # Idle workers kept for the next pool, by context (``_context``), oldest first (``_Pool.close``).
 _IDLE: dict[tuple[object, ...], list[_Worker[Any]]] = {}
 _IDLE_LOCK = threading.Lock()
@@ -180,9 +184,10 @@ def kill_workers() -> int:
     """Kill every running worker of this process's pools at once, without waiting for their
     jobs (a night that stops on a signal must not wait minutes for a CAD file; the pools see
     the deaths as crashes). Returns how many were running."""
-    running = [proc for proc in list(_LIVE) if proc.poll() is None]
-    for proc in running:
-        proc.kill()
+    with _STARTING:
+        running = [proc for proc in list(_LIVE) if proc.poll() is None]
+        for proc in running:
+            proc.kill()
     return len(running)
 
 
@@ -192,10 +197,11 @@ class _Worker(Generic[P]):
         with mine, theirs:
             fd = theirs.fileno()
             # stdout to /dev/null: OpenCascade prints parser chatter straight to fd 1
-            self.process = subprocess.Popen(
-                [sys.executable, "-c", _BOOT, str(fd), str(memory_mb)], pass_fds=(fd,),
-                stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL)
-            _LIVE.add(self.process)
+            with _STARTING:
+                self.process = subprocess.Popen(
+                    [sys.executable, "-c", _BOOT, str(fd), str(memory_mb)], pass_fds=(fd,),
+                    stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL)
+                _LIVE.add(self.process)
             self.conn = Connection(mine.detach())
         self.send(list(sys.path))
         self.job: Job[P] | None = None
