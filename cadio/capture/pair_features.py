@@ -85,30 +85,30 @@ N_PAIR_FEATURES = len(PAIR_FEATURES)
 FAR_DEG, FAR_MM = 90.0, 1000.0
 
 
+def _angle_deg(u: FloatArray, v: FloatArray) -> float:
+    """The angle between two unit directions whose sign is arbitrary, in [0, 90] degrees."""
+    return math.degrees(math.acos(min(1.0, abs(float(u @ v)))))
+
+
 @dataclass(frozen=True)
 class FacePair:
     """Two fitted planes, one of each part, facing each other within reach (see
-    ``face_pairs``). normal: (3,) unit, their mean; centre: (3,) mm, of the overlap."""
+    ``face_pairs``)."""
 
     angle_deg: float
     offset_mm: float
     area_mm2: float
     opposed: float
-    normal: FloatArray
-    centre: FloatArray
 
 
 @dataclass(frozen=True)
 class CylinderPair:
-    """Two fitted cylinders, one of each part's contact region (see ``cylinder_pairs``).
-    axis: (3,) unit, part a's; centre: (3,) mm, a point of part a's axis line."""
+    """Two fitted cylinders, one of each part's contact region (see ``cylinder_pairs``)."""
 
     angle_deg: float
     offset_mm: float
     radius_diff_mm: float
     support: float
-    axis: FloatArray
-    centre: FloatArray
 
 
 def pair_features(a: PartCloud, b: PartCloud,
@@ -182,7 +182,7 @@ def _contact_axes_apart(a: PartCloud, b: PartCloud, in_a: npt.NDArray[np.bool_],
     if curved_a.sum() < cfg.min_contact or curved_b.sum() < cfg.min_contact:
         return [1.0, FAR_DEG]
     (ua, fa), (ub, fb) = axis_of(a.normals[curved_a]), axis_of(b.normals[curved_b])
-    return [max(fa, fb), math.degrees(math.acos(min(1.0, abs(float(ua @ ub)))))]
+    return [max(fa, fb), _angle_deg(ua, ub)]
 
 
 # The face pair's values when no two planes of the parts face each other within reach.
@@ -236,10 +236,9 @@ def face_pairs(a: PartCloud, b: PartCloud, reach: float,
             pa, pb = a.points[near_a], b.points[near_b]
             offset = abs(float((pb.mean(axis=0) - pa.mean(axis=0)) @ normal))
             area = min(len(near_a) * a.spacing**2, len(near_b) * b.spacing**2)
-            angle = math.degrees(math.acos(min(1.0, abs(float(na @ nb)))))
-            both = np.concatenate([pa, pb])
-            opposed = _opposed(a, b, both, normal, ia, ib)
-            out.append(FacePair(angle, offset, area, opposed, normal, both.mean(axis=0)))
+            angle = _angle_deg(na, nb)
+            opposed = _opposed(a, b, np.concatenate([pa, pb]), normal, ia, ib)
+            out.append(FacePair(angle, offset, area, opposed))
     return out
 
 
@@ -295,13 +294,12 @@ def cylinder_pairs(a: PartCloud, b: PartCloud, in_a: npt.NDArray[np.bool_],
     out = []
     for ca in cyl_a:
         for cb in cyl_b:
-            angle = math.degrees(math.acos(min(1.0, abs(float(ca.axis @ cb.axis)))))
+            angle = _angle_deg(ca.axis, cb.axis)
             offset = max(offset_across(ca.centre, cb.centre, ca.axis),
                          offset_across(cb.centre, ca.centre, cb.axis))
             support = min(len(ca.members) / max(int(in_a.sum()), 1),
                           len(cb.members) / max(int(in_b.sum()), 1))
-            out.append(CylinderPair(angle, offset, abs(ca.radius - cb.radius), support,
-                                    ca.axis, ca.centre))
+            out.append(CylinderPair(angle, offset, abs(ca.radius - cb.radius), support))
     return out
 
 
@@ -316,7 +314,7 @@ def _part_axes(a: PartCloud, b: PartCloud, cfg: FeatureConfig) -> list[float]:
         centre, _, _ = circle(part.points[curved], axis)
         axes.append((axis, centre))
     (ua, pa), (ub, pb) = axes
-    angle = math.degrees(math.acos(min(1.0, abs(float(ua @ ub)))))
+    angle = _angle_deg(ua, ub)
     mean = ua if ua @ ub >= 0 else -ua
     mean = (mean + ub) / np.linalg.norm(mean + ub)
     return [1.0, angle, offset_across(pa, pb, mean)]
@@ -328,7 +326,7 @@ def _dominant_pair(a: PartCloud, b: PartCloud, cfg: FeatureConfig) -> list[float
     db, rb = dominant_direction(b, cfg)
     if da is None or db is None:
         return [0.0, FAR_DEG, 0.0]
-    return [1.0, math.degrees(math.acos(min(1.0, abs(float(da @ db))))), min(ra, rb)]
+    return [1.0, _angle_deg(da, db), min(ra, rb)]
 
 
 # How each feature enters a network: lengths as log1p(mm) (a tenth of a millimetre and a metre
