@@ -71,12 +71,12 @@ def label_corpus(ws: Workspace, limits: Limits, progress: Progress | None = None
     folder = corpus_dir(ws) / "labels"
     folder.mkdir(parents=True, exist_ok=True)
     jobs = label_jobs(ws, read_shots(corpus_dir(ws) / "shots.parquet"))
-    todo = [j for j in jobs if not (folder / f"{j.shot}.npz").exists()]
+    todo = [j for j in jobs if not _labelled(folder / f"{j.shot}.npz")]
     for job, labels, reason in label_shots(todo, limits):
         if labels is not None:
             with atomic_write(folder / f"{job.shot}.npz") as fh:
                 np.savez(fh, pairs=labels.pairs, views=labels.views, truth=labels.truth,
-                         near=labels.near)
+                         near=labels.near, joints=labels.joints)
         if progress is not None:
             progress(reason or job.shot)
     out = {}
@@ -85,8 +85,17 @@ def label_corpus(ws: Workspace, limits: Limits, progress: Progress | None = None
         if path.exists():
             with np.load(path) as z:
                 out[job.shot] = ShotLabels(job.shot, z["pairs"], z["views"], z["truth"],
-                                           z["near"])
+                                           z["near"], z["joints"])
     return out
+
+
+def _labelled(path: Path) -> bool:
+    """Whether a shot's labels are stored, with every array this code reads (labels written
+    before the joints were labelled are labelled anew)."""
+    if not path.exists():
+        return False
+    with np.load(path) as z:
+        return "joints" in z.files
 
 
 def build_dataset(ws: Workspace, completion_models: Path, limits: Limits,
@@ -131,12 +140,12 @@ def evidence_digest() -> str:
 
 
 def labels_digest(labels: dict[str, ShotLabels]) -> str:
-    """SHA-256 over every shot's labelled pairs, views and truth, in shot order."""
+    """SHA-256 over every shot's labelled pairs, views, truth and joints, in shot order."""
     digest = hashlib.sha256()
     for shot in sorted(labels):
         lab = labels[shot]
         digest.update(shot.encode() + b"\0")
-        for array in (lab.pairs, lab.views, lab.truth):
+        for array in (lab.pairs, lab.views, lab.truth, lab.joints.astype("U16")):
             digest.update(np.ascontiguousarray(array).tobytes())
     return digest.hexdigest()
 
@@ -156,15 +165,16 @@ class TrainedRelations:
 def train_relation_model(ws: Workspace, method: str, name: str, steps: int, out_dir: Path,
                          on_step: Callable[[], None] | None = None,
                          **overrides: Any) -> TrainedRelations:
-    """Train one method on one input's training split; the best checkpoint by validation
-    accuracy goes to ``out_dir/<method>-<input>.pt``."""
+    """Train one method on one input's training split, with its joint head; the best
+    checkpoint by validation (``relations_train.evaluate``'s "selection") goes to
+    ``out_dir/<method>-<input>.pt``."""
     from models.relation_data import read_split
     from models.relations import RelationConfig
     from models.relations_train import save_relation_checkpoint, train_relations
 
     train, val = (read_split(relations_dir(ws) / f"{s}.npz") for s in ("train", "val"))
     cfg = RelationConfig(method=method, steps=steps,
-                         **{"pair_features": N_PAIR_FEATURES, **overrides})
+                         **{"pair_features": N_PAIR_FEATURES, "joints": True, **overrides})
     clock = time.perf_counter()
     info = {"input": name, "train_parts": sorted(set(train.meta["part_a"].astype(str))
                                                  | set(train.meta["part_b"].astype(str))),
@@ -203,13 +213,17 @@ def evaluate_relations(ws: Workspace, models_dir: Path, run_dir: Path,
             rows += _rows(meta, test.labels, name, method, *out)
             if progress is not None:
                 progress(f"{method}/{name}")
+    jointed = meta[meta["joint"].astype(str) != "none"]
+    joints = jointed[["scene", "part_a", "part_b"]].assign(
+        kinematic=jointed["joint"].astype(str)).drop_duplicates()
     return write_relation_report(run_dir, pairs_frame(rows), notes=[
         f"Held-out test split of the training corpus: {len(meta)} pair views of "
-        f"{meta['scene'].nunique()} scenes; checkpoints {models.versions()}."])
+        f"{meta['scene'].nunique()} scenes; checkpoints {models.versions()}."], joints=joints)
 
 
 def _rows(meta: pd.DataFrame, labels: np.ndarray, name: str, method: str, decided: np.ndarray,
-          confidence: np.ndarray, broken: np.ndarray) -> list[dict[str, Any]]:
+          confidence: np.ndarray, broken: np.ndarray, joints: list[str]
+          ) -> list[dict[str, Any]]:
     from models.relate import RELATIONS
 
     records = meta.to_dict("records")
@@ -217,7 +231,7 @@ def _rows(meta: pd.DataFrame, labels: np.ndarray, name: str, method: str, decide
              "part_b": m["part_b"], "category": m["category"], "input": name, "method": method,
              "relation": rel, "truth": bool(labels[i, k]), "predicted": bool(decided[i, k]),
              "confidence": float(confidence[i, k]), "near_boundary": bool(m["near_boundary"]),
-             "violation": bool(broken[i, k])}
+             "violation": bool(broken[i, k]), "joint": joints[i]}
             for i, m in enumerate(records) for k, rel in enumerate(RELATIONS)]
 
 
@@ -252,6 +266,8 @@ def write_relation_card(ws: Workspace, out_dir: Path, run_dir: Path, command: st
                       "val_accuracy": round(float(ckpt["metrics"].get("val_accuracy",
                                                                       np.nan)), 4),
                       "val_f1": round(float(ckpt["metrics"].get("val_f1", np.nan)), 4),
+                      "val_joint": round(float(ckpt["metrics"].get("val_joint_balanced",
+                                                                   np.nan)), 4),
                       "val_ece": round(float(ckpt["metrics"].get("val_ece_calibrated",
                                                                  np.nan)), 4),
                       "code": ckpt["code_version"]})
@@ -266,8 +282,11 @@ def write_relation_card(ws: Workspace, out_dir: Path, run_dir: Path, command: st
         "samples, `partial`: the segmented scan, `completed`: the completion network's shape). "
         "Each relation's decision (threshold and temperature) is fitted on the validation "
         "split and kept in the checkpoint; the best step is chosen by mean F1 over the "
-        "relations. The networks see the points in the observer's frame only. Load with "
-        "`torch.load(weights_only=True)`.", "",
+        "relations, with the joint head's balanced accuracy (`val_joint`) as an eleventh "
+        "term. The joint head answers the pair's kinematic joint (none, planar, revolute, "
+        "cylindrical, slider), trained on the CAD's joints of the labelled pairs; the report's "
+        "joint agreement scores it on the jointed pairs. The networks see the points in the "
+        "observer's frame only. Load with `torch.load(weights_only=True)`.", "",
         "## Checkpoints", "", markdown_table(pd.DataFrame(ckpts)), "",
         "## Data", "", "The pairs of the completion corpus's shots (pair scenes and assemblies "
         "as placed, seeded assembly variants and the training split of the shared multi-part "

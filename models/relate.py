@@ -34,9 +34,9 @@ from cadio.errors import CaptureError
 from cadio.records import FloatArray, Relation
 from cadio.workspace import Workspace, atomic_path
 from models.errors import CheckpointError
+from models.relation_decision import Decision
 from models.relations import RelationNet, violations
 from models.relations_train import (
-    Decision,
     RelationData,
     load_relation_model,
     predict_relations,
@@ -206,10 +206,14 @@ def decide(points: npt.NDArray[np.float32], mm_per_unit: npt.NDArray[Any], metho
            keys: Sequence[tuple[Any, Any]] | None = None,
            features: npt.NDArray[np.float32] | None = None
            ) -> tuple[npt.NDArray[np.bool_], npt.NDArray[np.float64],
-                      npt.NDArray[np.bool_]] | None:
-    """One method's (decided, confidence, violation), each (N, 10), on observer-frame pairs
-    (N, 2, k, 3); None for a learned method without its checkpoint. ``features``: the pairs'
-    raw evidence (``pair_features_many``), computed here when None."""
+                      npt.NDArray[np.bool_], list[str]] | None:
+    """One method's (decided, confidence, violation), each (N, 10), and joint (N,) on
+    observer-frame pairs (N, 2, k, 3); None for a learned method without its checkpoint.
+    ``features``: the pairs' raw evidence (``pair_features_many``), computed here when None.
+
+    The joint is the network's joint head's answer; ``geometric``, and a network trained
+    without a joint head, read it from their concentric and coincident answers
+    (``cadio.truth.joints.predicted_joint``)."""
     from cadio.capture.pair_features import encode_features, pair_features_many
 
     if features is None:
@@ -218,14 +222,25 @@ def decide(points: npt.NDArray[np.float32], mm_per_unit: npt.NDArray[Any], metho
         decided = geometric_decisions(points, mm_per_unit, features, keys)
         # the tests are symmetric and the cones converse: nothing to violate; a hard
         # geometric decision carries no calibrated probability.
-        return decided, np.full(decided.shape, np.nan), np.zeros(decided.shape, dtype=bool)
+        return (decided, np.full(decided.shape, np.nan), np.zeros(decided.shape, dtype=bool),
+                joints_of(decided))
     if model is None:
         return None
     net, decision = model
     data = RelationData(points, np.zeros((len(points), len(RELATIONS)), dtype=bool),
                         np.asarray(mm_per_unit, dtype=np.float64), encode_features(features))
     pred = predict_relations(net, data, decision=decision)
-    return pred.decided, pred.confidence, violations(pred.raw_ab, pred.raw_ba)
+    return (pred.decided, pred.confidence, violations(pred.raw_ab, pred.raw_ba),
+            pred.joint() or joints_of(pred.decided))
+
+
+def joints_of(decided: npt.NDArray[np.bool_]) -> list[str]:
+    """The joint each pair's concentric and coincident answers imply (N,)."""
+    from cadio.truth.joints import predicted_joint
+
+    return [predicted_joint(bool(c), bool(k)) for c, k in
+            zip(decided[:, RELATIONS.index("concentric")],
+                decided[:, RELATIONS.index("coincident")], strict=True)]
 
 
 def relate_views(views: Sequence[PairView], models: RelationModels,
@@ -255,13 +270,13 @@ def relate_views(views: Sequence[PairView], models: RelationModels,
 
 
 def _rows(views: Sequence[PairView], name: str, method: str, decided: npt.NDArray[np.bool_],
-          confidence: npt.NDArray[np.float64], broken: npt.NDArray[np.bool_]
-          ) -> list[dict[str, Any]]:
+          confidence: npt.NDArray[np.float64], broken: npt.NDArray[np.bool_],
+          joints: Sequence[str]) -> list[dict[str, Any]]:
     return [{"scene": v.scene, "view": v.view, "part_a": v.part_a, "part_b": v.part_b,
              "category": v.category, "input": name, "method": method, "relation": rel,
              "truth": bool(v.labels[k]), "predicted": bool(decided[i, k]),
              "confidence": float(confidence[i, k]), "near_boundary": v.near_boundary,
-             "violation": bool(broken[i, k])}
+             "violation": bool(broken[i, k]), "joint": joints[i]}
             for i, v in enumerate(views) for k, rel in enumerate(RELATIONS)]
 
 

@@ -8,7 +8,8 @@ split: for each input (``truth``: CAD samples; ``partial``: the observed points 
 ``completed``: the completion network's shape from that single view, the surface of its solid)
 the two parts' points in the observer's frame (N, 2, k, 3) float32, their pair evidence
 (``cadio.capture.pair_features``, raw, (N, F)), the labels (N, 10), whether the pair sits near
-a tolerance in that view, and which shot, view, parts and category each row is. Points are kept
+a tolerance in that view, the CAD's kinematic joint of the pair (``"none"`` without one), and
+which shot, view, parts and category each row is. Points are kept
 in float32: a tenth of a millimetre in a metre-sized scene needs it (float16 rounds it away).
 
 The pair evidence of ``truth`` and ``completed`` is measured on denser clouds than the k
@@ -41,6 +42,7 @@ from cadio.capture.pairs import INPUTS, evidence_cloud, pair_category, placed_su
 from cadio.capture.pointcloud import sample_points
 from cadio.truth.corpus_labels import ShotLabels
 from cadio.workspace import atomic_write, read_mesh
+from models.relations import JOINTS
 from models.relations_train import RelationData, nearest_of_pairs
 from models.train import Model, predict
 from reports.metrics import surface_points
@@ -48,7 +50,7 @@ from reports.metrics import surface_points
 log = logging.getLogger(__name__)
 
 META = ("scene", "view", "part_a", "part_b", "category", "kind", "near_boundary",
-        "scale_m_per_mm")
+        "scale_m_per_mm", "joint")
 THRESHOLD = 0.5  # a voxel of the completion is solid above this probability
 
 
@@ -69,7 +71,13 @@ class RelationSplit:
         mm = 1.0 / self.meta["scale_m_per_mm"].to_numpy(dtype=np.float64)
         return RelationData(self.inputs[name][keep], self.labels[keep], mm[keep],
                             encode_features(self.features[name][keep]),
-                            self.near[name][keep])
+                            self.near[name][keep], self.joints()[keep])
+
+    def joints(self) -> npt.NDArray[np.int64]:
+        """(N,) each row's CAD joint as an index into ``JOINTS`` (-1: a joint the head does
+        not name, such as fastened)."""
+        index = {name: k for k, name in enumerate(JOINTS)}
+        return np.array([index.get(str(j), -1) for j in self.meta["joint"]], dtype=np.int64)
 
 
 @dataclass
@@ -80,6 +88,7 @@ class _Row:
     b: int
     labels: npt.NDArray[np.bool_]
     near: bool
+    joint: str
     scale: float
     w2c: npt.NDArray[np.float64]
     points: dict[str, npt.NDArray[np.float32]]
@@ -147,8 +156,8 @@ def _shot_rows(corpus_dir: Path, shot: Shot, truth: ShotLabels,
                                            npt.NDArray[np.float32]]] = {}
     dense_cad: dict[int, npt.NDArray[np.float32]] = {}
     rows = []
-    for (a, b), per_view, near in zip(truth.pairs.tolist(), truth.truth, truth.near,
-                                      strict=True):
+    for (a, b), per_view, near, joint in zip(truth.pairs.tolist(), truth.truth, truth.near,
+                                             truth.joints.tolist(), strict=True):
         if parts[a].split != shot.split or parts[b].split != shot.split:
             continue
         for v, view in enumerate(truth.views.tolist()):
@@ -168,7 +177,7 @@ def _shot_rows(corpus_dir: Path, shot: Shot, truth: ShotLabels,
                     dense_cad[k] = placed_samples(shot, k, evidence_points, scale)
             evidence = {"truth": (dense_cad[a], dense_cad[b]),
                         "completed": (done_a[1], done_b[1])}
-            rows.append(_Row(shot, view, a, b, per_view[v], bool(near[v].any()), scale,
+            rows.append(_Row(shot, view, a, b, per_view[v], bool(near[v].any()), joint, scale,
                              w2c[ka], {k: p.astype(np.float32) for k, p in points.items()},
                              evidence))
     return rows
@@ -234,7 +243,7 @@ def write_split(path: Path, rows: Sequence[_Row]) -> None:
         "category": [pair_category(p[r.a].category, p[r.b].category)
                      for p, r in zip(parts, rows, strict=True)],
         "kind": [r.shot.kind for r in rows], "near_boundary": [r.near for r in rows],
-        "scale_m_per_mm": [r.scale for r in rows]}
+        "scale_m_per_mm": [r.scale for r in rows], "joint": [r.joint for r in rows]}
     for col in META:
         arrays[col] = np.array(meta[col])
     with atomic_write(path) as fh:

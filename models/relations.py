@@ -12,6 +12,14 @@ product real logic: the labelled facts and, for the ``ltn`` method, the paper's 
 (converse, asymmetry, symmetry, exclusion). The ``mlp`` method is the same network trained on
 the facts alone.
 
+The CAD's joint of a pair (revolute, cylindrical, planar, slider or none) is not a function of
+its concentric and coincident answers: a concentric face mate may be a clearance that holds
+nothing (a planar joint), two coincident faces may stop a rotation (a slider). A joint head
+(``JOINTS``) reads it from the same pair vector, as a softmax averaged over both orders; its
+facts are the CAD's joints, and for ``ltn`` its rules are what each joint says of the face
+mates (``JOINT_IMPLIES``: a revolute joint is concentric and coincident, a planar one
+coincident, a pair without a joint not coincident).
+
 Inference decides a pair and its swap together (``combine`` then ``decide``), so the answers
 obey the rules for any network output; ``violations`` says where the raw outputs do not.
 
@@ -47,6 +55,17 @@ EXCLUSIVE = (*OPPOSITES, (PARALLEL, PERPENDICULAR))  # pairs of one pair's relat
 N_DESCRIPTORS = 24  # per part: centroid 3, principal directions' d d^T 3 x 6, extents 3
 N_CONTACT = 2  # per point: nearness of the other part at 1 mm and at 10 mm
 METHODS = ("ltn", "mlp")
+# The joint head's classes: the CAD's kinematic joints of the training corpus's pairs
+# (``cadio.truth.joints``; fastened and "other" never occur there), "none" without one.
+JOINTS = ("none", "planar", "revolute", "cylindrical", "slider")
+CONCENTRIC, COINCIDENT = _INDEX[Relation.CONCENTRIC], _INDEX[Relation.COINCIDENT]
+# What each joint says of the pair's face mates (held by every labelled pair of the corpus): a
+# shaft in a bore is a concentric mate, a planar contact a coincident one; a pair without a
+# joint has no coincident mate (its concentric faces, if any, are a clearance).
+JOINT_IMPLIES = {"revolute": ((CONCENTRIC, True), (COINCIDENT, True)),
+                 "cylindrical": ((CONCENTRIC, True), (COINCIDENT, False)),
+                 "planar": ((COINCIDENT, True),), "slider": ((COINCIDENT, True),),
+                 "none": ((COINCIDENT, False),)}
 
 BoolArray = npt.NDArray[np.bool_]
 FloatArray = npt.NDArray[np.floating]
@@ -95,6 +114,11 @@ class RelationConfig:
     # Present each training pair as (b, a) with probability 1/2 (labels by the rules), so both
     # methods see both orders in their facts and differ by the rules alone.
     swap_augment: bool = True
+    # A joint head beside the predicates: the pair's kinematic joint (``JOINTS``), a softmax
+    # over the pair vector of both orders; trained on its facts (and, for ``ltn``, on
+    # ``JOINT_IMPLIES`` as rules). Off in checkpoints trained before it existed.
+    joints: bool = False
+    joint_weight: float = 1.0  # weight of each joint fact axiom relative to a relation fact
     seed: int = 0  # torch, numpy and python seeds; also keys batches and augmentation
 
     def __post_init__(self) -> None:
@@ -107,8 +131,10 @@ class RelationConfig:
             raise ValueError("pair_features >= 0, feature_width >= 1, jitter_mm >= 0 required")
         if min(self.train_points, self.steps, self.batch_size, self.eval_every) < 1:
             raise ValueError("train_points, steps, batch_size and eval_every must be >= 1")
-        if min(self.p_forall, self.p_sat) < 1 or min(self.lr, self.rule_weight) <= 0:
-            raise ValueError("p must be >= 1; lr and rule_weight must be positive")
+        if min(self.p_forall, self.p_sat) < 1 or min(self.lr, self.rule_weight,
+                                                     self.joint_weight) <= 0:
+            raise ValueError("p must be >= 1; lr, rule_weight and joint_weight must be "
+                             "positive")
 
     @classmethod
     def from_dict(cls, config: dict[str, object]) -> RelationConfig:
@@ -304,6 +330,10 @@ class RelationNet(nn.Module):
                                           nn.Linear(32, cfg.feature_width), nn.Tanh())
             dim += cfg.feature_width
         self.predicates = nn.ModuleList(NTNPredicate(dim, cfg.ntn_k) for _ in RELATIONS)
+        self.joint_head: nn.Module | None = None
+        if cfg.joints:
+            self.joint_head = nn.Sequential(nn.Linear(dim, 32), nn.ReLU(),
+                                            nn.Linear(32, len(JOINTS)))
 
     def embed(self, points: Tensor, mm: Tensor | None = None,
               near: Tensor | None = None) -> tuple[Tensor, Tensor]:
@@ -336,13 +366,18 @@ class RelationNet(nn.Module):
             parts.append(e)
         return parts[0], parts[1]
 
-    def head(self, e_a: Tensor, e_b: Tensor, f: Tensor | None = None) -> Tensor:
-        """Part embeddings (B, E') each and the encoded pair evidence (B, W) -> logits of the
-        ordered pair (a, b): (B, 10)."""
+    def pair_vector(self, e_a: Tensor, e_b: Tensor, f: Tensor | None = None) -> Tensor:
+        """Part embeddings (B, E') each and the encoded pair evidence (B, W) -> the vector of
+        the ordered pair (a, b): (B, D)."""
         terms = [e_a, e_b, e_a - e_b] if self.cfg.pair_diff else [e_a, e_b]
         if f is not None:
             terms.append(f)
-        x = torch.cat(terms, 1)  # (B, D)
+        return torch.cat(terms, 1)
+
+    def head(self, e_a: Tensor, e_b: Tensor, f: Tensor | None = None) -> Tensor:
+        """Part embeddings (B, E') each and the encoded pair evidence (B, W) -> logits of the
+        ordered pair (a, b): (B, 10)."""
+        x = self.pair_vector(e_a, e_b, f)  # (B, D)
         return torch.stack([pred(x) for pred in self.predicates], 1)  # (B, 10)
 
     def forward(self, points: Tensor, mm: Tensor | None = None,
@@ -355,6 +390,15 @@ class RelationNet(nn.Module):
             ValueError: points as ``embed`` refuses them, or pair features missing or of
                 another width than the config's.
         """
+        ab, ba, _ = self.forward_all(points, mm, features, near)
+        return ab, ba
+
+    def forward_all(self, points: Tensor, mm: Tensor | None = None,
+                    features: Tensor | None = None, near: Tensor | None = None
+                    ) -> tuple[Tensor, Tensor, Tensor | None]:
+        """``forward``'s two logits and the joint head's log-probabilities (B, ``JOINTS``),
+        the same for the pair and its swap (the mean of both orders' softmax); None without
+        a joint head."""
         e_a, e_b = self.embed(points, mm, near)
         f = None
         if self.features is not None:
@@ -363,10 +407,16 @@ class RelationNet(nn.Module):
                 raise ValueError(f"pair features must have shape (B, {self.cfg.pair_features})"
                                  f"; got {got}")
             f = self.features(features.to(e_a.device).float())
-        return self.head(e_a, e_b, f), self.head(e_b, e_a, f)
+        joints = None
+        if self.joint_head is not None:
+            probs = (torch.softmax(self.joint_head(self.pair_vector(e_a, e_b, f)), 1)
+                     + torch.softmax(self.joint_head(self.pair_vector(e_b, e_a, f)), 1)) / 2
+            joints = torch.log(probs.clamp_min(1e-12))
+        return self.head(e_a, e_b, f), self.head(e_b, e_a, f), joints
 
 
-def knowledge_base(t_ab: Tensor, t_ba: Tensor, labels: Tensor, cfg: RelationConfig
+def knowledge_base(t_ab: Tensor, t_ba: Tensor, labels: Tensor, cfg: RelationConfig,
+                   joint_probs: Tensor | None = None, joints: Tensor | None = None
                    ) -> dict[str, Tensor]:
     """Satisfaction of the knowledge base on a batch, and of its facts and rules apart.
 
@@ -378,9 +428,15 @@ def knowledge_base(t_ab: Tensor, t_ba: Tensor, labels: Tensor, cfg: RelationConf
     equivalence), asymmetry r(x) -> Not r(swap x), symmetry of the four symmetric relations,
     and Not(parallel(x) And perpendicular(x)).
 
+    With a joint head: for every joint class, Forall over its pairs of the class's probability
+    (a fact axiom weighted ``joint_weight``), and for ``ltn`` the rules ``JOINT_IMPLIES``:
+    joint(x) -> the face mates it implies.
+
     Args:
         t_ab, t_ba: (B, 10) truth values in [0, 1] of (a, b) and (b, a).
         labels: (B, 10) 0/1 of (a, b).
+        joint_probs: (B, ``JOINTS``) the joint head's probabilities; joints: (B,) the index
+            of each pair's joint in ``JOINTS``, -1 where unknown (no joint axioms when None).
 
     Returns:
         "sat", "facts", "rules": scalars in [0, 1] ("rules" is 1 for ``mlp``).
@@ -392,7 +448,19 @@ def knowledge_base(t_ab: Tensor, t_ba: Tensor, labels: Tensor, cfg: RelationConf
         for holds, mask in ((t_ab[:, r], pos), (not_(t_ab[:, r]), ~pos)):
             if bool(mask.any()):  # an empty class has no axiom in this batch
                 facts.append(forall(holds[mask], p))
+    weights = [1.0] * len(facts)
+    if joint_probs is not None and joints is not None:
+        for c in range(len(JOINTS)):
+            mask = joints == c
+            if bool(mask.any()):
+                facts.append(forall(joint_probs[mask, c], p))
+                weights.append(cfg.joint_weight)
     rules = []
+    if cfg.method == "ltn" and joint_probs is not None:
+        for c, name in enumerate(JOINTS):
+            for r, positive in JOINT_IMPLIES[name]:
+                then = t_ab[:, r] if positive else not_(t_ab[:, r])
+                rules.append(forall(implies(joint_probs[:, c], then), p))
     if cfg.method == "ltn":
         t, s = torch.cat([t_ab, t_ba]), torch.cat([t_ba, t_ab])  # (2B, 10): x and swap x
         for r in DIRECTIONAL_INDEX:
@@ -401,11 +469,10 @@ def knowledge_base(t_ab: Tensor, t_ba: Tensor, labels: Tensor, cfg: RelationConf
         rules += [forall(implies(t[:, r], s[:, r]), p) for r in SYMMETRIC_INDEX]
         rules.append(forall(not_(and_(t[:, PARALLEL], t[:, PERPENDICULAR])), p))
     axioms = torch.stack(facts + rules)
-    weights = torch.tensor([1.0] * len(facts) + [cfg.rule_weight] * len(rules),
-                           device=axioms.device)
+    weights_t = torch.tensor(weights + [cfg.rule_weight] * len(rules), device=axioms.device)
     one = axioms.new_ones(())
-    return {"sat": weighted_forall(axioms, weights, cfg.p_sat),
-            "facts": weighted_forall(torch.stack(facts), weights[:len(facts)], cfg.p_sat),
+    return {"sat": weighted_forall(axioms, weights_t, cfg.p_sat),
+            "facts": weighted_forall(torch.stack(facts), weights_t[:len(facts)], cfg.p_sat),
             "rules": forall(torch.stack(rules), cfg.p_sat) if rules else one}
 
 

@@ -4,7 +4,8 @@
 base, seeded throughout; each step's batch, point subsets, jitter and swaps are pure functions
 of (seed, step). Every ``eval_every`` steps it scores the validation pairs and keeps the best
 weights by the mean over relations of the F1 at thresholds fitted on those pairs (mean accuracy
-would let the six directional relations, frequent and easy, hide the rare ones). It then fits,
+would let the six directional relations, frequent and easy, hide the rare ones), with the joint
+head's balanced accuracy as an eleventh term where the network has one. It then fits,
 per relation, the decision threshold that maximises F1 on validation (the fact axioms weigh a
 rare relation's positives and negatives alike, so a score of 0.5 over-predicts it) and a
 temperature about that threshold (converse relations share both, so a pair and its swap get the
@@ -38,9 +39,16 @@ from models.checkpoint import (
 )
 from models.checkpoint import state_copy as _state_copy
 from models.errors import CheckpointError
+from models.relation_decision import (
+    Decision,
+    calibrate,
+    f1_scores,
+    fit_temperatures,
+    fit_thresholds,
+)
 from models.relations import (
+    JOINTS,
     METHODS,
-    OPPOSITES,
     RELATIONS,
     RelationConfig,
     RelationNet,
@@ -56,8 +64,6 @@ from reports.relations import expected_calibration_error
 logger = logging.getLogger(__name__)
 
 RELATION_KEYS = ("temperatures",)  # beyond the completion checkpoints' keys
-_T_GRID = np.exp(np.linspace(np.log(0.05), np.log(20.0), 241))  # temperatures tried
-_THRESHOLDS = np.linspace(0.05, 0.95, 91)  # decision thresholds tried
 
 
 @dataclass(frozen=True, eq=False)
@@ -71,6 +77,8 @@ class RelationData:
         None; symmetric in the two parts.
     near: (N, 2, P) float32, each point's distance to the other part's nearest point in mm;
         computed here when None.
+    joints: (N,) int64, each pair's kinematic joint as an index into ``JOINTS``, -1 where
+        unknown; None: no joint labels (a joint head then learns nothing).
     """
 
     points: npt.NDArray[np.float32]
@@ -78,6 +86,7 @@ class RelationData:
     mm: npt.NDArray[np.float64] | None = None
     features: npt.NDArray[np.float32] | None = None
     near: npt.NDArray[np.float32] | None = None
+    joints: npt.NDArray[np.int64] | None = None
 
     def __post_init__(self) -> None:
         points = np.asarray(self.points, dtype=np.float32)
@@ -102,6 +111,12 @@ class RelationData:
         if near.shape != points.shape[:3]:
             raise ValueError(f"near must be {points.shape[:3]}; got {near.shape}")
         object.__setattr__(self, "near", near)
+        if self.joints is not None:
+            joints = np.asarray(self.joints, dtype=np.int64)
+            if joints.shape != (len(points),) or joints.min(initial=0) < -1 \
+                    or joints.max(initial=0) >= len(JOINTS):
+                raise ValueError(f"joints must be ({len(points)},) in [-1, {len(JOINTS)})")
+            object.__setattr__(self, "joints", joints)
 
     def __len__(self) -> int:
         return len(self.points)
@@ -110,13 +125,13 @@ class RelationData:
         assert self.mm is not None and self.near is not None
         return RelationData(self.points[rows], self.labels[rows], self.mm[rows],
                             None if self.features is None else self.features[rows],
-                            self.near[rows])
+                            self.near[rows], None if self.joints is None else self.joints[rows])
 
     def swapped(self) -> RelationData:
         """The pairs (b, a), labelled by the rules (the pair evidence is symmetric)."""
         assert self.near is not None
         return RelationData(self.points[:, ::-1].copy(), swap_decision(self.labels), self.mm,
-                            self.features, self.near[:, ::-1].copy())
+                            self.features, self.near[:, ::-1].copy(), self.joints)
 
     def tensors(self, rows: slice | npt.NDArray[np.int64]) -> tuple[torch.Tensor, ...]:
         """(points, mm, features or an empty (B, 0), near) of some rows, as the network takes
@@ -151,6 +166,15 @@ class RelationPrediction:
     decided: npt.NDArray[np.bool_]  # consistent decisions for (a, b)
     confidence: npt.NDArray[np.float64]  # calibrated probability of the decided answer
     probability: npt.NDArray[np.float64]  # calibrated probability that the relation holds
+    # (N, ``JOINTS``) the joint head's probabilities, the same for a pair and its swap; None
+    # for a network without one
+    joint_probability: npt.NDArray[np.float64] | None = None
+
+    def joint(self) -> list[str] | None:
+        """The most probable joint of each pair (``JOINTS``), or None without a joint head."""
+        if self.joint_probability is None:
+            return None
+        return [JOINTS[int(k)] for k in self.joint_probability.argmax(1)]
 
 
 @dataclass
@@ -166,9 +190,10 @@ class RelationResult:
 
 def training_batch(data: RelationData, cfg: RelationConfig, step: int
                    ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor,
-                              torch.Tensor]:
-    """Step ``step``'s batch: points (B, 2, T, 3), mm (B,), features (B, F), labels (B, 10)
-    and each drawn point's distance to the other part's whole cloud (B, 2, T), mm.
+                              torch.Tensor, torch.Tensor]:
+    """Step ``step``'s batch: points (B, 2, T, 3), mm (B,), features (B, F), labels (B, 10),
+    each drawn point's distance to the other part's whole cloud (B, 2, T), mm, and the joints
+    (B,) (-1 where unknown).
 
     Pairs drawn without replacement (with, when there are fewer than B), ``train_points``
     points per part drawn without replacement, Gaussian jitter of ``jitter_mm`` millimetres,
@@ -194,96 +219,43 @@ def training_batch(data: RelationData, cfg: RelationConfig, step: int
         labels = np.where(flip[:, None], swap_decision(labels), labels)
     feats = (np.zeros((len(idx), 0), np.float32) if data.features is None
              else data.features[idx])
+    joints = np.full(len(idx), -1, np.int64) if data.joints is None else data.joints[idx]
     return (torch.from_numpy(np.ascontiguousarray(pts)), torch.from_numpy(mm),
             torch.from_numpy(feats.astype(np.float32)),
             torch.from_numpy(labels.astype(np.float32)),
-            torch.from_numpy(np.ascontiguousarray(near, dtype=np.float32)))
-
-
-def _logit(p: npt.NDArray[np.floating]) -> npt.NDArray[np.float64]:
-    p = np.clip(np.asarray(p, dtype=np.float64), 1e-7, 1 - 1e-7)
-    return np.log(p) - np.log1p(-p)
-
-
-def calibrate(score: npt.NDArray[np.floating], temperatures: npt.ArrayLike,
-              thresholds: npt.ArrayLike | None = None) -> npt.NDArray[np.float64]:
-    """Calibrated probabilities sigmoid((logit(score) - logit(t)) / T) per relation: (N, 10);
-    0.5 exactly at each relation's decision threshold t (default 0.5)."""
-    t = np.asarray(temperatures, dtype=np.float64)
-    shift = 0.0 if thresholds is None else _logit(np.asarray(thresholds))
-    return 1 / (1 + np.exp(-(_logit(score) - shift) / t))
-
-
-def _groups() -> list[list[int]]:
-    """Columns that share a threshold and a temperature: converse pairs, then the rest."""
-    groups = [list(p) for p in OPPOSITES]
-    return groups + [[r] for r in range(len(RELATIONS)) if all(r not in g for g in groups)]
-
-
-def fit_thresholds(score: npt.NDArray[np.floating], labels: npt.NDArray[np.bool_]
-                   ) -> npt.NDArray[np.float64]:
-    """Per-relation decision thresholds maximising F1 on labelled scores (converse relations
-    share one, fitted on both columns); 0.5 for a relation without positives. The highest
-    threshold among equally good ones is kept (fewer false mates)."""
-    s, y = np.asarray(score, dtype=np.float64), np.asarray(labels, dtype=bool)
-    out = np.full(len(RELATIONS), 0.5)
-    for cols in _groups():
-        ss, yy = s[:, cols].ravel(), y[:, cols].ravel()
-        if not yy.any():
-            continue
-        pred = ss[None] > _THRESHOLDS[:, None]  # (G, M)
-        tp = (pred & yy).sum(1)
-        f1 = 2 * tp / np.maximum(pred.sum(1) + yy.sum(), 1)
-        out[cols] = _THRESHOLDS[len(f1) - 1 - int(np.argmax(f1[::-1]))]
-    return out
-
-
-def fit_temperatures(score: npt.NDArray[np.floating], labels: npt.NDArray[np.bool_],
-                     thresholds: npt.ArrayLike | None = None) -> npt.NDArray[np.float64]:
-    """Per-relation temperatures minimising the log loss of ``calibrate`` on labelled scores.
-
-    Converse relations share one temperature (fitted on both columns), so that the confidences
-    of a pair's swap are exactly the swapped confidences. A grid over [0.05, 20]: 1-D, exact
-    enough and deterministic.
-    """
-    shift = 0.0 if thresholds is None else _logit(np.asarray(thresholds))
-    z, y = _logit(score) - shift, np.asarray(labels, dtype=np.float64)
-    temps = np.ones(len(RELATIONS))
-    for cols in _groups():
-        zz, yy = z[:, cols].ravel()[None], y[:, cols].ravel()[None]  # (1, M)
-        s = zz / _T_GRID[:, None]  # (G, M)
-        nll = (np.logaddexp(0, s) - yy * s).mean(1)  # log loss of sigmoid(s)
-        temps[cols] = _T_GRID[int(np.argmin(nll))]
-    return temps
+            torch.from_numpy(np.ascontiguousarray(near, dtype=np.float32)),
+            torch.from_numpy(joints))
 
 
 @torch.no_grad()
 def _raw(model: RelationNet, data: RelationData, batch: int
          ) -> tuple[npt.NDArray[np.float32], npt.NDArray[np.float32]]:
     """Network probabilities for (a, b) and (b, a), (N, 10) each, in batches."""
+    ab, ba, _ = _raw_all(model, data, batch)
+    return ab, ba
+
+
+@torch.no_grad()
+def _raw_all(model: RelationNet, data: RelationData, batch: int
+             ) -> tuple[npt.NDArray[np.float32], npt.NDArray[np.float32],
+                        npt.NDArray[np.float64] | None]:
+    """``_raw``'s probabilities and the joint head's (N, ``JOINTS``), or None without one."""
     model.eval()
     outs = []
     for s in range(0, len(data), batch):
         pts, mm, feats, near = data.tensors(slice(s, s + batch))
-        outs.append(model(pts, mm, feats if model.cfg.pair_features else None, near))
+        outs.append(model.forward_all(pts, mm, feats if model.cfg.pair_features else None,
+                                      near))
     if not outs:
         empty = np.zeros((0, len(RELATIONS)), np.float32)
-        return empty, empty
+        return empty, empty, None if model.joint_head is None else np.zeros((0, len(JOINTS)))
     ab = torch.sigmoid(torch.cat([o[0] for o in outs])).cpu().numpy()
     ba = torch.sigmoid(torch.cat([o[1] for o in outs])).cpu().numpy()
-    return ab, ba
-
-
-@dataclass(frozen=True)
-class Decision:
-    """How a network's scores become answers: per-relation temperatures and thresholds."""
-
-    temperatures: npt.NDArray[np.float64]
-    thresholds: npt.NDArray[np.float64]
-
-    @classmethod
-    def default(cls) -> Decision:
-        return cls(np.ones(len(RELATIONS)), np.full(len(RELATIONS), 0.5))
+    joints = None
+    if model.joint_head is not None:
+        joints = torch.exp(torch.cat([o[2] for o in outs if o[2] is not None])
+                           ).double().cpu().numpy()
+    return ab, ba, joints
 
 
 def predict_relations(model_or_checkpoint: RelationNet | Mapping[str, Any] | Path | str,
@@ -312,28 +284,22 @@ def predict_relations(model_or_checkpoint: RelationNet | Mapping[str, Any] | Pat
     else:
         model, own = relation_model_from_checkpoint(model_or_checkpoint)
     decision = decision or own
-    raw_ab, raw_ba = _raw(model, data, batch)
+    raw_ab, raw_ba, joints = _raw_all(model, data, batch)
     score = combine(raw_ab, raw_ba)
     decided = decide(score, decision.thresholds)
     prob = calibrate(score, decision.temperatures, decision.thresholds)
-    return RelationPrediction(raw_ab, raw_ba, decided, np.where(decided, prob, 1 - prob), prob)
-
-
-def f1_scores(decided: npt.NDArray[np.bool_], truth: npt.NDArray[np.bool_]
-              ) -> npt.NDArray[np.float64]:
-    """(10,) F1 of each relation's decisions (1 where a relation has neither positives nor
-    predictions)."""
-    tp = (decided & truth).sum(0)
-    total = decided.sum(0) + truth.sum(0)
-    return np.where(total > 0, 2 * tp / np.maximum(total, 1), 1.0)
+    return RelationPrediction(raw_ab, raw_ba, decided, np.where(decided, prob, 1 - prob), prob,
+                              joints)
 
 
 def evaluate(model: RelationNet, data: RelationData, batch: int = 256,
              decision: Decision | None = None) -> dict[str, float]:
     """Accuracy (mean over relations) of the decisions and of the raw (a, b) outputs, balanced
     accuracy, mean F1, violation rates of the raw outputs (per entry and per pair) and ECE.
-    Without a decision, thresholds are fitted on ``data`` itself (model selection)."""
-    raw_ab, raw_ba = _raw(model, data, batch)
+    Without a decision, thresholds are fitted on ``data`` itself (model selection). With a
+    joint head and joint labels, also ``joint_metrics``; "selection" is what training keeps the
+    best step by: the mean F1, joined by the joint's balanced accuracy as an eleventh term."""
+    raw_ab, raw_ba, joint_probs = _raw_all(model, data, batch)
     score = combine(raw_ab, raw_ba)
     truth = data.labels
     if decision is None:
@@ -345,11 +311,32 @@ def evaluate(model: RelationNet, data: RelationData, batch: int = 256,
     pos, neg = truth.sum(0).clip(min=1), (~truth).sum(0).clip(min=1)
     balanced = ((hit & truth).sum(0) / pos + (hit & ~truth).sum(0) / neg) / 2
     viol = violations(raw_ab, raw_ba)
-    return {"accuracy": float(hit.mean(0).mean()), "balanced_accuracy": float(balanced.mean()),
-            "f1": float(f1_scores(decided, truth).mean()),
-            "raw_accuracy": float(((raw_ab > 0.5) == truth).mean()),
-            "violation_rate": float(viol.mean()), "pairs_violating": float(viol.any(1).mean()),
-            "ece": expected_calibration_error(confidence, hit)}
+    f1 = f1_scores(decided, truth)
+    out = {"accuracy": float(hit.mean(0).mean()), "balanced_accuracy": float(balanced.mean()),
+           "f1": float(f1.mean()), "raw_accuracy": float(((raw_ab > 0.5) == truth).mean()),
+           "violation_rate": float(viol.mean()), "pairs_violating": float(viol.any(1).mean()),
+           "ece": expected_calibration_error(confidence, hit), "selection": float(f1.mean())}
+    if joint_probs is not None and data.joints is not None:
+        out.update(joint_metrics(joint_probs, data.joints))
+        out["selection"] = float((f1.sum() + out["joint_balanced"]) / (len(f1) + 1))
+    return out
+
+
+def joint_metrics(probs: npt.NDArray[np.floating], joints: npt.NDArray[np.int64]
+                  ) -> dict[str, float]:
+    """The joint head's most probable joints against the labels (-1: unknown, left out):
+    accuracy over all labelled pairs, agreement over the pairs that have a joint (the
+    nightly's joint agreement) and balanced accuracy (the mean recall of the joints present)."""
+    known = joints >= 0
+    guess, truth = np.asarray(probs).argmax(1)[known], joints[known]
+    if not len(truth):
+        return {}
+    jointed = truth > 0
+    recalls = [float((guess[truth == c] == c).mean()) for c in np.unique(truth)]
+    return {"joint_accuracy": float((guess == truth).mean()),
+            "joint_agreement": float((guess[jointed] == truth[jointed]).mean())
+            if jointed.any() else float("nan"),
+            "joint_balanced": float(np.mean(recalls))}
 
 
 def make_relation_checkpoint(model: RelationNet, decision: Decision, step: int,
@@ -468,7 +455,7 @@ def train_relations(cfg: RelationConfig, train: RelationData, val: RelationData 
                 history.append(record)
                 logger.info("step %d: %s", step + 1,
                             ", ".join(f"{k} {v:.4g}" for k, v in record.items()))
-                score = record.get("val_f1", float(step))
+                score = record.get("val_selection", float(step))
                 if best is None or score > best[0]:
                     best = (score, step + 1, _state_copy(model, half=False))
                 event = dataclasses.replace(event, epoch=record)
@@ -493,11 +480,13 @@ def train_relations(cfg: RelationConfig, train: RelationData, val: RelationData 
 
 def _step(model: RelationNet, opt: torch.optim.Optimizer, cfg: RelationConfig,
           points: torch.Tensor, mm: torch.Tensor, features: torch.Tensor,
-          labels: torch.Tensor, near: torch.Tensor) -> dict[str, float]:
+          labels: torch.Tensor, near: torch.Tensor, joints: torch.Tensor) -> dict[str, float]:
     """One Adam step on 1 - sat: the losses and satisfactions."""
     model.train()
-    logits_ab, logits_ba = model(points, mm, features if cfg.pair_features else None, near)
-    kb = knowledge_base(torch.sigmoid(logits_ab), torch.sigmoid(logits_ba), labels, cfg)
+    logits_ab, logits_ba, log_joints = model.forward_all(
+        points, mm, features if cfg.pair_features else None, near)
+    kb = knowledge_base(torch.sigmoid(logits_ab), torch.sigmoid(logits_ba), labels, cfg,
+                        None if log_joints is None else torch.exp(log_joints), joints)
     loss = 1 - kb["sat"]
     opt.zero_grad(set_to_none=True)
     loss.backward()  # type: ignore[no-untyped-call]

@@ -3,7 +3,8 @@
 Three files other tools read (names and columns are a contract, DESIGN.md):
 
 - ``relations_pairs.parquet``: one row per pair view x input x method x relation (``PAIR_COLUMNS``,
-  plus ``violation``: the method's raw outputs broke an axiom that involves the relation);
+  plus ``violation``: the method's raw outputs broke an axiom that involves the relation, and
+  ``joint``: the joint the method answers for the pair view, the same on its ten rows);
 - ``relations_summary.csv``: input x method x relation x category (``all`` too) over the pairs
   clear of every tolerance boundary (``SUMMARY_COLUMNS``); ``relations_near_boundary.csv``
   holds the same scores over the near-boundary pairs, reported apart;
@@ -48,9 +49,11 @@ PAPER_TABLE_III = {
 
 
 def pairs_frame(rows: Iterable[dict[str, Any]]) -> pd.DataFrame:
-    """The ``relations_pairs`` table from row dicts (missing ``violation`` is False)."""
-    df = pd.DataFrame(list(rows), columns=[*PAIR_COLUMNS, "violation"])
+    """The ``relations_pairs`` table from row dicts (missing ``violation`` is False, a missing
+    ``joint`` is "": read from the concentric and coincident answers where it is scored)."""
+    df = pd.DataFrame(list(rows), columns=[*PAIR_COLUMNS, "violation", "joint"])
     df["violation"] = df["violation"].fillna(False).astype(bool)
+    df["joint"] = df["joint"].astype(object).fillna("").astype(str)
     for col in ("truth", "predicted", "near_boundary"):
         df[col] = df[col].astype(bool)
     df["view"] = df["view"].astype("int64")
@@ -114,23 +117,29 @@ def assembly_f1_table(pairs: pd.DataFrame) -> pd.DataFrame:
 def joint_frame(pairs: pd.DataFrame, joints: pd.DataFrame,
                 product: tuple[str, str] = PRODUCT) -> pd.DataFrame:
     """Joint-type agreement: for every view of an assembly pair whose CAD mates make a joint
-    (``joints``: scene, part_a, part_b, kinematic), the joint the product's concentric and
-    coincident answers imply beside the CAD's kinematic joint (``JOINT_COLUMNS``)."""
+    (``joints``: scene, part_a, part_b, kinematic), the product's joint (its joint head's
+    answer; where a row has none, the joint its concentric and coincident answers imply)
+    beside the CAD's kinematic joint (``JOINT_COLUMNS``)."""
     inp, method = product
     mine = pairs[(pairs["input"] == inp) & (pairs["method"] == method)
                  & pairs["relation"].isin(["concentric", "coincident"])]
-    wide = mine.pivot_table(index=["scene", "view", "part_a", "part_b"], columns="relation",
-                            values="predicted", aggfunc="first").reset_index()
-    if wide.empty or joints.empty:
+    if "joint" not in mine.columns:
+        mine = mine.assign(joint="")
+    if mine.empty or joints.empty:
         return pd.DataFrame(columns=list(JOINT_COLUMNS))
+    view = ["scene", "view", "part_a", "part_b"]
+    wide = mine.pivot_table(index=view, columns="relation", values="predicted",
+                            aggfunc="first").reset_index()
+    wide = wide.merge(mine.groupby(view)["joint"].first().reset_index(), on=view, how="left")
     both = pd.concat([joints, joints.rename(columns={"part_a": "part_b", "part_b": "part_a"})])
     merged = wide.merge(both, on=["scene", "part_a", "part_b"])
     out = pd.DataFrame({
         "assembly": merged["scene"], "view": merged["view"], "part_a": merged["part_a"],
         "part_b": merged["part_b"], "cad_joint": merged["kinematic"],
-        "predicted_joint": [predicted_joint(bool(c), bool(k)) for c, k in
-                            zip(merged.get("concentric", False), merged.get("coincident", False),
-                                strict=True)]})
+        "predicted_joint": [j if isinstance(j, str) and j else predicted_joint(bool(c), bool(k))
+                            for c, k, j in zip(merged.get("concentric", False),
+                                               merged.get("coincident", False),
+                                               merged["joint"], strict=True)]})
     out["agree"] = out["cad_joint"] == out["predicted_joint"]
     return out[list(JOINT_COLUMNS)]
 

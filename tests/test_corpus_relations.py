@@ -5,6 +5,7 @@ from __future__ import annotations
 from pathlib import Path
 
 import numpy as np
+import pandas as pd
 import pytest
 import torch
 
@@ -28,6 +29,7 @@ from cadio.workspace import Workspace, read_features
 from flows.train_relations import label_jobs
 from models.checkpoint import build_model
 from models.relation_data import build_relation_dataset, read_split
+from models.relations import JOINTS
 from models.train import config_for
 
 CFG = CorpusConfig(example=ExampleConfig(n_in=16, n_out=32), views=2, lengths=())
@@ -68,6 +70,9 @@ def test_an_assembly_is_labelled_by_its_face_mates_view_by_view(corpus) -> None:
     assert labels.truth[k[(1, 2)], :, RELATIONS.index("concentric")].all()
     assert labels.truth[k[(1, 3)], :, RELATIONS.index("coincident")].all()
     assert not labels.truth[k[(1, 3)], :, RELATIONS.index("concentric")].any()
+    # the CAD's joints: the pin turns and slides in its bore, the block slides on the plate
+    assert labels.joints[k[(1, 2)]] == "cylindrical" and labels.joints[k[(1, 3)]] == "planar"
+    assert labels.joints[k[(2, 3)]] == "none"
     # the directional relations follow each view's camera (the observer's forward axis)
     centre = {p.instance: read_features(Path(p.features_path)).centroid for p in job.parts}
     forward = np.array(job.forward)
@@ -93,6 +98,9 @@ def test_the_dataset_holds_every_input_of_every_labelled_pair_view(corpus, tmp_p
         assert split.features[name].shape == (rows["train"], N_PAIR_FEATURES)
         data = split.data(name)
         assert data.features is not None and np.isfinite(data.features).all()
+        assert data.joints is not None
+        assert [JOINTS[j] for j in data.joints] == split.meta["joint"].tolist()
+    assert {"cylindrical", "planar"} <= set(split.meta["joint"])
     assert set(split.meta["kind"]) == {"assembly"}
     # truth points of a pair are where the parts are: the pin's samples meet the plate's
     gaps = split.features["truth"][:, 0]
@@ -135,6 +143,12 @@ def test_the_train_flow_trains_and_reports_the_relation_networks(corpus, tmp_pat
     card = Path(evaluate_relations_task.fn(str(ws.root), str(out), str(tmp_path / "run"),
                                            "train", {"steps": 3}))
     assert "ltn" in card.read_text() and (tmp_path / "run" / "relations.md").exists()
+    # the network has a joint head, scored on the split's jointed pairs
+    assert ckpt["config"]["joints"] is True and "val_joint" in card.read_text()
+    joints = pd.read_csv(tmp_path / "run" / "assembly_joints.csv")
+    assert {"cylindrical", "planar"} <= set(joints["cad_joint"])
+    assert set(joints["predicted_joint"]) <= {"none", "planar", "revolute", "cylindrical",
+                                              "slider"}
     # a rerun with the same labels and completion network reuses the dataset
     stamp = (folder / "stamp.json").stat().st_mtime_ns
     assert relation_dataset_task.fn(str(ws.root), str(completion), 2) == {

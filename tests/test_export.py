@@ -89,6 +89,13 @@ def test_views_are_pooled_by_their_calibrated_confidence() -> None:
     assert pair.joint.confidence == pytest.approx(0.7 * 0.7)
     assert pair.joint.cad_names()["onshape"] == "Cylindrical"
     assert m.status == OK and pair.status == PREDICTED and pair.views == 3
+    # a network with a joint head answers the joint of each view: the most views' answer wins
+    said = {0: "revolute", 1: "revolute", 2: "planar"}
+    headed = views.assign(joint=[said[int(v)] for v in views["view"]])
+    joint = assembly_mates("asm", "assemblies", "asm.step", "", _catalog(2), mates,
+                           headed).pairs[0].joint
+    assert joint.predicted == "revolute" and joint.agrees
+    assert joint.confidence == pytest.approx(2 / 3)
 
 
 def test_a_pair_seen_the_other_way_round_takes_the_converse_relations() -> None:

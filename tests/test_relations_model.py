@@ -35,6 +35,7 @@ from models.relations import (
 from models.relations_train import (
     Decision,
     RelationData,
+    evaluate,
     fit_thresholds,
     load_relation_model,
     make_relation_checkpoint,
@@ -309,3 +310,40 @@ def test_violations_and_calibration_error() -> None:
     c = rng.uniform(0.5, 1.0, 200_000)
     assert expected_calibration_error(c, rng.random(c.size) < c) < 0.01
     assert expected_calibration_error(c, np.zeros(c.size, bool)) == pytest.approx(c.mean(), 1e-9)
+
+
+def test_the_joint_head_learns_the_joint_and_answers_a_pair_and_its_swap_alike(
+        pairs: RelationData, tmp_path: Path) -> None:
+    from models.relations import JOINTS
+
+    conc, coin = IDX[Relation.CONCENTRIC], IDX[Relation.COINCIDENT]
+    named = np.where(pairs.labels[:, coin], "planar",
+                     np.where(pairs.labels[:, conc], "cylindrical", "none"))
+    assert {"planar", "cylindrical", "none"} <= set(named.tolist())
+    joints = np.array([JOINTS.index(j) for j in named])
+    data = RelationData(pairs.points, pairs.labels, pairs.mm, near=pairs.near, joints=joints)
+    cfg = tiny(method="ltn", joints=True, steps=300, batch_size=32, eval_every=100,
+               descriptors=True, train_points=96, widths=(16, 32, 32, 64), embed=32)
+    res = train_relations(cfg, data, data)
+    assert res.history[-1]["val_joint_balanced"] > 0.9
+    torch.manual_seed(0)
+    assert evaluate(RelationNet(cfg), data)["joint_balanced"] < 0.7  # untrained
+    pred = predict_relations(res.checkpoint, data)
+    assert pred.joint_probability is not None
+    np.testing.assert_allclose(pred.joint_probability.sum(1), 1.0, atol=1e-6)
+    assert np.mean(np.array(pred.joint()) == named) > 0.9
+    swapped = predict_relations(res.checkpoint, data.swapped())
+    assert swapped.joint() == pred.joint()
+    # the rules tie the joint to the mates it implies: a planar joint is a coincident pair
+    kb = knowledge_base(torch.from_numpy(pred.raw_ab), torch.from_numpy(pred.raw_ba),
+                        torch.from_numpy(data.labels).float(), cfg,
+                        torch.from_numpy(pred.joint_probability).float(),
+                        torch.from_numpy(joints))
+    assert kb["rules"].item() > 0.9
+    path = save_relation_checkpoint(tmp_path / "joint.pt", res.checkpoint)
+    again = predict_relations(path, data)
+    assert again.joint_probability is not None
+    np.testing.assert_array_equal(again.joint_probability, pred.joint_probability)
+    # a network trained without a joint head has no joint of its own
+    plain = train_relations(tiny(method="mlp"), pairs, pairs)
+    assert predict_relations(plain.checkpoint, pairs).joint() is None

@@ -84,6 +84,10 @@ def test_joint_types_follow_the_predicted_concentric_and_coincident() -> None:
         ["revolute", "revolute", True]]
     cad["kinematic"] = "planar"
     assert not joint_frame(pairs, cad)["agree"].any()
+    # a method with a joint head answers the joint itself: its answer is scored, not the rule
+    headed = pairs_frame([{**r, "joint": "planar"} for r in rows])
+    assert joint_frame(headed, cad)[["predicted_joint", "agree"]].values.tolist() == [
+        ["planar", True]]
 
 
 def test_calibration_error_is_zero_when_confidence_matches_accuracy() -> None:

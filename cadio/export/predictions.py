@@ -6,8 +6,10 @@ The product's answers (``PRODUCT`` of the relation report: the LTN on completed 
 each view's calibrated confidence gives the probability that the relation holds (the
 confidence of a "yes", one minus that of a "no"); their mean is the pair's probability, the
 answer is whether it reaches one half and the confidence is that of the answer. The joint is
-the one ``predicted_joint`` reads from the pooled concentric and coincident answers, with the
-product of their confidences.
+the network's own (its joint head's answer, a ``joint`` of the rows): the one most views give,
+with the share of views that give it as its confidence (ties: the first name in alphabetical
+order). Rows without one (a method without a joint head) read it with ``predicted_joint``
+from the pooled concentric and coincident answers, with the product of their confidences.
 
 Nothing is dropped: a pair the CAD mates name but no view saw is exported as ``not-captured``
 with the CAD's answers and no prediction; an assembly without any prediction is exported with
@@ -297,7 +299,14 @@ def _pair(a: PartRef, b: PartRef, rows: pd.DataFrame, mates: pd.DataFrame) -> Pa
     conc, coin = (next(c for c in calls if c.relation == r) for r in CONSTRAINED)
     joint_name: str | None = None
     confidence: float | None = None
-    if conc.predicted is not None and coin.predicted is not None:
+    said = rows.groupby("view")["joint"].first() if "joint" in rows.columns else pd.Series()
+    said = said[said.astype(str) != ""]
+    if len(said):  # the method's own joint per view: the most views' answer
+        counts = said.astype(str).value_counts()
+        top = counts[counts == counts.max()].index
+        joint_name = str(sorted(top)[0])
+        confidence = float(counts.max() / len(said))
+    elif conc.predicted is not None and coin.predicted is not None:
         joint_name = predicted_joint(conc.predicted, coin.predicted)
         if conc.confidence is not None and coin.confidence is not None:
             confidence = conc.confidence * coin.confidence

@@ -5,8 +5,10 @@ seen from a few cameras. Its pairs are labelled by the one truth function of pla
 (``cadio.truth.labels.label_placed``: face mates decide coincident and concentric, dominant
 plane directions parallel and perpendicular), and the directional relations of each view by
 that view's camera (the observer's forward axis on the ground is "behind"), exactly as the
-nightly's pairs are. One crash-isolated worker job per shot reads the parts' solids from
-their STEP files; a shot that fails is left out with its reason.
+nightly's pairs are. Each pair also carries the CAD's kinematic joint, read from its face
+mates as the nightly's ``assembly_joints`` reads it (``cadio.truth.mates.placed_joints``): the
+label of the relation networks' joint head. One crash-isolated worker job per shot reads the
+parts' solids from their STEP files; a shot that fails is left out with its reason.
 
 Pairs of a shot: the pair of a pair scene; in an assembly, every pair with a face mate, then
 the others nearest first, at most ``max_pairs``: the nightly scores every pair of an
@@ -29,7 +31,9 @@ from cadio.cad.step import read_step
 from cadio.records import FloatArray
 from cadio.sandbox import Job, Limits, run_isolated
 from cadio.tolerances import DEFAULT_TOLERANCES, Tolerances
+from cadio.truth.joints import NONE
 from cadio.truth.labels import label_placed, part_model
+from cadio.truth.mates import placed_joints
 from cadio.truth.relations import relate
 from cadio.workspace import read_features
 
@@ -67,6 +71,8 @@ class ShotLabels:
 
     pairs: (P, 2) instance ids (a, b). views: (V,) view indices. truth, near: (P, V, 10) bool,
     the relations of (a, b) for each view's observer and whether each sits near its boundary.
+    joints: (P,) str, the CAD's kinematic joint of (a, b) (``cadio.truth.joints``), ``"none"``
+    when its face mates constrain nothing.
     """
 
     shot: str
@@ -74,6 +80,7 @@ class ShotLabels:
     views: npt.NDArray[np.int64]
     truth: npt.NDArray[np.bool_]
     near: npt.NDArray[np.bool_]
+    joints: npt.NDArray[np.str_]
 
 
 def label_shot(job: LabelJob) -> ShotLabels:
@@ -88,6 +95,7 @@ def label_shot(job: LabelJob) -> ShotLabels:
                                  read_features(Path(part.features_path))))
         poses.append(np.asarray(part.pose_mm, dtype=np.float64).reshape(4, 4))
     placed = label_placed(models, poses, tol=job.tolerances)
+    kinematic = placed_joints(placed, job.tolerances)
     chosen = _pairs(job, placed.face_mates.contact, [p.features.centroid for p in placed.parts])
     truth = np.zeros((len(chosen), len(job.views), 10), dtype=bool)
     near = np.zeros_like(truth)
@@ -100,7 +108,9 @@ def label_shot(job: LabelJob) -> ShotLabels:
             truth[k, v], near[k, v] = result.truth, result.near
     ids = np.array([[job.parts[i].instance, job.parts[j].instance] for i, j in chosen],
                    dtype=np.int64).reshape(-1, 2)
-    return ShotLabels(job.shot, ids, np.array(job.views, dtype=np.int64), truth, near)
+    joints = np.array([kinematic.get((min(i, j), max(i, j)), NONE) for i, j in chosen],
+                      dtype=np.str_)
+    return ShotLabels(job.shot, ids, np.array(job.views, dtype=np.int64), truth, near, joints)
 
 
 def _pairs(job: LabelJob, contact: Callable[[int, int], object],

@@ -49,7 +49,7 @@ from cadio.truth.contact import SLACK, AxisFace, PartGeometry, describe_part
 from cadio.truth.facemates import Coincident, Concentric
 from cadio.truth.joints import AXIS, Constraint, derive_joint
 from cadio.truth.joints import PLANE as PLANE_CONTACT
-from cadio.truth.labels import label_placed
+from cadio.truth.labels import PlacedLabels, label_placed
 from cadio.truth.proximity import PartModel, box_pairs, contact_pairs
 from cadio.truth.relations import (
     CAD_VIEW_AXIS,
@@ -339,6 +339,26 @@ def _largest_dominant_face(f: Features, tol: Tolerances) -> int:
 
 
 # ---------------------------------------------------------------- joints and the table
+
+
+def placed_joints(labels: PlacedLabels, tol: Tolerances = DEFAULT_TOLERANCES
+                  ) -> dict[tuple[int, int], str]:
+    """The kinematic joint of every pair (i < j, indices of ``labels.parts``) whose face mates
+    constrain it, read as ``extract_mates`` reads it (the training corpus's joint labels)."""
+    coincident, concentric = labels.face_mates.mates()
+    mates = [_concentric_mate(c, tol) for c in concentric]
+    mates += [_coincident_mate(labels.parts, c) for c in coincident]
+    by_pair: dict[tuple[int, int], list[Constraint]] = {}
+    for m in mates:
+        i, j = int(m.row["index_a"]), int(m.row["index_b"])
+        if m.constraints:
+            by_pair.setdefault((min(i, j), max(i, j)), []).extend(m.constraints)
+    out = {}
+    for pair, constraints in by_pair.items():
+        joint = derive_joint(constraints, tol=tol)
+        assert joint is not None
+        out[pair] = joint.kinematic
+    return out
 
 
 def _joint_rows(parts: Sequence[PartGeometry], mates: list[_FaceMate],
