@@ -166,8 +166,7 @@ def train_relation_model(ws: Workspace, method: str, name: str, steps: int, out_
                          on_step: Callable[[], None] | None = None,
                          **overrides: Any) -> TrainedRelations:
     """Train one method on one input's training split, with its joint head; the best
-    checkpoint by validation (``relations_train.evaluate``'s "selection") goes to
-    ``out_dir/<method>-<input>.pt``."""
+    checkpoint by validation mean F1 goes to ``out_dir/<method>-<input>.pt``."""
     from models.relation_data import read_split
     from models.relations import RelationConfig
     from models.relations_train import save_relation_checkpoint, train_relations
@@ -282,8 +281,8 @@ def write_relation_card(ws: Workspace, out_dir: Path, run_dir: Path, command: st
         "samples, `partial`: the segmented scan, `completed`: the completion network's shape). "
         "Each relation's decision (threshold and temperature) is fitted on the validation "
         "split and kept in the checkpoint; the best step is chosen by mean F1 over the "
-        "relations, with the joint head's balanced accuracy (`val_joint`) as an eleventh "
-        "term. The joint head answers the pair's kinematic joint (none, planar, revolute, "
+        "relations (`val_joint`: the joint head's balanced accuracy there). The joint head "
+        "answers the pair's kinematic joint (none, planar, revolute, "
         "cylindrical, slider), trained on the CAD's joints of the labelled pairs; the report's "
         "joint agreement scores it on the jointed pairs. The networks see the points in the "
         "observer's frame only. Load with `torch.load(weights_only=True)`.", "",

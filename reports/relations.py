@@ -120,28 +120,54 @@ def joint_frame(pairs: pd.DataFrame, joints: pd.DataFrame,
     (``joints``: scene, part_a, part_b, kinematic), the product's joint (its joint head's
     answer; where a row has none, the joint its concentric and coincident answers imply)
     beside the CAD's kinematic joint (``JOINT_COLUMNS``)."""
-    inp, method = product
-    mine = pairs[(pairs["input"] == inp) & (pairs["method"] == method)
-                 & pairs["relation"].isin(["concentric", "coincident"])]
-    if "joint" not in mine.columns:
-        mine = mine.assign(joint="")
-    if mine.empty or joints.empty:
+    said = product_joints(pairs, product)
+    if said.empty or joints.empty:
         return pd.DataFrame(columns=list(JOINT_COLUMNS))
-    view = ["scene", "view", "part_a", "part_b"]
-    wide = mine.pivot_table(index=view, columns="relation", values="predicted",
-                            aggfunc="first").reset_index()
-    wide = wide.merge(mine.groupby(view)["joint"].first().reset_index(), on=view, how="left")
     both = pd.concat([joints, joints.rename(columns={"part_a": "part_b", "part_b": "part_a"})])
-    merged = wide.merge(both, on=["scene", "part_a", "part_b"])
+    merged = said.merge(both, on=["scene", "part_a", "part_b"])
     out = pd.DataFrame({
         "assembly": merged["scene"], "view": merged["view"], "part_a": merged["part_a"],
         "part_b": merged["part_b"], "cad_joint": merged["kinematic"],
-        "predicted_joint": [j if isinstance(j, str) and j else predicted_joint(bool(c), bool(k))
-                            for c, k, j in zip(merged.get("concentric", False),
-                                               merged.get("coincident", False),
-                                               merged["joint"], strict=True)]})
+        "predicted_joint": merged["predicted_joint"]})
     out["agree"] = out["cad_joint"] == out["predicted_joint"]
     return out[list(JOINT_COLUMNS)]
+
+
+def product_joints(pairs: pd.DataFrame, product: tuple[str, str] = PRODUCT) -> pd.DataFrame:
+    """The product's joint per pair view (scene, view, part_a, part_b, predicted_joint): its
+    rows' ``joint``, or where they carry none, the one its concentric and coincident imply."""
+    inp, method = product
+    mine = pairs[(pairs["input"] == inp) & (pairs["method"] == method)
+                 & pairs["relation"].isin(["concentric", "coincident"])]
+    view = ["scene", "view", "part_a", "part_b"]
+    if mine.empty:
+        return pd.DataFrame(columns=[*view, "predicted_joint"])
+    if "joint" not in mine.columns:
+        mine = mine.assign(joint="")
+    wide = mine.pivot_table(index=view, columns="relation", values="predicted",
+                            aggfunc="first").reset_index()
+    wide = wide.merge(mine.groupby(view)["joint"].first().reset_index(), on=view, how="left")
+    no = pd.Series(False, index=wide.index)
+    wide["predicted_joint"] = [
+        j if isinstance(j, str) and j else predicted_joint(bool(c), bool(k))
+        for c, k, j in zip(wide.get("concentric", no), wide.get("coincident", no),
+                           wide["joint"], strict=True)]
+    return wide[[*view, "predicted_joint"]]
+
+
+def false_joints(pairs: pd.DataFrame, joints: pd.DataFrame,
+                 product: tuple[str, str] = PRODUCT) -> tuple[int, int]:
+    """(views of assembly pairs without a CAD joint, those the product gives a joint): the
+    joint agreement's other side (it is scored on the jointed pairs only)."""
+    said = product_joints(pairs, product)
+    said = said[said["scene"].astype(str).str.startswith("assembly-")]
+    jointed = set()
+    for r in joints.itertuples():
+        jointed |= {(r.scene, r.part_a, r.part_b), (r.scene, r.part_b, r.part_a)}
+    free = [j for s, a, b, j in zip(said["scene"], said["part_a"], said["part_b"],
+                                    said["predicted_joint"], strict=True)
+            if (s, a, b) not in jointed]
+    return len(free), sum(j != "none" for j in free)
 
 
 def accuracy_table(summary: pd.DataFrame) -> pd.DataFrame:
@@ -206,7 +232,8 @@ def violation_table(summary: pd.DataFrame) -> pd.DataFrame:
 def relations_markdown(summary: pd.DataFrame, near: pd.DataFrame, assemblies: pd.DataFrame,
                        notes: Sequence[str] = (), joints: pd.DataFrame | None = None,
                        calibration: pd.DataFrame | None = None,
-                       assembly_f1: pd.DataFrame | None = None) -> str:
+                       assembly_f1: pd.DataFrame | None = None,
+                       false_joints: tuple[int, int] | None = None) -> str:
     """The Markdown report: accuracy beside Table III, violations, near-boundary, assemblies."""
     out = ["# Relations", *notes, "",
            "## Accuracy per relation (%, clear pairs), beside the paper's Table III", ""]
@@ -228,9 +255,14 @@ def relations_markdown(summary: pd.DataFrame, near: pd.DataFrame, assemblies: pd
     if joints is not None and len(joints):
         agree = joints.groupby(["assembly", "cad_joint"]).agg(
             n=("agree", "size"), agreement=("agree", "mean")).reset_index()
-        out += ["", "## Joint types: the CAD's beside those the predicted relations imply", "",
-                markdown_table(agree.round(3))]
+        out += ["", f"## Joint types: the CAD's beside {PRODUCT[1]}'s on {PRODUCT[0]} inputs",
+                "", markdown_table(agree.round(3))]
+    if false_joints is not None and false_joints[0]:
+        n, claimed = false_joints
+        out += ["", f"Of the {n} views of assembly pairs without a CAD joint, {claimed} "
+                f"({claimed / n:.1%}) were given a joint."]
     return "\n".join(out) + "\n"
+
 
 
 def _markdown(table: pd.DataFrame) -> str:
@@ -255,8 +287,10 @@ def write_relation_report(out: Path, pairs: pd.DataFrame, notes: Sequence[str] =
             frame.to_csv(fh, index=False)
     path = out / "relations.md"
     with atomic_write(path, "w") as fh:
-        fh.write(relations_markdown(summary, near_summary, assemblies, notes, agreement,
-                                    calibration_table(clear), assembly_f1_table(in_assemblies)))
+        fh.write(relations_markdown(
+            summary, near_summary, assemblies, notes, agreement, calibration_table(clear),
+            assembly_f1_table(in_assemblies),
+            false_joints(pairs, joints) if joints is not None and len(agreement) else None))
     return path
 
 

@@ -88,6 +88,13 @@ def test_joint_types_follow_the_predicted_concentric_and_coincident() -> None:
     headed = pairs_frame([{**r, "joint": "planar"} for r in rows])
     assert joint_frame(headed, cad)[["predicted_joint", "agree"]].values.tolist() == [
         ["planar", True]]
+    # the other side: a pair without a CAD joint that is given one
+    from reports.relations import false_joints
+
+    loose = [{**r, "part_a": "shaft", "part_b": "cover"} for r in rows]
+    assert false_joints(pairs_frame(rows + loose), cad) == (1, 1)
+    assert false_joints(pairs_frame(rows + [{**r, "joint": "none"} for r in loose]),
+                        cad) == (1, 0)
 
 
 def test_calibration_error_is_zero_when_confidence_matches_accuracy() -> None:
