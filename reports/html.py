@@ -150,8 +150,8 @@ def first_screen(page: Page, verdict: Verdict, facts: str, categories: pd.DataFr
     page.plot("relation_f1", "Relation F1 against the CAD per relation, every assembly "
               "(ltn on completed points; n: the CAD's pairs)",
               lambda fig: plots.relation_f1(fig, mates), SMALL)
-    page.plot("joint_agreement", "Joint agreement: the joint the predictions imply against "
-              "the CAD's", lambda fig: plots.joint_agreement(fig, joints), SMALL)
+    page.plot("joint_agreement", "Joint agreement: the product's joint against the CAD's",
+              lambda fig: plots.joint_agreement(fig, joints), SMALL)
     page.parts.append("</div>")
 
 

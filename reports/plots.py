@@ -15,7 +15,7 @@ from reports.relations import RELATIONS
 from reports.trends import ALL
 
 # Joint names in a fixed order (cadio.truth.joints names them); others follow, sorted.
-JOINT_ORDER = ("revolute", "cylindrical", "planar", "none")
+JOINT_ORDER = ("revolute", "cylindrical", "planar", "slider", "none")
 
 
 def category_iou(fig: Any, categories: pd.DataFrame) -> bool:
@@ -51,7 +51,7 @@ def relation_f1(fig: Any, mates: pd.DataFrame) -> bool:
 
 
 def joint_agreement(fig: Any, joints: pd.DataFrame) -> bool:
-    """The joint the predictions imply (columns) against the CAD's (rows), counted over the
+    """The product's joint (columns) against the CAD's (rows), counted over the
     jointed pair views (``assembly_joints.csv``); the diagonal agrees."""
     if joints.empty:
         return False
