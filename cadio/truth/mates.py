@@ -137,9 +137,7 @@ def extract_mates(
     clock.lap("features")
     labels = label_placed(models, [np.eye(4)] * len(models), view_axis, tol, margins)
     parts = labels.parts
-    coincident, concentric = labels.face_mates.mates()
-    mates = [_concentric_mate(c, tol) for c in concentric]
-    mates += [_coincident_mate(parts, c) for c in coincident]
+    mates = _face_mates(labels, tol)
     rows = [m.row for m in mates]
     clock.lap("face_mates")
     boxed = box_pairs(parts, 2.0 * tol.contact_mm)
@@ -345,31 +343,36 @@ def placed_joints(labels: PlacedLabels, tol: Tolerances = DEFAULT_TOLERANCES
                   ) -> dict[tuple[int, int], str]:
     """The kinematic joint of every pair (i < j, indices of ``labels.parts``) whose face mates
     constrain it, read as ``extract_mates`` reads it (the training corpus's joint labels)."""
-    coincident, concentric = labels.face_mates.mates()
-    mates = [_concentric_mate(c, tol) for c in concentric]
-    mates += [_coincident_mate(labels.parts, c) for c in coincident]
-    by_pair: dict[tuple[int, int], list[Constraint]] = {}
-    for m in mates:
-        i, j = int(m.row["index_a"]), int(m.row["index_b"])
-        if m.constraints:
-            by_pair.setdefault((min(i, j), max(i, j)), []).extend(m.constraints)
     out = {}
-    for pair, constraints in by_pair.items():
+    for (i, j), constraints in _constraints_by_pair(_face_mates(labels, tol)).items():
         joint = derive_joint(constraints, tol=tol)
         assert joint is not None
-        out[pair] = joint.kinematic
+        out[(min(i, j), max(i, j))] = joint.kinematic
     return out
+
+
+def _face_mates(labels: PlacedLabels, tol: Tolerances) -> list[_FaceMate]:
+    """The concentric, then the coincident face mates of placed parts, as rows."""
+    coincident, concentric = labels.face_mates.mates()
+    mates = [_concentric_mate(c, tol) for c in concentric]
+    return mates + [_coincident_mate(labels.parts, c) for c in coincident]
+
+
+def _constraints_by_pair(mates: Sequence[_FaceMate]) -> dict[tuple[int, int], list[Constraint]]:
+    """(index_a, index_b) -> the kinematic constraints of the pair's face mates (pairs whose
+    mates constrain nothing are absent)."""
+    by_pair: dict[tuple[int, int], list[Constraint]] = {}
+    for m in mates:
+        if m.constraints:
+            by_pair.setdefault((m.row["index_a"], m.row["index_b"]), []).extend(m.constraints)
+    return by_pair
 
 
 def _joint_rows(parts: Sequence[PartGeometry], mates: list[_FaceMate],
                 tol: Tolerances) -> list[Row]:
     """One joint row per pair with at least one coincident contact or shaft in a bore."""
-    by_pair: dict[tuple[int, int], list[Constraint]] = {}
-    for m in mates:
-        if m.constraints:
-            by_pair.setdefault((m.row["index_a"], m.row["index_b"]), []).extend(m.constraints)
     out = []
-    for (i, j), constraints in sorted(by_pair.items()):
+    for (i, j), constraints in sorted(_constraints_by_pair(mates).items()):
         a, b = parts[i], parts[j]
         joint = derive_joint(constraints, (a.name, b.name), tol)
         assert joint is not None
