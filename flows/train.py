@@ -43,7 +43,7 @@ from cadio.capture.corpus import (
 from cadio.capture.examples import PROTOCOLS
 from cadio.capture.pairs import INPUTS
 from cadio.catalog import read_catalog, to_frame, write_catalog
-from cadio.samples.assembly_variants import write_assembly_variants
+from cadio.samples.assembly_variants import FAMILIES, write_assembly_variants
 from cadio.samples.library import SampleConfig, generate_library
 from cadio.sandbox import Limits
 from cadio.truth.scenes import (
@@ -99,7 +99,7 @@ def corpus_fractions(library: Path, shared: Path | None) -> Callable[[str], tupl
 def prepare_corpus(ws: Workspace, shared: Path | None, variants: int, seed: int,
                    ingest_cfg: IngestConfig, corpus_cfg: CorpusConfig,
                    progress: Progress | None = None, pairs_per_relation: int = 150,
-                   assemblies: int = 200, contact_pairs: int = 0,
+                   assemblies: int = 20 * len(FAMILIES), contact_pairs: int = 0,
                    kinds: tuple[str, ...] = KINDS) -> Corpus:
     """Library with variants of its parts and assemblies (+ shared parts), ingest, pair
     scenes, the corpus of shots (``cadio.capture.corpus``). Reruns reuse every step; a stopped

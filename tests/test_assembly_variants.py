@@ -41,6 +41,9 @@ AUDIT_SEED = 109
 # Three small ones that ingest and the mates stage read as a library; with SMALL_SEED: two
 # bearings (parts of one colour), a fixed caster, a sleeve coupling whose shafts butt.
 SMALL, SMALL_SEED = ("bearing-shaft", "caster", "sleeve-coupling"), 4
+# The families without a shaft in a bore; four draws of each with SLIDE_SEED cover every joint
+# their options give (fitted and loose carriages, fitted and standard keys, a shoulder or not).
+SLIDES, SLIDE_SEED = ("slide-guide", "rail-carriage", "keyed-hub"), 7
 
 
 def test_draws_depend_only_on_seed_family_and_index() -> None:
@@ -132,7 +135,45 @@ def test_parts_do_not_interfere_and_the_designed_mates_exist(family: str, audite
     face = read_assembly_mates(path).level("face")
     assert missing_mates(v.mates, face) == []
     kinds = set(zip(face["relation"], face["fit"].fillna(""), strict=True))
-    assert {("concentric", "fit"), ("coincident", "")} <= kinds
+    assert {("coincident", "")} <= kinds
+    if family not in SLIDES:
+        assert ("concentric", "fit") in kinds
+
+
+def test_the_contact_families_slide_rest_and_turn_as_designed(tmp_path: Path) -> None:
+    """Bars in grooves, carriages on rails and keys in keyways are sliders (planar contacts
+    whose normals are not parallel) without interfering; their near misses are read as what
+    they are: a loose carriage and a standard key's hub ride on one plane (planar), a hub
+    turns on its shaft (cylindrical, or revolute against a shoulder). A segmented ring's
+    neighbours are planar."""
+    families = (*SLIDES, "segmented-ring")
+    entries = write_assembly_variants(tmp_path, 4 * len(families), SLIDE_SEED,
+                                      families=families)
+    joints: dict[str, set[str]] = {}
+    for e in entries:
+        v = draw_assembly_variant(e.name.rsplit("-v", 1)[0], int(e.name.rsplit("-v", 1)[1]),
+                                  SLIDE_SEED)
+        solids = read_step(tmp_path / e.path)
+        shapes = [bd.Solid(s.shape) for s in solids]
+        for shape, solid in zip(shapes, solids, strict=True):
+            shape.label = solid.info.name
+        assert overlaps(shapes) == [], e.name
+        result = read_assembly_mates(tmp_path / e.path)
+        assert missing_mates(v.mates, result.level("face")) == [], e.name
+        for r in result.level("joint").itertuples():
+            joints.setdefault(f"{v.family}:{r.name_a}-{r.name_b}", set()).add(str(r.kinematic))
+    assert joints["slide-guide:base-bar"] == {"slider"}
+    assert joints["rail-carriage:rail-carriage-1"] == {"slider", "planar"}  # fitted, loose
+    assert joints["keyed-hub:shaft-key"] == {"slider"}
+    assert joints["keyed-hub:hub-key"] == {"slider", "planar"}  # fitted, standard key
+    assert joints["keyed-hub:shaft-hub"] == {"cylindrical", "revolute"}
+    # a ring cut into segments: neighbours rest on their cuts, each turns on the shaft and in
+    # its housing, and segments that are not neighbours have no joint
+    assert joints["segmented-ring:segment-1-segment-2"] == {"planar"}
+    assert joints["segmented-ring:segment-2-segment-3"] == {"planar"}
+    assert "segmented-ring:segment-1-segment-3" not in joints
+    assert joints["segmented-ring:shaft-segment-1"] == {"cylindrical", "revolute"}
+    assert joints["segmented-ring:segment-1-housing"] == {"cylindrical"}
 
 
 def test_an_open_ball_bearing_has_round_contacts_and_no_mate_of_its_balls_or_rings(

@@ -2,7 +2,8 @@
 
 Five fixed assemblies are too few to train on parts as they are placed in assemblies. Each
 family here (bearings in a housing, open ball bearings with their balls apart, bolted lap
-joints, casters, gear pairs, pillow blocks, sleeve, jaw and flange couplings, pulleys on studs)
+joints, casters, gear pairs, pillow blocks, sleeve, jaw and flange couplings, pulleys on studs,
+bars in guide grooves, carriages on rails, keyed hubs)
 draws its sizes, counts and options from a
 seeded generator and places named, coloured parts as a real assembly has them: faces in contact
 without interference, shafts coaxial with their bores, parts resting on one another. A variant
@@ -52,6 +53,12 @@ from cadio.samples.shaft_assemblies import (
     draw_pillow_blocks,
     draw_pulley_drive,
 )
+from cadio.samples.slide_assemblies import (
+    draw_keyed_hub,
+    draw_rail_carriage,
+    draw_segmented_ring,
+    draw_slide_guide,
+)
 from cadio.sandbox import Job, Limits, run_isolated
 from cadio.workspace import write_json
 
@@ -73,6 +80,10 @@ FAMILIES: dict[str, Callable[[np.random.Generator], Design]] = {
     "flange-coupling": draw_flange_coupling,
     "pulley-drive": draw_pulley_drive,
     "ball-bearing": draw_ball_bearing,
+    "slide-guide": draw_slide_guide,
+    "rail-carriage": draw_rail_carriage,
+    "keyed-hub": draw_keyed_hub,
+    "segmented-ring": draw_segmented_ring,
 }
 
 
