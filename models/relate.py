@@ -34,8 +34,8 @@ from cadio.errors import CaptureError
 from cadio.records import FloatArray, Relation
 from cadio.workspace import Workspace, atomic_path
 from models.errors import CheckpointError
-from models.relation_decision import Decision
-from models.relations import RelationNet, violations
+from models.relation_decision import Decision, violations
+from models.relations import RelationNet
 from models.relations_train import (
     RelationData,
     load_relation_model,

@@ -1,5 +1,6 @@
-"""How a relation network's scores become answers: per-relation decision thresholds and
-temperatures, fitted on validation pairs.
+"""How a relation network's scores become answers: a pair and its swap decided together
+(``combine``, ``decide``; ``violations`` of the raw outputs), with per-relation decision
+thresholds and temperatures fitted on validation pairs.
 
 The fact axioms weigh a rare relation's positives and negatives alike, so a score of 0.5
 over-predicts it: each relation's threshold maximises its F1 on validation, and a temperature
@@ -10,11 +11,24 @@ its swap get the same decisions and confidences.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import TypeVar
 
 import numpy as np
 import numpy.typing as npt
 
-from models.relations import OPPOSITES, RELATIONS
+from models.relations import (
+    CONVERSE_INDEX,
+    DIRECTIONAL_INDEX,
+    EXCLUSIVE,
+    OPPOSITES,
+    PARALLEL,
+    PERPENDICULAR,
+    RELATIONS,
+)
+
+BoolArray = npt.NDArray[np.bool_]
+FloatArray = npt.NDArray[np.floating]
+G = TypeVar("G", bound=np.generic)
 
 _T_GRID = np.exp(np.linspace(np.log(0.05), np.log(20.0), 241))  # temperatures tried
 _THRESHOLDS = np.linspace(0.05, 0.95, 91)  # decision thresholds tried
@@ -96,3 +110,55 @@ def f1_scores(decided: npt.NDArray[np.bool_], truth: npt.NDArray[np.bool_]
     tp = (decided & truth).sum(0)
     total = decided.sum(0) + truth.sum(0)
     return np.where(total > 0, 2 * tp / np.maximum(total, 1), 1.0)
+
+
+def swap_decision(decided: npt.NDArray[G]) -> npt.NDArray[G]:
+    """Per-relation values of (a, b) -> those of (b, a): the converse columns swapped, (N, 10)."""
+    return decided[:, list(CONVERSE_INDEX)]
+
+
+def combine(raw_ab: FloatArray, raw_ba: FloatArray) -> FloatArray:
+    """The pair's score of each relation of (a, b), from both orders' outputs: (N, 10).
+
+    Directional r: mean of r(a, b) and conv(r)(b, a); symmetric r: mean of r(a, b) and
+    r(b, a). The swapped pair's scores are exactly ``swap_decision`` of these (the two terms
+    are the same numbers, and float addition commutes).
+    """
+    ab, ba = np.asarray(raw_ab, dtype=np.float64), np.asarray(raw_ba, dtype=np.float64)
+    return (ab + swap_decision(ba)) / 2
+
+
+def decide(score: FloatArray, thresholds: npt.ArrayLike | None = None) -> BoolArray:
+    """Relations that hold, (N, 10) bool, from ``combine``'s scores.
+
+    A score above its relation's threshold (default 0.5; fitted on validation by
+    ``relations_train.fit_thresholds``) holds, except that of each exclusive pair (left/right,
+    above/below, front/behind, parallel/perpendicular) only the one further above its threshold
+    may hold; on an exact tie neither does (any other choice would break the converse rule on
+    the swapped pair, whose converse relations share one threshold).
+    """
+    score = np.asarray(score)
+    t = np.full(score.shape[-1], 0.5) if thresholds is None else np.asarray(thresholds)
+    decided = score > t
+    margin = score - t
+    for i, j in EXCLUSIVE:
+        both = decided[:, i] & decided[:, j]
+        decided[:, i] &= ~both | (margin[:, i] > margin[:, j])
+        decided[:, j] &= ~both | (margin[:, j] > margin[:, i])
+    return decided
+
+
+def violations(raw_ab: FloatArray, raw_ba: FloatArray, threshold: float = 0.5) -> BoolArray:
+    """Where the thresholded raw outputs break a rule involving each relation: (N, 10) bool.
+
+    Directional r: r(a, b) disagrees with conv(r)(b, a), or r holds both ways. Symmetric r:
+    r(a, b) disagrees with r(b, a). Parallel and perpendicular: also both holding for (a, b)
+    or for (b, a).
+    """
+    a, b = np.asarray(raw_ab) > threshold, np.asarray(raw_ba) > threshold
+    out = a != swap_decision(b)
+    d = list(DIRECTIONAL_INDEX)
+    out[:, d] |= a[:, d] & b[:, d]
+    clash = (a[:, PARALLEL] & a[:, PERPENDICULAR]) | (b[:, PARALLEL] & b[:, PERPENDICULAR])
+    out[:, [PARALLEL, PERPENDICULAR]] |= clash[:, None]
+    return out

@@ -20,8 +20,9 @@ facts are the CAD's joints, and for ``ltn`` its rules are what each joint says o
 mates (``JOINT_IMPLIES``: a revolute joint is concentric and coincident, a planar one
 coincident, a pair without a joint not coincident).
 
-Inference decides a pair and its swap together (``combine`` then ``decide``), so the answers
-obey the rules for any network output; ``violations`` says where the raw outputs do not.
+Inference decides a pair and its swap together (``models.relation_decision``: ``combine``
+then ``decide``), so the answers obey the rules for any network output; ``violations`` says
+where the raw outputs do not.
 
 Points are (B, 2, P, 3) in the observer's frame (x right, y behind = the camera's forward
 direction on the ground, z up), any length unit, with the millimetres per unit of each pair
@@ -33,10 +34,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, fields
 from itertools import pairwise
-from typing import TypeVar
 
-import numpy as np
-import numpy.typing as npt
 import torch
 from torch import Tensor, nn
 
@@ -67,9 +65,6 @@ JOINT_IMPLIES = {"revolute": ((CONCENTRIC, True), (COINCIDENT, True)),
                  "planar": ((COINCIDENT, True),), "slider": ((COINCIDENT, True),),
                  "none": ((COINCIDENT, False),)}
 
-BoolArray = npt.NDArray[np.bool_]
-FloatArray = npt.NDArray[np.floating]
-G = TypeVar("G", bound=np.generic)
 
 
 @dataclass(frozen=True)
@@ -498,55 +493,3 @@ def joint_knowledge_base(joint_probs: Tensor, joints: Tensor, t_ab: Tensor,
     weights = torch.tensor([1.0] * n_facts + [cfg.rule_weight] * (len(axioms) - n_facts),
                            device=joint_probs.device)
     return weighted_forall(torch.stack(axioms), weights, cfg.p_sat)
-
-
-def swap_decision(decided: npt.NDArray[G]) -> npt.NDArray[G]:
-    """Per-relation values of (a, b) -> those of (b, a): the converse columns swapped, (N, 10)."""
-    return decided[:, list(CONVERSE_INDEX)]
-
-
-def combine(raw_ab: FloatArray, raw_ba: FloatArray) -> FloatArray:
-    """The pair's score of each relation of (a, b), from both orders' outputs: (N, 10).
-
-    Directional r: mean of r(a, b) and conv(r)(b, a); symmetric r: mean of r(a, b) and
-    r(b, a). The swapped pair's scores are exactly ``swap_decision`` of these (the two terms
-    are the same numbers, and float addition commutes).
-    """
-    ab, ba = np.asarray(raw_ab, dtype=np.float64), np.asarray(raw_ba, dtype=np.float64)
-    return (ab + swap_decision(ba)) / 2
-
-
-def decide(score: FloatArray, thresholds: npt.ArrayLike | None = None) -> BoolArray:
-    """Relations that hold, (N, 10) bool, from ``combine``'s scores.
-
-    A score above its relation's threshold (default 0.5; fitted on validation by
-    ``relations_train.fit_thresholds``) holds, except that of each exclusive pair (left/right,
-    above/below, front/behind, parallel/perpendicular) only the one further above its threshold
-    may hold; on an exact tie neither does (any other choice would break the converse rule on
-    the swapped pair, whose converse relations share one threshold).
-    """
-    score = np.asarray(score)
-    t = np.full(score.shape[-1], 0.5) if thresholds is None else np.asarray(thresholds)
-    decided = score > t
-    margin = score - t
-    for i, j in EXCLUSIVE:
-        both = decided[:, i] & decided[:, j]
-        decided[:, i] &= ~both | (margin[:, i] > margin[:, j])
-        decided[:, j] &= ~both | (margin[:, j] > margin[:, i])
-    return decided
-
-
-def violations(raw_ab: FloatArray, raw_ba: FloatArray, threshold: float = 0.5) -> BoolArray:
-    """Where the thresholded raw outputs break a rule involving each relation: (N, 10) bool.
-
-    Directional r: r(a, b) disagrees with conv(r)(b, a), or r holds both ways. Symmetric r:
-    r(a, b) disagrees with r(b, a). Parallel and perpendicular: also both holding for (a, b)
-    or for (b, a).
-    """
-    a, b = np.asarray(raw_ab) > threshold, np.asarray(raw_ba) > threshold
-    out = a != swap_decision(b)
-    d = list(DIRECTIONAL_INDEX)
-    out[:, d] |= a[:, d] & b[:, d]
-    clash = (a[:, PARALLEL] & a[:, PERPENDICULAR]) | (b[:, PARALLEL] & b[:, PERPENDICULAR])
-    out[:, [PARALLEL, PERPENDICULAR]] |= clash[:, None]
-    return out

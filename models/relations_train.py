@@ -43,9 +43,13 @@ from models.errors import CheckpointError
 from models.relation_decision import (
     Decision,
     calibrate,
+    combine,
+    decide,
     f1_scores,
     fit_temperatures,
     fit_thresholds,
+    swap_decision,
+    violations,
 )
 from models.relations import (
     JOINTS,
@@ -53,12 +57,8 @@ from models.relations import (
     RELATIONS,
     RelationConfig,
     RelationNet,
-    combine,
-    decide,
     joint_knowledge_base,
     knowledge_base,
-    swap_decision,
-    violations,
 )
 from models.train import TrainEvent, seeded
 from reports.relations import expected_calibration_error

@@ -15,6 +15,7 @@ from cadio.records import CONVERSE, DIRECTIONAL, SYMMETRIC, Relation
 from models.checkpoint import build_model, make_checkpoint, save_checkpoint
 from models.completion import CompletionConfig
 from models.errors import CheckpointError
+from models.relation_decision import combine, decide, swap_decision, violations
 from models.relations import (
     PARALLEL,
     PERPENDICULAR,
@@ -22,16 +23,12 @@ from models.relations import (
     RelationConfig,
     RelationNet,
     and_,
-    combine,
-    decide,
     exists,
     forall,
     implies,
     knowledge_base,
     normalise_pair,
     or_,
-    swap_decision,
-    violations,
 )
 from models.relations_train import (
     Decision,
