@@ -16,8 +16,9 @@ minute, 1,719 shots rendered in 17 min (1.7 shots/s), labels and the relation da
 (10,714 / 1,809 / 3,095 pair views). With the four contact families (2026-11-27, 280
 assemblies in all) the 80 new assemblies were rendered and labelled in 70 s beside the reused
 shots and the dataset was rebuilt in 26 min: 11,757 / 1,913 / 3,363 pair views, as the shipped
-relation card records. ``--contact-pairs`` adds touching pairs to the scenes, as ``mateqa train completion --contact-pairs`` does
-(about 3 s a pair on one core, and its shots beside).
+relation card records. ``--contact-pairs`` adds touching pairs to the scenes, as
+``mateqa train completion --contact-pairs`` does (about 3 s a pair on one core, and its shots
+beside).
 
 The corpus is stamped with its own configuration, so ``mateqa train completion`` refuses it;
 give completion a workspace of its own. ``--shared`` is resolved to an absolute folder: the
