@@ -151,8 +151,7 @@ def test_the_contact_families_slide_rest_and_turn_as_designed(tmp_path: Path) ->
                                       families=families)
     joints: dict[str, set[str]] = {}
     for e in entries:
-        v = draw_assembly_variant(e.name.rsplit("-v", 1)[0], int(e.name.rsplit("-v", 1)[1]),
-                                  SLIDE_SEED)
+        v = draw_assembly_variant(e.family, e.index, SLIDE_SEED)
         solids = read_step(tmp_path / e.path)
         shapes = [bd.Solid(s.shape) for s in solids]
         for shape, solid in zip(shapes, solids, strict=True):

@@ -31,6 +31,8 @@ FIT, CLEARANCE = "fit", "clearance"
 FASTENERS, MOTION = Category.FASTENERS.value, Category.MOTION.value
 BRAKES, CASTERS = Category.BRAKES.value, Category.CASTERS.value
 NO_CATEGORY = ""  # plates and frames: parts of no paper category
+BODY_COLOURS = ("blue", "green", "iron", "alu", "orange")  # housings, bases, hubs
+TO_X = bd.Rot(0, 90, 0)  # turns +Z into +X
 
 
 @dataclass(frozen=True)

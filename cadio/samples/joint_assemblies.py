@@ -25,6 +25,7 @@ from cadio.samples.assembly_kit import (
     MOTION,
     NO_CATEGORY,
     SIZES,
+    TO_X,
     Design,
     Mate,
     Metric,
@@ -55,7 +56,6 @@ from cadio.samples.parts import (
 from cadio.samples.variants import _pick, _u
 
 _PLATE_COLOURS = ("blue", "green", "iron", "alu", "orange", "steel")
-_TO_X = bd.Rot(0, 90, 0)  # turns +Z into +X
 
 
 def _hole(rng: np.random.Generator, m: Metric) -> float:
@@ -66,7 +66,7 @@ def _hole(rng: np.random.Generator, m: Metric) -> float:
 
 def _along_x(parts: list[PartSpec]) -> tuple[PartSpec, ...]:
     """The parts turned so that the design's Z axis lies along X."""
-    return tuple(replace(p, build=placed(_TO_X, p.build)) for p in parts)
+    return tuple(replace(p, build=placed(TO_X, p.build)) for p in parts)
 
 
 # --------------------------------------------------------------------------- bolted joint

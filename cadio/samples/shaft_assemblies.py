@@ -23,10 +23,12 @@ import build123d as bd
 import numpy as np
 
 from cadio.samples.assembly_kit import (
+    BODY_COLOURS,
     FASTENERS,
     MOTION,
     NO_CATEGORY,
     SIZES,
+    TO_X,
     Design,
     Mate,
     Metric,
@@ -54,8 +56,6 @@ from cadio.samples.parts import (
 from cadio.samples.variants import _pick, _u
 
 Build = Callable[[], bd.Shape[Any]]
-_BODY_COLOURS = ("blue", "green", "iron", "alu", "orange")
-_TO_X = bd.Rot(0, 90, 0)  # turns +Z into +X
 _BACKLASH_MM = 0.1  # centre distance beyond nominal, plus 5% of the module
 
 
@@ -136,7 +136,7 @@ def draw_bearing_shaft(rng: np.random.Generator) -> Design:
     collar_on = [names[-1], names[0]]
     low = min([0.0, *collar_z]) - _u(rng, 3, 25, 1.0)
     length = height + cw + _u(rng, 3, 25, 1.0) - low
-    colour = _pick(rng, _BODY_COLOURS)
+    colour = _pick(rng, BODY_COLOURS)
     parts = [PartSpec("housing", colour, MOTION,
                       lambda: _housing(b, two, lip, wall, square)),
              *[PartSpec(n, "steel", MOTION, placed(bd.Pos(0, 0, z), b.build))
@@ -240,7 +240,7 @@ def draw_ball_bearing(rng: np.random.Generator) -> Design:
     co = _collar_od(rng, b, b.pitch - b.ball / 2 - 0.5)  # clear of the balls
     low = -_u(rng, 3, 20, 1.0)
     length = height + (cw if collar else 0.0) + _u(rng, 3, 20, 1.0) - low
-    body = _pick(rng, _BODY_COLOURS)
+    body = _pick(rng, BODY_COLOURS)
     parts = [PartSpec("outer-ring", "steel", MOTION, placed(bd.Pos(0, 0, centre), b.outer)),
              PartSpec("inner-ring", "steel", MOTION, placed(bd.Pos(0, 0, centre), b.inner)),
              *[PartSpec(f"ball-{k + 1:02d}", "steel", MOTION,
@@ -295,10 +295,10 @@ class _Block:
         t, r, z = self.thick, self.boss_r, self.axis_z
         foot = _box(self.foot_x, 2 * (r + self.pad), self.foot_t, x=t / 2)
         pedestal = _box(t, 2 * r - 2 * min(2.0, self.wall / 3), z, x=t / 2)
-        boss = bd.Pos(0, 0, z) * _TO_X * bd.Cylinder(r, t, align=_Z0)
-        seat_bore = bd.Pos(-1, 0, z) * _TO_X * bd.Cylinder(self.b.od / 2, self.b.width + 1,
+        boss = bd.Pos(0, 0, z) * TO_X * bd.Cylinder(r, t, align=_Z0)
+        seat_bore = bd.Pos(-1, 0, z) * TO_X * bd.Cylinder(self.b.od / 2, self.b.width + 1,
                                                             align=_Z0)
-        through = bd.Pos(-1, 0, z) * _TO_X * bd.Cylinder(self.b.through, t + 2, align=_Z0)
+        through = bd.Pos(-1, 0, z) * TO_X * bd.Cylinder(self.b.through, t + 2, align=_Z0)
         holes = ([_cyl(self.hole_d / 2, self.foot_t + 2, t / 2, s * self.hole_y, -1)
                   for s in (-1, 1)] if self.hole_d else [])
         return _cut(_fuse(foot, pedestal, boss), seat_bore, through, *holes)
@@ -330,20 +330,20 @@ def draw_pillow_blocks(rng: np.random.Generator) -> Design:
         taps = [_cyl(tap_d / 2, plate_t + 2, x, y, -plate_t - 1) for x, y in screws]
         return _cut(plate, *taps) if taps else plate
 
-    parts = [PartSpec("base", _pick(rng, _BODY_COLOURS), NO_CATEGORY, base),
+    parts = [PartSpec("base", _pick(rng, BODY_COLOURS), NO_CATEGORY, base),
              PartSpec("shaft", "steel", MOTION,
-                      placed(bd.Pos(-ends[1], 0, block.axis_z) * _TO_X,
+                      placed(bd.Pos(-ends[1], 0, block.axis_z) * TO_X,
                              lambda: _shaft([(b.d, sum(ends))])))]
     mates: list[Mate] = []
-    colour = _pick(rng, _BODY_COLOURS)
+    colour = _pick(rng, BODY_COLOURS)
     for s, k in ((1, "a"), (-1, "b")):
         turn = bd.Pos(s * g, 0, 0) * bd.Rot(0, 0, 0 if s > 0 else 180)
         brg, blk, col = f"bearing-{k}", f"block-{k}", f"collar-{k}"
         on_axis = bd.Pos(s * g, 0, block.axis_z)
-        collar_at = on_axis * bd.Pos(-cw if s > 0 else 0, 0, 0) * _TO_X
+        collar_at = on_axis * bd.Pos(-cw if s > 0 else 0, 0, 0) * TO_X
         parts += [PartSpec(blk, colour, MOTION, placed(turn, block.build)),
                   PartSpec(brg, "steel", MOTION,
-                           placed(on_axis * bd.Pos(s * b.width / 2, 0, 0) * _TO_X, b.build)),
+                           placed(on_axis * bd.Pos(s * b.width / 2, 0, 0) * TO_X, b.build)),
                   PartSpec(col, "dark", MOTION,
                            placed(collar_at, lambda: _shaft_collar(b.d, co, cw)))]
         mates += [seat(blk, "base"), fit(brg, blk), seat(brg, blk), fit(brg, "shaft"),
@@ -403,7 +403,7 @@ def _studs(rng: np.random.Generator, wheels: list[_Wheel], reach: float) -> Desi
         sockets = [_cyl(w.d / 2, plate_t + 2, w.x, 0, -plate_t - 1) for w in wheels]
         return _cut(_box(size_x, size_y, plate_t, x=centre_x, z=-plate_t), *sockets)
 
-    parts = [PartSpec("base", _pick(rng, _BODY_COLOURS), NO_CATEGORY, base)]
+    parts = [PartSpec("base", _pick(rng, BODY_COLOURS), NO_CATEGORY, base)]
     mates: list[Mate] = []
     for k, w in enumerate(wheels):
         tag = "ab"[k]

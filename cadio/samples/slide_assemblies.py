@@ -28,9 +28,11 @@ import build123d as bd
 import numpy as np
 
 from cadio.samples.assembly_kit import (
+    BODY_COLOURS,
     FASTENERS,
     MOTION,
     NO_CATEGORY,
+    TO_X,
     Design,
     Mate,
     PartSpec,
@@ -40,9 +42,6 @@ from cadio.samples.assembly_kit import (
 )
 from cadio.samples.parts import _box, _cut, _cyl, _fuse, _one, _shaft
 from cadio.samples.variants import _pick, _u
-
-_BODY_COLOURS = ("blue", "green", "iron", "alu", "orange")
-_TO_X = bd.Rot(0, 90, 0)  # turns +Z into +X
 
 # DIN 6885-1 parallel keys: shaft diameter range (mm), key width b, height h, shaft depth t1,
 # hub depth t2 (t1 + t2 exceeds h by the standard's top clearance).
@@ -79,7 +78,7 @@ def draw_slide_guide(rng: np.random.Generator) -> Design:
         plate = _box(cl, width, ct, x=bx)
         return _cut(plate, _box(cl + 2, gw, proud, x=bx, z=0)) if proud else plate
 
-    parts = [PartSpec("base", _pick(rng, _BODY_COLOURS), NO_CATEGORY, base),
+    parts = [PartSpec("base", _pick(rng, BODY_COLOURS), NO_CATEGORY, base),
              PartSpec("bar", _pick(rng, ("steel", "dark", "brass")), MOTION,
                       lambda: _box(bl, bw, bh, x=bx, y=by, z=-gd))]
     mates = [seat("bar", "base")]
@@ -124,7 +123,7 @@ def draw_rail_carriage(rng: np.random.Generator) -> Design:
         return lambda: _cut(_box(cl, cw, rh - gap + top_t, x=x, z=gap),
                             _box(cl + 2, channel, rh - gap + 1, x=x, z=gap - 1))
 
-    parts = [PartSpec("plate", _pick(rng, _BODY_COLOURS), NO_CATEGORY, plate),
+    parts = [PartSpec("plate", _pick(rng, BODY_COLOURS), NO_CATEGORY, plate),
              PartSpec("rail", "steel", MOTION, lambda: _box(rl, rw, rh))]
     mates = [seat("rail", "plate")]
     colour = _pick(rng, ("dark", "red", "brass"))
@@ -184,9 +183,9 @@ def draw_keyed_hub(rng: np.random.Generator) -> Design:
             bd.Align.CENTER, bd.Align.MIN, bd.Align.MIN))
 
     along_x = bool(rng.random() < 0.5)
-    turn = _TO_X if along_x else bd.Rot(0, 0, 0)
+    turn = TO_X if along_x else bd.Rot(0, 0, 0)
     parts = [PartSpec("shaft", "steel", MOTION, placed(turn, shaft)),
-             PartSpec("hub", _pick(rng, _BODY_COLOURS), MOTION, placed(turn, hub)),
+             PartSpec("hub", _pick(rng, BODY_COLOURS), MOTION, placed(turn, hub)),
              PartSpec("key", _pick(rng, ("dark", "brass")), FASTENERS, placed(turn, key))]
     mates: list[Mate] = [fit("hub", "shaft"), seat("key", "shaft"), seat("key", "hub")]
     if shoulder:
@@ -228,7 +227,7 @@ def draw_segmented_ring(rng: np.random.Generator) -> Design:
     def shaft() -> bd.Shape[Any]:
         return _shaft([(d, near), (d + step, tail)]) if shoulder else _shaft([(d, near + tail)])
 
-    turn = _TO_X if rng.random() < 0.5 else bd.Rot(0, 0, 0)
+    turn = TO_X if rng.random() < 0.5 else bd.Rot(0, 0, 0)
     colour = _pick(rng, ("brass", "dark", "zinc", "red"))
     parts = [PartSpec("shaft", "steel", MOTION, placed(turn, shaft))]
     mates: list[Mate] = []
@@ -237,17 +236,17 @@ def draw_segmented_ring(rng: np.random.Generator) -> Design:
         label = f"segment-{k + 1}"
         parts.append(PartSpec(label, colour, MOTION, placed(
             turn, functools.partial(_sector, d / 2, ro, h, a0, a0 + 360 / n, z0))))
-        mates += [fit(label, "shaft"), seat(label, f"segment-{(k + 1) % n + 1}")]
+        mates.append(fit(label, "shaft"))
+        if n > 2 or k == 0:  # two halves touch on both cuts: one pair
+            mates.append(seat(label, f"segment-{(k + 1) % n + 1}"))
         if shoulder:
             mates.append(seat(label, "shaft"))
         if housed:
             mates.append(fit(label, "housing"))
     if housed:
-        hod = _u(rng, ro + 4, ro + 3 * wall + 6)
-        parts.append(PartSpec("housing", _pick(rng, _BODY_COLOURS), NO_CATEGORY, placed(
-            turn, lambda: _cut(_cyl(hod, h, z=z0), _cyl(ro, h + 2, z=z0 - 1)))))
-    if n == 2:
-        mates = [m for m in mates if not (m.a == "segment-2" and m.b == "segment-1")]
+        housing_r = _u(rng, ro + 4, ro + 3 * wall + 6)
+        parts.append(PartSpec("housing", _pick(rng, BODY_COLOURS), NO_CATEGORY, placed(
+            turn, lambda: _cut(_cyl(housing_r, h, z=z0), _cyl(ro, h + 2, z=z0 - 1)))))
     return Design(f"{n} segments {d:g}/{2 * ro:g}x{h:g} on a {d:g} mm shaft"
                   + (", on a shoulder" if shoulder else "") + (", housed" if housed else ""),
                   tuple(parts), tuple(mates))
