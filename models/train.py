@@ -348,6 +348,10 @@ def train_completion(cfg: Config, train_data: Data, val_data: Data | None,
     if start is not None:
         info["init"] = {"method": start.get("method"), "step": start.get("step"),
                         "created": start.get("created")}
+        # The weights learned from the init's parts too: a held-out figure must leave them out.
+        before = start.get("data", {}).get("train_parts", [])
+        if before or "train_parts" in info:
+            info["train_parts"] = sorted({*before, *info.get("train_parts", [])})
     with seeded(cfg.seed):
         run = _Run(Learner(cfg, torch.device(device)), train, val, info)
         if resume is not None:

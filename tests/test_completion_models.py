@@ -266,12 +266,15 @@ def test_mirror_flips_views_and_truth_of_the_same_examples_across_x(
 
 def test_a_run_started_from_a_checkpoint_starts_from_its_weights(
         two_parts: CompletionDataset) -> None:
-    first = train_completion(small("ae"), two_parts, None, steps=2)
+    first = train_completion(small("ae"), two_parts, None, steps=2,
+                             data_info={"train_parts": ["a", "b"]})
     tuned = train_completion(small("ae", mirror=0.5), two_parts, None, steps=0,
-                             init=first.checkpoint)
+                             init=first.checkpoint, data_info={"train_parts": ["c", "a"]})
     for k, v in first.model.state_dict().items():
         assert torch.equal(tuned.model.state_dict()[k], v), k
     assert tuned.checkpoint["data"]["init"]["step"] == first.checkpoint["step"]
+    # the tuned weights learned from the first run's parts too: they are never held out for it
+    assert tuned.checkpoint["data"]["train_parts"] == ["a", "b", "c"]
     with pytest.raises(ValueError, match="does not fit"):
         train_completion(small("ae", width=6), two_parts, None, steps=0, init=first.checkpoint)
     with pytest.raises(ValueError, match="one of them"):
