@@ -170,6 +170,33 @@ def false_joints(pairs: pd.DataFrame, joints: pd.DataFrame,
     return len(free), sum(j != "none" for j in free)
 
 
+def joint_interval(joints: pd.DataFrame, level: float = 0.95, draws: int = 2000,
+                   seed: int = 0) -> tuple[float, float, int]:
+    """A ``level`` interval of the joint agreement (the mean of ``agree`` over views) and the
+    number of distinct pairs it rests on. The views of one pair are not independent (one pair
+    seen from eight cameras is one mistake eight times), so the interval resamples the pairs
+    with replacement, each with all its views; (a, b) and (b, a) are one pair.
+
+    Args:
+        joints: ``assembly_joints.csv``'s rows (assembly, part_a, part_b, agree).
+
+    Returns:
+        (low, high, pairs); NaNs and 0 without rows.
+    """
+    if not len(joints):
+        return math.nan, math.nan, 0
+    a, b = joints["part_a"].astype(str), joints["part_b"].astype(str)
+    first, second = a.where(a <= b, b), b.where(a <= b, a)
+    key = joints["assembly"].astype(str) + "|" + first + "|" + second
+    per_pair = joints.assign(_pair=key).groupby("_pair")["agree"].agg(["sum", "size"])
+    hits, views = per_pair["sum"].to_numpy(float), per_pair["size"].to_numpy(float)
+    rng = np.random.default_rng(seed)
+    pick = rng.integers(0, len(per_pair), size=(draws, len(per_pair)))
+    means = hits[pick].sum(1) / views[pick].sum(1)
+    tail = (1.0 - level) / 2
+    return float(np.quantile(means, tail)), float(np.quantile(means, 1 - tail)), len(per_pair)
+
+
 def accuracy_table(summary: pd.DataFrame) -> pd.DataFrame:
     """Accuracy (%) per relation (rows) and input/method (columns), category "all", with the
     paper's Table III beside it."""
@@ -255,8 +282,12 @@ def relations_markdown(summary: pd.DataFrame, near: pd.DataFrame, assemblies: pd
     if joints is not None and len(joints):
         agree = joints.groupby(["assembly", "cad_joint"]).agg(
             n=("agree", "size"), agreement=("agree", "mean")).reset_index()
+        low, high, pairs = joint_interval(joints)
         out += ["", f"## Joint types: the CAD's beside {PRODUCT[1]}'s on {PRODUCT[0]} inputs",
-                "", markdown_table(agree.round(3))]
+                "", markdown_table(agree.round(3)), "",
+                f"Joint agreement {joints['agree'].mean():.3f} over {len(joints)} views of "
+                f"{pairs} distinct pairs; 95% interval {low:.3f} to {high:.3f}, resampling the "
+                "pairs (the views of one pair are not independent)."]
     if false_joints is not None and false_joints[0]:
         n, claimed = false_joints
         out += ["", f"Of the {n} views of assembly pairs without a CAD joint, {claimed} "

@@ -149,6 +149,7 @@ def test_the_train_flow_trains_and_reports_the_relation_networks(corpus, tmp_pat
     assert {"cylindrical", "planar"} <= set(joints["cad_joint"])
     assert set(joints["predicted_joint"]) <= {"none", "planar", "revolute", "cylindrical",
                                               "slider"}
+    assert "distinct pairs; 95% interval" in (tmp_path / "run" / "relations.md").read_text()
     # a rerun with the same labels and completion network reuses the dataset
     stamp = (folder / "stamp.json").stat().st_mtime_ns
     assert relation_dataset_task.fn(str(ws.root), str(completion), 2) == {

@@ -13,6 +13,7 @@ from reports.relations import (
     PAIR_COLUMNS,
     SUMMARY_COLUMNS,
     accuracy_table,
+    joint_interval,
     pairs_frame,
     scores,
     write_relation_report,
@@ -115,3 +116,25 @@ def test_f1_against_the_cad_mates_puts_every_method_beside_the_product() -> None
     assert table.loc["left", "completed/ltn"] == 2 / 3  # precision 1, recall 1/2
     assert table.loc["left", "completed/geometric"] == 0.8  # precision 2/3, recall 1
     assert assembly_f1_table(pairs_frame([])).empty
+
+
+def test_the_joint_interval_resamples_pairs_not_views() -> None:
+    """Eight views of one pair are one pair: the interval counts distinct pairs ((a, b) and
+    (b, a) alike), holds the agreement, and is as wide as the pairs' disagreement makes it."""
+    rows = []
+    for k in range(4):  # four pairs seen 8 times each, in both orders; two always right
+        for view in range(8):
+            a, b = (f"p{k}", f"q{k}") if view % 2 else (f"q{k}", f"p{k}")
+            rows.append({"assembly": "asm", "part_a": a, "part_b": b, "agree": k < 2})
+    table = pd.DataFrame(rows)
+    low, high, pairs = joint_interval(table)
+    assert pairs == 4
+    assert low <= table["agree"].mean() <= high
+    # per view, 32 draws would give a narrow interval; four pairs leave it wide
+    assert high - low >= 0.5
+    everyone = table.assign(agree=True)
+    assert joint_interval(everyone)[:2] == (1.0, 1.0)
+    many = pd.concat([table.assign(assembly=f"asm{i}") for i in range(25)], ignore_index=True)
+    low_many, high_many, pairs_many = joint_interval(many)
+    assert pairs_many == 100 and high_many - low_many < (high - low) / 2
+    assert joint_interval(table.iloc[:0])[2] == 0
