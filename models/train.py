@@ -361,6 +361,8 @@ def train_completion(cfg: Config, train_data: Data, val_data: Data | None,
                 run.learner.model.load_state_dict(model_from_checkpoint(start).state_dict())
             except (CheckpointError, RuntimeError) as exc:
                 raise ValueError(f"the init checkpoint does not fit {cfg.method}: {exc}") from exc
+            if run.val:  # where the fine-tune starts, on its own validation split
+                info["init"].update(run.learner.evaluate(run.val, run.val_counts))
         for step in range(run.start, steps):
             event = run.step(step, steps)
             if progress is not None:

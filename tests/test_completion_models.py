@@ -275,6 +275,10 @@ def test_a_run_started_from_a_checkpoint_starts_from_its_weights(
     assert tuned.checkpoint["data"]["init"]["step"] == first.checkpoint["step"]
     # the tuned weights learned from the first run's parts too: they are never held out for it
     assert tuned.checkpoint["data"]["train_parts"] == ["a", "b", "c"]
+    # with a validation split, the checkpoint says how good its start was there
+    scored = train_completion(small("ae"), two_parts, two_parts, steps=0, init=first.checkpoint)
+    start = scored.checkpoint["data"]["init"]
+    assert 0.0 <= start["val_iou"] <= 1.0 and start["val_ce"] > 0
     with pytest.raises(ValueError, match="does not fit"):
         train_completion(small("ae", width=6), two_parts, None, steps=0, init=first.checkpoint)
     with pytest.raises(ValueError, match="one of them"):
