@@ -19,10 +19,10 @@ Measured on one NVIDIA H200 (2026-11-27; median of 10 steps after two warm-ups, 
 | 64^3 -> 256^3 | ae | 1,562,414 | 32 | 0.329 | 97 | 21.83 |
 
 So the paper's size costs about 7x the time per example of the shipped size (gan_lstm), and
-fits one GPU at batch 32. What keeps it from a lent machine is the data, not the compute: a
-256^3 truth grid is 2 MB as bits, so the 12k training examples of the shipped checkpoints
-would be some 24 GB before compression, where a call to the machine carries 64 MiB. A paper-
-size run needs its corpus built where it trains.
+fits one GPU at batch 32. The data is the harder part: a 256^3 truth grid is 2 MB as bits, so
+the 12k training examples of the shipped checkpoints would be some 24 GB before compression
+(the 64^3 pack of ``bench/packed_corpus.py`` is 9 MB). A paper-size run needs its corpus built
+on the machine that trains it.
 """
 
 from __future__ import annotations
