@@ -33,7 +33,9 @@ PAIR_COLUMNS = ("scene", "view", "part_a", "part_b", "category", "input", "metho
                 "truth", "predicted", "confidence", "near_boundary")
 SUMMARY_COLUMNS = ("input", "method", "relation", "category", "n", "accuracy", "precision",
                    "recall", "f1", "violation_rate")
-ASSEMBLY_COLUMNS = ("assembly", "relation", "n_cad", "n_pred", "precision", "recall", "f1")
+# f1_low, f1_high: a 95% interval of f1 that resamples the distinct pairs (``f1_interval``)
+ASSEMBLY_COLUMNS = ("assembly", "relation", "n_cad", "n_pred", "precision", "recall", "f1",
+                    "pairs", "f1_low", "f1_high")
 JOINT_COLUMNS = ("assembly", "view", "part_a", "part_b", "cad_joint", "predicted_joint", "agree")
 RELATIONS = ("left", "right", "above", "below", "front", "behind", "parallel", "perpendicular",
              "concentric", "coincident")
@@ -87,7 +89,8 @@ def summary_frame(pairs: pd.DataFrame) -> pd.DataFrame:
 
 def assembly_frame(pairs: pd.DataFrame, product: tuple[str, str] = PRODUCT) -> pd.DataFrame:
     """``assembly_mates`` rows: per assembly scene (and "all") and relation, the CAD's count
-    (n_cad), the product method's (n_pred) and their precision, recall and F1."""
+    (n_cad), the product method's (n_pred), their precision, recall and F1, and F1's 95%
+    interval over the distinct pairs the views show (``f1_interval``)."""
     inp, method = product
     mine = pairs[(pairs["input"] == inp) & (pairs["method"] == method)]
     rows = []
@@ -95,9 +98,11 @@ def assembly_frame(pairs: pd.DataFrame, product: tuple[str, str] = PRODUCT) -> p
         for rel in RELATIONS:
             g = group[group["relation"] == rel]
             s = scores(g["truth"].to_numpy(), g["predicted"].to_numpy())
+            low, high, distinct = f1_interval(g)
             rows.append({"assembly": assembly, "relation": rel, "n_cad": int(g["truth"].sum()),
                          "n_pred": int(g["predicted"].sum()), "precision": s["precision"],
-                         "recall": s["recall"], "f1": s["f1"]})
+                         "recall": s["recall"], "f1": s["f1"], "pairs": distinct,
+                         "f1_low": low, "f1_high": high})
     return pd.DataFrame(rows, columns=list(ASSEMBLY_COLUMNS))
 
 
@@ -170,6 +175,29 @@ def false_joints(pairs: pd.DataFrame, joints: pd.DataFrame,
     return len(free), sum(j != "none" for j in free)
 
 
+def _pair_key(scene: pd.Series, a: pd.Series, b: pd.Series) -> pd.Series:
+    """One key per distinct pair of a scene: (a, b) and (b, a) alike."""
+    a, b = a.astype(str), b.astype(str)
+    return scene.astype(str) + "|" + a.where(a <= b, b) + "|" + b.where(a <= b, a)
+
+
+def _resampled(per_pair: npt.NDArray[np.float64], draws: int, seed: int
+               ) -> npt.NDArray[np.float64]:
+    """(draws, columns) sums of per-pair counts (pairs, columns) over resamples of the pairs
+    with replacement."""
+    rng = np.random.default_rng(seed)
+    pick = rng.integers(0, len(per_pair), size=(draws, len(per_pair)))
+    return np.asarray(per_pair[pick].sum(axis=1), dtype=np.float64)
+
+
+def _tails(values: npt.NDArray[np.float64], level: float) -> tuple[float, float]:
+    values = values[np.isfinite(values)]
+    if not len(values):
+        return math.nan, math.nan
+    tail = (1.0 - level) / 2
+    return float(np.quantile(values, tail)), float(np.quantile(values, 1 - tail))
+
+
 def joint_interval(joints: pd.DataFrame, level: float = 0.95, draws: int = 2000,
                    seed: int = 0) -> tuple[float, float, int]:
     """A ``level`` interval of the joint agreement (the mean of ``agree`` over views) and the
@@ -185,16 +213,37 @@ def joint_interval(joints: pd.DataFrame, level: float = 0.95, draws: int = 2000,
     """
     if not len(joints):
         return math.nan, math.nan, 0
-    a, b = joints["part_a"].astype(str), joints["part_b"].astype(str)
-    first, second = a.where(a <= b, b), b.where(a <= b, a)
-    key = joints["assembly"].astype(str) + "|" + first + "|" + second
+    key = _pair_key(joints["assembly"], joints["part_a"], joints["part_b"])
     per_pair = joints.assign(_pair=key).groupby("_pair")["agree"].agg(["sum", "size"])
-    hits, views = per_pair["sum"].to_numpy(float), per_pair["size"].to_numpy(float)
-    rng = np.random.default_rng(seed)
-    pick = rng.integers(0, len(per_pair), size=(draws, len(per_pair)))
-    means = hits[pick].sum(1) / views[pick].sum(1)
-    tail = (1.0 - level) / 2
-    return float(np.quantile(means, tail)), float(np.quantile(means, 1 - tail)), len(per_pair)
+    sums = _resampled(per_pair.to_numpy(float), draws, seed)
+    return (*_tails(sums[:, 0] / sums[:, 1], level), len(per_pair))
+
+
+def f1_interval(rows: pd.DataFrame, level: float = 0.95, draws: int = 2000,
+                seed: int = 0) -> tuple[float, float, int]:
+    """A ``level`` interval of the F1 of one relation's answers over pair views, and the number
+    of distinct pairs. As ``joint_interval``: the pairs are resampled, each with all its views
+    (its true and false positives and false negatives together). Resamples without a positive
+    either way (F1 undefined) are left out.
+
+    Args:
+        rows: ``relations_pairs`` rows of one relation (scene, part_a, part_b, truth,
+            predicted).
+
+    Returns:
+        (low, high, pairs); NaNs where F1 is undefined in every resample, and 0 without rows.
+    """
+    if not len(rows):
+        return math.nan, math.nan, 0
+    t, p = rows["truth"].astype(bool), rows["predicted"].astype(bool)
+    counts = pd.DataFrame({"_pair": _pair_key(rows["scene"], rows["part_a"], rows["part_b"]),
+                           "tp": t & p, "fp": ~t & p, "fn": t & ~p})
+    per_pair = counts.groupby("_pair")[["tp", "fp", "fn"]].sum()
+    sums = _resampled(per_pair.to_numpy(float), draws, seed)
+    denominator = 2 * sums[:, 0] + sums[:, 1] + sums[:, 2]
+    with np.errstate(invalid="ignore", divide="ignore"):
+        f1 = np.where(denominator > 0, 2 * sums[:, 0] / denominator, np.nan)
+    return (*_tails(f1, level), len(per_pair))
 
 
 def accuracy_table(summary: pd.DataFrame) -> pd.DataFrame:
@@ -276,6 +325,9 @@ def relations_markdown(summary: pd.DataFrame, near: pd.DataFrame, assemblies: pd
     out += [f"## Against the CAD mates of the assemblies ({PRODUCT[1]} on {PRODUCT[0]} inputs)",
             ""]
     out += [markdown_table(assemblies.round(3)) if len(assemblies) else "no assembly captured"]
+    if len(assemblies):
+        out += ["", "f1_low to f1_high: a 95% interval of f1 that resamples the distinct pairs "
+                "(pairs), each with all its views."]
     if assembly_f1 is not None and len(assembly_f1):
         out += ["", "## F1 against the CAD mates, every method and input (all assemblies)", "",
                 markdown_table(assembly_f1.round(3).reset_index())]

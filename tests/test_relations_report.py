@@ -138,3 +138,31 @@ def test_the_joint_interval_resamples_pairs_not_views() -> None:
     low_many, high_many, pairs_many = joint_interval(many)
     assert pairs_many == 100 and high_many - low_many < (high - low) / 2
     assert joint_interval(table.iloc[:0])[2] == 0
+
+
+def test_the_f1_interval_resamples_pairs_and_fills_the_assembly_table() -> None:
+    """F1's interval counts distinct pairs (a pair seen in many views is one pair), holds the
+    F1, narrows with more pairs, and is undefined where no resample has a positive."""
+    from reports.relations import assembly_frame, f1_interval
+
+    rows = []
+    for k in range(6):  # six pairs, eight views each in both orders
+        truth, predicted = k < 3, k in (0, 1, 3)  # two hits, one miss, one false mate
+        for view in range(8):
+            a, b = (f"p{k}", f"q{k}") if view % 2 else (f"q{k}", f"p{k}")
+            rows.append({"scene": "assembly-x", "part_a": a, "part_b": b, "truth": truth,
+                         "predicted": predicted})
+    table = pd.DataFrame(rows)
+    f1 = scores(table["truth"].to_numpy(), table["predicted"].to_numpy())["f1"]
+    low, high, pairs = f1_interval(table)
+    assert pairs == 6 and low <= f1 <= high and high - low >= 0.3
+    many = pd.concat([table.assign(scene=f"assembly-{i}") for i in range(30)])
+    low_many, high_many, pairs_many = f1_interval(many)
+    assert pairs_many == 180 and high_many - low_many < (high - low) / 2
+    empty = f1_interval(table.assign(truth=False, predicted=False))
+    assert math.isnan(empty[0]) and math.isnan(empty[1]) and empty[2] == 6
+    assert f1_interval(table.iloc[:0])[2] == 0
+    frame = pairs_frame(_rows("assembly-a", "ltn", [True, True, False], [True, False, False]))
+    left = assembly_frame(frame).set_index(["assembly", "relation"]).loc[("all", "left")]
+    # three views of one pair: one pair, its F1 the only value a resample can take
+    assert left["pairs"] == 1 and left["f1_low"] == left["f1"] == left["f1_high"]
