@@ -11,9 +11,18 @@ input (``truth``: exact CAD surface samples, area-uniform) under the given featu
 counts per relation: pairs the evidence gets right, the misses where it found no dominant
 direction (and the ratio it saw), and the misses where it found one at the wrong angle.
 
+With ``--parts N`` it reads parts instead, at the density the pair evidence is measured on
+(``PairConfig.evidence_points`` CAD surface samples of the workspace's mesh, in the part's own
+frame): for N parts drawn from ``features/`` (seeded), whether the evidence's dominant
+direction is the B-rep's (within 3 degrees, both at least 1.5 times the runner-up), at another
+angle, missed, claimed where the B-rep has none, or rightly absent. Any workspace with meshes
+and features will do (a night's, for parts no network trained on).
+
 Usage:
     .venv/bin/python bench/dominant_evidence.py --workspace train-workspace [--split val]
         [--input truth] [--pairs 600] [--set neighbours=12 flat=0.05 ...]
+    .venv/bin/python bench/dominant_evidence.py --workspace train-workspace --parts 600
+        [--set strip_turn_deg=0,noise_where_flat=0]
 
 Nothing is asserted: it prints the counts.
 """
@@ -21,6 +30,7 @@ Nothing is asserted: it prints the counts.
 from __future__ import annotations
 
 import argparse
+import json
 import math
 import time
 from dataclasses import fields, replace
@@ -29,6 +39,8 @@ from pathlib import Path
 import numpy as np
 
 from cadio.capture.pair_features import FeatureConfig, dominant_direction, part_cloud
+from cadio.capture.pairs import DEFAULT_PAIRS, placed_surface_samples
+from cadio.workspace import read_mesh
 from models.relation_data import read_split
 
 PARALLEL, PERPENDICULAR, COINCIDENT = 6, 7, 9  # label columns
@@ -75,6 +87,32 @@ def report(name: str, e: np.ndarray, labels: np.ndarray) -> None:
     print(f"  ({name}: a dominant direction on both parts in {dominant.mean():.3f} of the pairs)")
 
 
+def part_agreement(workspace: Path, n: int, cfg: FeatureConfig) -> dict[str, int]:
+    """Counts of N drawn parts: the evidence's dominant direction against the B-rep's."""
+    ids = sorted(p.stem for p in (workspace / "features").glob("*.json"))
+    rng = np.random.default_rng(0)
+    ids = [ids[i] for i in sorted(rng.choice(len(ids), min(n, len(ids)), replace=False))]
+    counts = dict.fromkeys(("agree", "other_angle", "missed", "claimed", "rightly_none"), 0)
+    for pid in ids:
+        brep = json.loads((workspace / "features" / f"{pid}.json").read_text())
+        direction, runner_up = brep.get("dominant_plane"), brep.get("dominant_runner_up")
+        truth = direction is not None and runner_up is not None and runner_up <= 1 / RATIO
+        points = placed_surface_samples(read_mesh(workspace / "meshes" / f"{pid}.ply"), pid,
+                                        np.eye(4), DEFAULT_PAIRS.evidence_points, 1.0)
+        found, ratio = dominant_direction(part_cloud(points, cfg), cfg)
+        seen = found is not None and ratio >= RATIO
+        if truth and seen:
+            angle = math.degrees(math.acos(min(1.0, abs(float(np.dot(found, direction))))))
+            counts["agree" if angle <= ANGLE_DEG else "other_angle"] += 1
+        else:
+            counts["missed" if truth else "claimed" if seen else "rightly_none"] += 1
+    return counts
+
+
+def _value(kind: type, text: str) -> object:
+    return text.lower() in ("1", "true", "yes") if kind is bool else kind(text)
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--workspace", type=Path, required=True)
@@ -82,8 +120,24 @@ def main() -> None:
     ap.add_argument("--input", default="truth", choices=["truth", "partial", "completed"])
     ap.add_argument("--pairs", type=int, default=600, help="clear pairs read (the first ones)")
     ap.add_argument("--set", nargs="*", default=[], metavar="FIELD=VALUE",
-                    help="FeatureConfig fields to change, each run beside the defaults")
+                    help="FeatureConfig fields to change, each item run beside the defaults")
+    ap.add_argument("--parts", type=int, default=0,
+                    help="read this many parts at the evidence's density instead of pairs")
     args = ap.parse_args()
+    types = {f.name: type(f.default) for f in fields(FeatureConfig)}
+    configs = [("defaults", FeatureConfig())]
+    for item in args.set:  # one config per item; FIELD=VALUE,FIELD=VALUE changes several
+        changes = dict(change.split("=", 1) for change in item.split(","))
+        configs.append((item, replace(FeatureConfig(), **{
+            field: _value(types[field], value) for field, value in changes.items()})))
+    if args.parts:
+        print(f"{args.parts} parts of {args.workspace} at {DEFAULT_PAIRS.evidence_points} "
+              "CAD samples each")
+        for name, cfg in configs:
+            counts = part_agreement(args.workspace, args.parts, cfg)
+            right = (counts["agree"] + counts["rightly_none"]) / max(sum(counts.values()), 1)
+            print(f"{name}: {counts}; right {right:.3f}")
+        return
     split = read_split(args.workspace / "datasets" / "relations" / f"{args.split}.npz")
     rows = np.flatnonzero(~split.meta["near_boundary"].to_numpy())[:args.pairs]
     meta = split.meta.iloc[rows]
@@ -92,11 +146,6 @@ def main() -> None:
         for p in (a, b)]
     points, labels = split.inputs[args.input][rows], split.labels[rows]
     mm = 1.0 / meta["scale_m_per_mm"].to_numpy()
-    types = {f.name: type(f.default) for f in fields(FeatureConfig)}
-    configs = [("defaults", FeatureConfig())]
-    for item in args.set:
-        field, value = item.split("=", 1)
-        configs.append((item, replace(FeatureConfig(), **{field: types[field](value)})))
     print(f"{args.split}/{args.input}: {len(rows)} clear pairs")
     for name, cfg in configs:
         clock = time.perf_counter()
