@@ -22,7 +22,7 @@ Usage:
     .venv/bin/python bench/dominant_evidence.py --workspace train-workspace [--split val]
         [--input truth] [--pairs 600] [--set neighbours=12 flat=0.05 ...]
     .venv/bin/python bench/dominant_evidence.py --workspace train-workspace --parts 600
-        [--set strip_turn_deg=0,noise_where_flat=0]
+        [--set neighbours=12,flat=0.05]
 
 Nothing is asserted: it prints the counts.
 """

@@ -28,14 +28,6 @@ class FeatureConfig:
     plane_eps_mm: float = 0.02
     noise_factor: float = 4.0
     plane_normal_deg: float = 30.0
-    # A plane whose normals turn steadily by more than this across its narrow side is a strip
-    # of a curved face (0: not tested): a tangent plane holds a strip of a pipe a few points
-    # wide, too narrow for the sag of ``_bends`` to show.
-    strip_turn_deg: float = 10.0
-    # The noise that widens ``plane_eps_mm`` measured on the flat points only: on a mostly
-    # curved part every point's PCA residual is its curvature, and a tolerance grown from it
-    # let planes hold millimetres of a pipe's wall, normals 15-20 degrees apart.
-    noise_where_flat: bool = True
     min_plane: int = 8  # points of the smallest plane kept
     max_planes: int = 12
     max_seeds: int = 200  # flat points proposing planes
@@ -93,11 +85,9 @@ def part_cloud(points_mm: FloatArray, cfg: FeatureConfig = DEFAULT_FEATURES) -> 
     share = evals[:, 0] / np.maximum(evals.sum(axis=1), 1e-30)
     normals = evecs[:, :, 0]
     spacing = float(np.median(dist[:, 1])) if k > 1 else 0.0
-    flat = share < cfg.flat
-    residual = np.sqrt(np.clip(evals[:, 0], 0.0, None) / k)
-    noise = float(np.median(residual[flat] if cfg.noise_where_flat and flat.any() else residual))
+    noise = float(np.median(np.sqrt(np.clip(evals[:, 0], 0.0, None) / k)))
     eps = max(cfg.plane_eps_mm, cfg.noise_factor * noise)
-    plane_of, planes = _extract_planes(pts, normals, flat, eps, cfg)
+    plane_of, planes = _extract_planes(pts, normals, share < cfg.flat, eps, cfg)
     return PartCloud(pts, normals, plane_of >= 0, planes, spacing, plane_of)
 
 
@@ -128,8 +118,7 @@ def _extract_planes(pts: FloatArray, normals: FloatArray, flat: npt.NDArray[np.b
             break
         members = holds[best] & free
         normal = normals[seeds[best]]
-        if _bends(pts[members], normal, eps) or _strip(pts[members], normals[members], normal,
-                                                        cfg):
+        if _bends(pts[members], normal, eps):
             counts[members[seeds]] = 0  # no seed on that strip proposes its plane again
             counts[best] = 0
             continue
@@ -158,27 +147,6 @@ def _bends(points: FloatArray, normal: FloatArray, eps: float) -> bool:
     spread = float(np.var(d))
     explained = 1.0 - float(np.var(d - design @ coef)) / spread if spread > 0 else 0.0
     return sag > 0.5 * eps and explained > 0.5
-
-
-def _strip(points: FloatArray, normals: FloatArray, normal: FloatArray,
-           cfg: FeatureConfig) -> bool:
-    """Whether the normals of points held by a plane turn steadily across its narrow side: by
-    more than ``cfg.strip_turn_deg`` from one edge to the other, the trend explaining most of
-    their spread. A cylinder's strip turns by its width over its radius; a face's normals
-    scatter without a trend."""
-    if cfg.strip_turn_deg <= 0:
-        return False
-    centred = points - points.mean(axis=0)
-    inplane = centred - np.outer(centred @ normal, normal)
-    _, _, vt = np.linalg.svd(inplane, full_matrices=False)
-    u = inplane @ vt[1]  # across the narrow side
-    tilt = (normals * np.sign(normals @ normal)[:, None]) @ vt[1]  # sine of each one's turn
-    spread, var_tilt = float(np.var(u)), float(np.var(tilt))
-    if spread <= 0 or var_tilt <= 0:
-        return False
-    slope = float(np.mean((u - u.mean()) * (tilt - tilt.mean()))) / spread
-    turn = math.degrees(abs(slope) * float(u.max() - u.min()))
-    return turn > cfg.strip_turn_deg and slope**2 * spread / var_tilt > 0.5
 
 
 def axis_of(normals: FloatArray) -> tuple[FloatArray, float]:
