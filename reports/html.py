@@ -129,9 +129,10 @@ class Page:
 
 
 def first_screen(page: Page, verdict: Verdict, facts: str, categories: pd.DataFrame,
-                 mates: pd.DataFrame, joints: pd.DataFrame) -> None:
-    """The verdict, its table of headline figures, the failed inputs' count and the three
-    plots (``categories``: ``completion_categories`` rows of the observed protocol)."""
+                 mates: pd.DataFrame, joints: pd.DataFrame, intervals: str = "") -> None:
+    """The verdict, its table of headline figures, the assembly figures' intervals
+    (``verdict.assembly_intervals``), the failed inputs' count and the three plots
+    (``categories``: ``completion_categories`` rows of the observed protocol)."""
     page.text(facts, "facts")
     page.parts.append(f"<div class='banner {'pass' if verdict.passed else 'fail'}'>"
                       f"{html.escape(verdict.headline())}</div>")
@@ -141,6 +142,8 @@ def first_screen(page: Page, verdict: Verdict, facts: str, categories: pd.DataFr
               "(regressed); grey: too few parts, pairs or files to check. A category's verdict "
               "is the worst of all its checks (the folded table below lists every one).",
               "legend")
+    if intervals:
+        page.text(f"Assemblies: {intervals}.", "legend")
     if verdict.problems:
         page.text(f"Inputs that failed: {verdict.problem_counts()}; files and reasons in "
                   "\"Inputs that failed, and why\" below.", "legend")

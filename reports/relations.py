@@ -27,6 +27,7 @@ import pandas as pd
 
 from cadio.truth.joints import predicted_joint
 from cadio.workspace import atomic_path, atomic_write
+from reports.intervals import f1_interval, joint_interval
 from reports.tables import markdown_table
 
 PAIR_COLUMNS = ("scene", "view", "part_a", "part_b", "category", "input", "method", "relation",
@@ -173,77 +174,6 @@ def false_joints(pairs: pd.DataFrame, joints: pd.DataFrame,
                                     said["predicted_joint"], strict=True)
             if (s, a, b) not in jointed]
     return len(free), sum(j != "none" for j in free)
-
-
-def _pair_key(scene: pd.Series, a: pd.Series, b: pd.Series) -> pd.Series:
-    """One key per distinct pair of a scene: (a, b) and (b, a) alike."""
-    a, b = a.astype(str), b.astype(str)
-    return scene.astype(str) + "|" + a.where(a <= b, b) + "|" + b.where(a <= b, a)
-
-
-def _resampled(per_pair: npt.NDArray[np.float64], draws: int, seed: int
-               ) -> npt.NDArray[np.float64]:
-    """(draws, columns) sums of per-pair counts (pairs, columns) over resamples of the pairs
-    with replacement."""
-    rng = np.random.default_rng(seed)
-    pick = rng.integers(0, len(per_pair), size=(draws, len(per_pair)))
-    return np.asarray(per_pair[pick].sum(axis=1), dtype=np.float64)
-
-
-def _tails(values: npt.NDArray[np.float64], level: float) -> tuple[float, float]:
-    values = values[np.isfinite(values)]
-    if not len(values):
-        return math.nan, math.nan
-    tail = (1.0 - level) / 2
-    return float(np.quantile(values, tail)), float(np.quantile(values, 1 - tail))
-
-
-def joint_interval(joints: pd.DataFrame, level: float = 0.95, draws: int = 2000,
-                   seed: int = 0) -> tuple[float, float, int]:
-    """A ``level`` interval of the joint agreement (the mean of ``agree`` over views) and the
-    number of distinct pairs it rests on. The views of one pair are not independent (one pair
-    seen from eight cameras is one mistake eight times), so the interval resamples the pairs
-    with replacement, each with all its views; (a, b) and (b, a) are one pair.
-
-    Args:
-        joints: ``assembly_joints.csv``'s rows (assembly, part_a, part_b, agree).
-
-    Returns:
-        (low, high, pairs); NaNs and 0 without rows.
-    """
-    if not len(joints):
-        return math.nan, math.nan, 0
-    key = _pair_key(joints["assembly"], joints["part_a"], joints["part_b"])
-    per_pair = joints.assign(_pair=key).groupby("_pair")["agree"].agg(["sum", "size"])
-    sums = _resampled(per_pair.to_numpy(float), draws, seed)
-    return (*_tails(sums[:, 0] / sums[:, 1], level), len(per_pair))
-
-
-def f1_interval(rows: pd.DataFrame, level: float = 0.95, draws: int = 2000,
-                seed: int = 0) -> tuple[float, float, int]:
-    """A ``level`` interval of the F1 of one relation's answers over pair views, and the number
-    of distinct pairs. As ``joint_interval``: the pairs are resampled, each with all its views
-    (its true and false positives and false negatives together). Resamples without a positive
-    either way (F1 undefined) are left out.
-
-    Args:
-        rows: ``relations_pairs`` rows of one relation (scene, part_a, part_b, truth,
-            predicted).
-
-    Returns:
-        (low, high, pairs); NaNs where F1 is undefined in every resample, and 0 without rows.
-    """
-    if not len(rows):
-        return math.nan, math.nan, 0
-    t, p = rows["truth"].astype(bool), rows["predicted"].astype(bool)
-    counts = pd.DataFrame({"_pair": _pair_key(rows["scene"], rows["part_a"], rows["part_b"]),
-                           "tp": t & p, "fp": ~t & p, "fn": t & ~p})
-    per_pair = counts.groupby("_pair")[["tp", "fp", "fn"]].sum()
-    sums = _resampled(per_pair.to_numpy(float), draws, seed)
-    denominator = 2 * sums[:, 0] + sums[:, 1] + sums[:, 2]
-    with np.errstate(invalid="ignore", divide="ignore"):
-        f1 = np.where(denominator > 0, 2 * sums[:, 0] / denominator, np.nan)
-    return (*_tails(f1, level), len(per_pair))
 
 
 def accuracy_table(summary: pd.DataFrame) -> pd.DataFrame:

@@ -38,7 +38,7 @@ from reports.trends import (
     write_categories,
     write_junit,
 )
-from reports.verdict import build_verdict, read_problems
+from reports.verdict import assembly_intervals, build_verdict, read_problems
 
 SUMMARY = "summary.json"  # written last by a run that completed
 
@@ -148,7 +148,7 @@ def _page(run_dir: Path, checks: pd.DataFrame, parts: pd.DataFrame, pairs: pd.Da
     mates = _read_csv(run_dir / "assembly_mates.csv")
     joints = _read_csv(run_dir / "assembly_joints.csv")
     first_screen(page, build_verdict(run_dir.name, checks, problems), _facts_line(facts),
-                 observed, mates, joints)
+                 observed, mates, joints, assembly_intervals(run_dir))
 
     def files(*names: str) -> list[str]:
         return [n for n in names if (run_dir / n).is_file()]

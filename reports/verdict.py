@@ -4,7 +4,8 @@ A QA engineer reads this first, at the top of ``report.html`` and at the end of
 ``mateqa nightly``'s output. ``build_verdict`` makes it from the threshold checks
 (``categories.csv``) and the inputs that failed (``ingest.json``, ``stages.json``);
 ``read_verdict`` reads both back from a run folder; ``console_verdict`` writes it as a dozen
-lines of plain text. Pure pandas and the standard library: no CAD, no torch.
+lines of plain text; ``assembly_intervals`` says how far the assembly figures can be trusted.
+Pure pandas, NumPy and the standard library: no CAD, no torch.
 """
 
 from __future__ import annotations
@@ -178,6 +179,33 @@ def read_verdict(run_dir: Path) -> Verdict:
     return build_verdict(run_dir.name, checks, read_problems(run_dir))
 
 
+def assembly_intervals(run_dir: Path) -> str:
+    """The 95% intervals of the assemblies' mates F1 and joint agreement, each resampling the
+    distinct pairs it rests on (``reports.intervals``), as one sentence; empty where the run
+    scored no assembly. A figure over a few dozen pairs moves by tenths from night to night
+    without anything changing: this says by how much."""
+    from reports.intervals import joint_interval, mates_f1_interval
+    from reports.relations import PRODUCT
+
+    run_dir = Path(run_dir)
+    said = []
+    pairs_path, joints_path = run_dir / "relations_pairs.parquet", run_dir / "assembly_joints.csv"
+    if pairs_path.is_file():
+        pairs = pd.read_parquet(pairs_path, columns=["scene", "part_a", "part_b", "input",
+                                                     "method", "relation", "truth", "predicted"])
+        mine = pairs[(pairs["input"] == PRODUCT[0]) & (pairs["method"] == PRODUCT[1])
+                     & pairs["scene"].astype(str).str.startswith("assembly-")]
+        low, high, n = mates_f1_interval(mine)
+        if n:
+            said.append(f"mates F1 {low:.3f} to {high:.3f} ({n} pairs)")
+    if joints_path.is_file() and joints_path.stat().st_size:
+        joints = pd.read_csv(joints_path)
+        if len(joints):
+            low, high, n = joint_interval(joints)
+            said.append(f"joint agreement {low:.3f} to {high:.3f} ({n} pairs)")
+    return ("95% intervals over the distinct pairs: " + ", ".join(said)) if said else ""
+
+
 # ---------------------------------------------------------------- the console
 
 
@@ -186,7 +214,7 @@ def console_verdict(run_dir: Path) -> str:
     category with its figures, the failed checks, the failed inputs and where the report is."""
     run_dir = Path(run_dir).resolve()
     verdict = read_verdict(run_dir)
-    lines = [verdict.headline(), *_figure_lines(verdict)]
+    lines = [verdict.headline(), *_figure_lines(verdict, assembly_intervals(run_dir))]
     for line in verdict.failed[:SHOWN_FAILURES]:
         lines.append(f"  failed: {printable(line)}")
     if len(verdict.failed) > SHOWN_FAILURES:
@@ -199,7 +227,7 @@ def console_verdict(run_dir: Path) -> str:
     return "\n".join(lines)
 
 
-def _figure_lines(verdict: Verdict) -> list[str]:
+def _figure_lines(verdict: Verdict, intervals: str = "") -> list[str]:
     """The per-category table (completion, relations, ingest) and the assemblies' line. Pair
     categories (``a+b``) are listed only where they failed, and counted on a line of their own:
     a library of ten categories has 45 of them."""
@@ -219,6 +247,8 @@ def _figure_lines(verdict: Verdict) -> list[str]:
                  if whole is not None and whole.figure(m) is not None]
     if assembled:
         lines.append("  assemblies against the CAD: " + ", ".join(assembled))
+        if intervals:
+            lines.append(f"    {intervals}")
     hidden = [c.status for c in verdict.categories if c.category in pairs
               and c.status not in FAILED]
     if hidden:

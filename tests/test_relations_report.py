@@ -166,3 +166,26 @@ def test_the_f1_interval_resamples_pairs_and_fills_the_assembly_table() -> None:
     left = assembly_frame(frame).set_index(["assembly", "relation"]).loc[("all", "left")]
     # three views of one pair: one pair, its F1 the only value a resample can take
     assert left["pairs"] == 1 and left["f1_low"] == left["f1"] == left["f1_high"]
+
+
+def test_the_mates_f1_interval_averages_the_relations_of_each_draw() -> None:
+    """With one relation it is that relation's F1 interval; with two it holds their mean F1
+    and is no wider than the wider of the two."""
+    from reports.intervals import f1_interval, mates_f1_interval
+
+    rows = []
+    for k in range(10):
+        for rel, truth, predicted in (("concentric", k < 5, k < 4), ("coincident", k < 3,
+                                                                     k in (0, 5, 6))):
+            rows += [{"scene": "assembly-y", "part_a": f"a{k}", "part_b": f"b{k}",
+                      "relation": rel, "truth": truth, "predicted": predicted}] * 3
+    table = pd.DataFrame(rows)
+    one = table[table["relation"] == "concentric"]
+    assert mates_f1_interval(one) == f1_interval(one)
+    low, high, pairs = mates_f1_interval(table)
+    f1 = [scores(g["truth"].to_numpy(), g["predicted"].to_numpy())["f1"]
+          for _, g in table.groupby("relation")]
+    assert pairs == 10 and low <= float(np.mean(f1)) <= high
+    widths = [f1_interval(g)[1] - f1_interval(g)[0] for _, g in table.groupby("relation")]
+    assert high - low <= max(widths)
+    assert mates_f1_interval(table.iloc[:0])[2] == 0

@@ -183,3 +183,47 @@ def test_the_console_lists_pair_categories_only_where_they_failed(tmp_path: Path
     assert "  2 pair categories (a+b) not shown: 1 pass, 1 too-few; every one is in " \
         "report.html" in text.splitlines()
     assert "  failed: bolts+shafts relation_accuracy fail: 0.5 (floor 0.8)" in text
+
+
+def test_the_assembly_figures_come_with_intervals_over_their_distinct_pairs(
+        tmp_path: Path) -> None:
+    """The console and the page give the mates F1 and the joint agreement a 95% interval
+    that counts distinct pairs; a run without assemblies says nothing of them."""
+    from reports.verdict import assembly_intervals
+
+    run = tmp_path / "20260104T000000Z"
+    run.mkdir()
+    assert assembly_intervals(run) == ""
+    rows, joints = [], []
+    for k in range(12):  # twelve assembly pairs, four views each; eight right, four wrong
+        right = k < 8
+        for view in range(4):
+            for rel, truth in (("concentric", k % 2 == 0), ("coincident", k % 3 == 0)):
+                rows.append({"scene": "assembly-x", "view": view, "part_a": f"a{k}",
+                             "part_b": f"b{k}", "category": "c", "input": "completed",
+                             "method": "ltn", "relation": rel, "truth": truth,
+                             "predicted": truth if right else not truth, "confidence": 0.9,
+                             "near_boundary": False})
+            joints.append({"assembly": "assembly-x", "view": view, "part_a": f"b{k}",
+                           "part_b": f"a{k}", "cad_joint": "revolute",
+                           "predicted_joint": "revolute" if right else "none",
+                           "agree": right})
+    # the same pairs by another method: not the product, not counted
+    rows += [dict(r, method="mlp", predicted=not r["predicted"]) for r in rows]
+    pd.DataFrame(rows).to_parquet(run / "relations_pairs.parquet")
+    pd.DataFrame(joints).to_csv(run / "assembly_joints.csv", index=False)
+    said = assembly_intervals(run)
+    assert said.startswith("95% intervals over the distinct pairs: mates F1 ")
+    assert "(12 pairs)" in said and said.count("(12 pairs)") == 2, said
+    mates_low, mates_high = (float(x) for x in said.split("mates F1 ")[1].split(" (")[0]
+                             .split(" to "))
+    joint_low, joint_high = (float(x) for x in said.split("joint agreement ")[1].split(" (")[0]
+                             .split(" to "))
+    assert joint_low <= 8 / 12 <= joint_high and joint_high - joint_low > 0.3
+    assert 0 < mates_low < mates_high < 1
+    check_metrics(_metrics([("all", "completion_iou", 0.5, 40), ("all", "mates_f1", 0.7, 40),
+                            ("all", "joint_agreement", 8 / 12, 48)]), [], LIMITS).to_csv(
+        run / "categories.csv", index=False)
+    assert f"    {said}" in console_verdict(run).splitlines()
+    report = write_run_report(run, [], LIMITS)
+    assert "95% intervals over the distinct pairs" in Path(report.html).read_text()

@@ -1,0 +1,124 @@
+"""Intervals of the assembly figures that resample the distinct pairs they rest on.
+
+The views of one pair are not independent: one pair seen from eight cameras is one mistake
+eight times. So each interval draws the distinct pairs with replacement, each with all its
+views ((a, b) and (b, a) are one pair), and reads the figure's quantiles over the draws. Pure
+NumPy and pandas: the verdict reads them too.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import numpy.typing as npt
+import pandas as pd
+
+LEVEL = 0.95
+DRAWS = 2000
+
+
+def _pair_key(scene: pd.Series, a: pd.Series, b: pd.Series) -> pd.Series:
+    """One key per distinct pair of a scene: (a, b) and (b, a) alike."""
+    a, b = a.astype(str), b.astype(str)
+    return scene.astype(str) + "|" + a.where(a <= b, b) + "|" + b.where(a <= b, a)
+
+
+def _resampled(per_pair: npt.NDArray[np.float64], draws: int, seed: int
+               ) -> npt.NDArray[np.float64]:
+    """(draws, columns) sums of per-pair counts (pairs, columns) over resamples of the pairs
+    with replacement."""
+    rng = np.random.default_rng(seed)
+    pick = rng.integers(0, len(per_pair), size=(draws, len(per_pair)))
+    return np.asarray(per_pair[pick].sum(axis=1), dtype=np.float64)
+
+
+def _tails(values: npt.NDArray[np.float64], level: float) -> tuple[float, float]:
+    values = values[np.isfinite(values)]
+    if not len(values):
+        return math.nan, math.nan
+    tail = (1.0 - level) / 2
+    return float(np.quantile(values, tail)), float(np.quantile(values, 1 - tail))
+
+
+def joint_interval(joints: pd.DataFrame, level: float = LEVEL, draws: int = DRAWS,
+                   seed: int = 0) -> tuple[float, float, int]:
+    """A ``level`` interval of the joint agreement (the mean of ``agree`` over views) and the
+    number of distinct pairs it rests on. The views of one pair are not independent (one pair
+    seen from eight cameras is one mistake eight times), so the interval resamples the pairs
+    with replacement, each with all its views; (a, b) and (b, a) are one pair.
+
+    Args:
+        joints: ``assembly_joints.csv``'s rows (assembly, part_a, part_b, agree).
+
+    Returns:
+        (low, high, pairs); NaNs and 0 without rows.
+    """
+    if not len(joints):
+        return math.nan, math.nan, 0
+    key = _pair_key(joints["assembly"], joints["part_a"], joints["part_b"])
+    per_pair = joints.assign(_pair=key).groupby("_pair")["agree"].agg(["sum", "size"])
+    sums = _resampled(per_pair.to_numpy(float), draws, seed)
+    return (*_tails(sums[:, 0] / sums[:, 1], level), len(per_pair))
+
+
+def f1_interval(rows: pd.DataFrame, level: float = LEVEL, draws: int = DRAWS,
+                seed: int = 0) -> tuple[float, float, int]:
+    """A ``level`` interval of the F1 of one relation's answers over pair views, and the number
+    of distinct pairs. As ``joint_interval``: the pairs are resampled, each with all its views
+    (its true and false positives and false negatives together). Resamples without a positive
+    either way (F1 undefined) are left out.
+
+    Args:
+        rows: ``relations_pairs`` rows of one relation (scene, part_a, part_b, truth,
+            predicted).
+
+    Returns:
+        (low, high, pairs); NaNs where F1 is undefined in every resample, and 0 without rows.
+    """
+    if not len(rows):
+        return math.nan, math.nan, 0
+    t, p = rows["truth"].astype(bool), rows["predicted"].astype(bool)
+    counts = pd.DataFrame({"_pair": _pair_key(rows["scene"], rows["part_a"], rows["part_b"]),
+                           "tp": t & p, "fp": ~t & p, "fn": t & ~p})
+    per_pair = counts.groupby("_pair")[["tp", "fp", "fn"]].sum()
+    sums = _resampled(per_pair.to_numpy(float), draws, seed)
+    denominator = 2 * sums[:, 0] + sums[:, 1] + sums[:, 2]
+    with np.errstate(invalid="ignore", divide="ignore"):
+        f1 = np.where(denominator > 0, 2 * sums[:, 0] / denominator, np.nan)
+    return (*_tails(f1, level), len(per_pair))
+
+
+def mates_f1_interval(rows: pd.DataFrame, level: float = LEVEL, draws: int = DRAWS,
+                      seed: int = 0) -> tuple[float, float, int]:
+    """A ``level`` interval of the mates F1 (the mean over relations of each relation's F1, as
+    the verdict's ``mates_f1``) and the number of distinct pairs: every relation's counts are
+    resampled with the same draw of pairs. A relation whose F1 is undefined in a draw is left
+    out of that draw's mean.
+
+    Args:
+        rows: ``relations_pairs`` rows of one input and method in the assemblies (scene,
+            part_a, part_b, relation, truth, predicted).
+
+    Returns:
+        (low, high, pairs); NaNs and 0 without rows.
+    """
+    if not len(rows):
+        return math.nan, math.nan, 0
+    t, p = rows["truth"].astype(bool), rows["predicted"].astype(bool)
+    counts = pd.DataFrame({"_pair": _pair_key(rows["scene"], rows["part_a"], rows["part_b"]),
+                           "relation": rows["relation"].astype(str),
+                           "tp": t & p, "fp": ~t & p, "fn": t & ~p})
+    wide = counts.pivot_table(index="_pair", columns="relation", values=["tp", "fp", "fn"],
+                              aggfunc="sum", fill_value=0)
+    relations = sorted(set(counts["relation"]))
+    stacked = np.stack([wide[k].reindex(columns=relations, fill_value=0).to_numpy(float)
+                        for k in ("tp", "fp", "fn")], axis=2)  # (pairs, relations, 3)
+    sums = _resampled(stacked.reshape(len(stacked), -1), draws, seed).reshape(
+        draws, len(relations), 3)
+    denominator = 2 * sums[..., 0] + sums[..., 1] + sums[..., 2]
+    with np.errstate(invalid="ignore", divide="ignore"):
+        f1 = np.where(denominator > 0, 2 * sums[..., 0] / denominator, np.nan)
+        means = np.nanmean(np.where(np.isnan(f1).all(axis=1, keepdims=True), 0.0, f1), axis=1)
+    means[np.isnan(f1).all(axis=1)] = np.nan
+    return (*_tails(means, level), len(stacked))
