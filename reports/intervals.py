@@ -65,9 +65,8 @@ def joint_interval(joints: pd.DataFrame, level: float = LEVEL, draws: int = DRAW
 def f1_interval(rows: pd.DataFrame, level: float = LEVEL, draws: int = DRAWS,
                 seed: int = 0) -> tuple[float, float, int]:
     """A ``level`` interval of the F1 of one relation's answers over pair views, and the number
-    of distinct pairs. As ``joint_interval``: the pairs are resampled, each with all its views
-    (its true and false positives and false negatives together). Resamples without a positive
-    either way (F1 undefined) are left out.
+    of distinct pairs: ``mates_f1_interval`` of the rows as a single relation. Resamples
+    without a positive either way (F1 undefined) are left out.
 
     Args:
         rows: ``relations_pairs`` rows of one relation (scene, part_a, part_b, truth,
@@ -76,25 +75,16 @@ def f1_interval(rows: pd.DataFrame, level: float = LEVEL, draws: int = DRAWS,
     Returns:
         (low, high, pairs); NaNs where F1 is undefined in every resample, and 0 without rows.
     """
-    if not len(rows):
-        return math.nan, math.nan, 0
-    t, p = rows["truth"].astype(bool), rows["predicted"].astype(bool)
-    counts = pd.DataFrame({"_pair": _pair_key(rows["scene"], rows["part_a"], rows["part_b"]),
-                           "tp": t & p, "fp": ~t & p, "fn": t & ~p})
-    per_pair = counts.groupby("_pair")[["tp", "fp", "fn"]].sum()
-    sums = _resampled(per_pair.to_numpy(float), draws, seed)
-    denominator = 2 * sums[:, 0] + sums[:, 1] + sums[:, 2]
-    with np.errstate(invalid="ignore", divide="ignore"):
-        f1 = np.where(denominator > 0, 2 * sums[:, 0] / denominator, np.nan)
-    return (*_tails(f1, level), len(per_pair))
+    return mates_f1_interval(rows.assign(relation=""), level, draws, seed)
 
 
 def mates_f1_interval(rows: pd.DataFrame, level: float = LEVEL, draws: int = DRAWS,
                       seed: int = 0) -> tuple[float, float, int]:
     """A ``level`` interval of the mates F1 (the mean over relations of each relation's F1, as
-    the verdict's ``mates_f1``) and the number of distinct pairs: every relation's counts are
-    resampled with the same draw of pairs. A relation whose F1 is undefined in a draw is left
-    out of that draw's mean.
+    the verdict's ``mates_f1``) and the number of distinct pairs. As ``joint_interval``: the
+    pairs are resampled, each with all its views (its true and false positives and false
+    negatives together), one draw of pairs for every relation. A relation whose F1 is undefined
+    in a draw is left out of that draw's mean.
 
     Args:
         rows: ``relations_pairs`` rows of one input and method in the assemblies (scene,
@@ -106,19 +96,15 @@ def mates_f1_interval(rows: pd.DataFrame, level: float = LEVEL, draws: int = DRA
     if not len(rows):
         return math.nan, math.nan, 0
     t, p = rows["truth"].astype(bool), rows["predicted"].astype(bool)
-    counts = pd.DataFrame({"_pair": _pair_key(rows["scene"], rows["part_a"], rows["part_b"]),
-                           "relation": rows["relation"].astype(str),
-                           "tp": t & p, "fp": ~t & p, "fn": t & ~p})
-    wide = counts.pivot_table(index="_pair", columns="relation", values=["tp", "fp", "fn"],
-                              aggfunc="sum", fill_value=0)
-    relations = sorted(set(counts["relation"]))
-    stacked = np.stack([wide[k].reindex(columns=relations, fill_value=0).to_numpy(float)
-                        for k in ("tp", "fp", "fn")], axis=2)  # (pairs, relations, 3)
-    sums = _resampled(stacked.reshape(len(stacked), -1), draws, seed).reshape(
-        draws, len(relations), 3)
+    pair, _ = pd.factorize(_pair_key(rows["scene"], rows["part_a"], rows["part_b"]), sort=True)
+    relation, _ = pd.factorize(rows["relation"].astype(str), sort=True)
+    pairs, relations = int(pair.max()) + 1, int(relation.max()) + 1
+    per_pair = np.zeros((pairs, relations, 3))  # true positives, false ones, misses
+    np.add.at(per_pair, (pair, relation), np.column_stack([t & p, ~t & p, t & ~p]))
+    sums = _resampled(per_pair.reshape(pairs, -1), draws, seed).reshape(draws, relations, 3)
     denominator = 2 * sums[..., 0] + sums[..., 1] + sums[..., 2]
-    with np.errstate(invalid="ignore", divide="ignore"):
-        f1 = np.where(denominator > 0, 2 * sums[..., 0] / denominator, np.nan)
-        means = np.nanmean(np.where(np.isnan(f1).all(axis=1, keepdims=True), 0.0, f1), axis=1)
-    means[np.isnan(f1).all(axis=1)] = np.nan
-    return (*_tails(means, level), len(stacked))
+    defined = denominator > 0
+    f1 = np.where(defined, 2 * sums[..., 0] / np.maximum(denominator, 1), 0.0)
+    n = defined.sum(axis=1)
+    means = np.where(n > 0, f1.sum(axis=1) / np.maximum(n, 1), np.nan)
+    return (*_tails(means, level), pairs)
