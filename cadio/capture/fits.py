@@ -222,9 +222,44 @@ def fit_cylinders(points: FloatArray, normals: FloatArray, spacing: float,
         members = np.flatnonzero(best[1])
         axis, _ = axis_of(normals[members])
         centre, radius, rms = circle(points[members], axis)
-        out.append(Cylinder(axis, centre, radius, rms, members))
+        out.append(refine_cylinder(Cylinder(axis, centre, radius, rms, members),
+                                   points[members]))
         free[members] = False
     return out
+
+
+def refine_cylinder(cylinder: Cylinder, points: FloatArray) -> Cylinder:
+    """The cylinder refitted to its points (mm) by least squares on their distances from its
+    surface (axis direction, axis line, radius), from its first estimate; the first estimate
+    where the refit does not lower the rms residual.
+
+    The first estimate takes its axis from the points' normals, which local PCA tilts by
+    degrees on a short arc of a few points, so the two faces of an exact concentric mate came
+    out 5-10 degrees apart (held-out assemblies, CAD samples: median 9 degrees); the refit
+    lies on the points themselves."""
+    if len(points) < 6:
+        return cylinder
+    basis = np.linalg.svd(np.eye(3) - np.outer(cylinder.axis, cylinder.axis))[0][:, :2]
+
+    def unpack(x: FloatArray) -> tuple[FloatArray, FloatArray]:
+        axis = cylinder.axis + basis @ x[:2]
+        return axis / np.linalg.norm(axis), cylinder.centre + basis @ x[2:4]
+
+    def residual(x: FloatArray) -> FloatArray:
+        axis, centre = unpack(x)
+        d = points - centre
+        out: FloatArray = np.linalg.norm(d - np.outer(d @ axis, axis), axis=1) - x[4]
+        return out
+
+    from scipy.optimize import least_squares
+
+    start = np.array([0.0, 0.0, 0.0, 0.0, cylinder.radius])
+    fit = least_squares(residual, start, method="lm", max_nfev=200)
+    rms = float(np.sqrt(np.mean(fit.fun**2)))
+    if not (np.all(np.isfinite(fit.x)) and rms < cylinder.rms):
+        return cylinder
+    axis, centre = unpack(fit.x)
+    return Cylinder(axis, centre, abs(float(fit.x[4])), rms, cylinder.members)
 
 
 def _cylinder_through(p: FloatArray, n: FloatArray, q: FloatArray, m: FloatArray
