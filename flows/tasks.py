@@ -43,6 +43,7 @@ from cadio.capture.coverage import (
     scoring_plan,
     unscored_parts,
 )
+from cadio.capture.pair_features import evidence_digest
 from cadio.capture.scan import (
     ASSEMBLY_PREFIX,
     ScanConfig,
@@ -410,7 +411,8 @@ def relate_stage(captured: list[CaptureSummary], run: Run, relations_models: str
         mates = [ws.mates(p.stem[len(ASSEMBLY_PREFIX):]) for p in b
                  if p.stem.startswith(ASSEMBLY_PREFIX)]
         files = [*b, *inputs, *mates, *_models(relations_models), *_models(completion_models)]
-        name = content_digest(files, labels=labels, epoch=run.epoch, version=RELATE_VERSION)
+        name = content_digest(files, labels=labels, epoch=run.epoch, version=RELATE_VERSION,
+                              evidence=evidence_digest())
         out = ws.root / "relations" / f"{name[:32]}.parquet"
         present = out.is_file() and out.with_name(f"{out.stem}-joints.parquet").is_file()
         futures.append(_refreshed(relate_task, present).submit(

@@ -27,7 +27,7 @@ import numpy as np
 import pandas as pd
 
 from cadio.capture.corpus import Shot, read_index, read_shots
-from cadio.capture.pair_features import N_PAIR_FEATURES, PAIR_FEATURES
+from cadio.capture.pair_features import N_PAIR_FEATURES, PAIR_FEATURES, evidence_digest
 from cadio.capture.pairs import DEFAULT_PAIRS, INPUTS
 from cadio.catalog import read_catalog
 from cadio.sandbox import Limits
@@ -126,17 +126,6 @@ def build_dataset(ws: Workspace, completion_models: Path, limits: Limits,
                                   progress=progress)
     (out / "stamp.json").write_text(json.dumps(stamp))
     return rows
-
-
-def evidence_digest() -> str:
-    """SHA-256 of the pair evidence's code: the dataset stores the evidence measured by it, so
-    a change there must rebuild the dataset rather than reuse vectors of another meaning."""
-    from cadio.capture import fits, pair_features
-
-    digest = hashlib.sha256()
-    for module in (fits, pair_features):
-        digest.update(Path(module.__file__ or "").read_bytes())
-    return digest.hexdigest()
 
 
 def labels_digest(labels: dict[str, ShotLabels]) -> str:

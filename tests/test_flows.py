@@ -24,7 +24,8 @@ def harness() -> object:
 
 
 def test_nightly_ingests_reports_and_caches(harness: object, tmp_path: Path,
-                                            box_step: Path, pin_step: Path) -> None:
+                                            box_step: Path, pin_step: Path,
+                                            monkeypatch: pytest.MonkeyPatch) -> None:
     from flows.config import night_config
     from flows.nightly import nightly
 
@@ -74,8 +75,9 @@ def test_nightly_ingests_reports_and_caches(harness: object, tmp_path: Path,
 
     meshes = sorted((ws / "meshes").glob("*.ply"))
     stamps = [m.stat().st_mtime_ns for m in meshes]
-    second = nightly(config.model_copy(update={"capture": config.capture.model_copy(
-        update={"recordings": str(ws / "captures")})}))
+    replay = config.model_copy(update={"capture": config.capture.model_copy(
+        update={"recordings": str(ws / "captures")})})
+    second = nightly(replay)
     # unchanged files: the ingest tasks are cached on content hashes, nothing is rewritten
     assert second.ingest == first.ingest
     assert [m.stat().st_mtime_ns for m in meshes] == stamps and meshes
@@ -83,6 +85,15 @@ def test_nightly_ingests_reports_and_caches(harness: object, tmp_path: Path,
     # read back instead of rendered: same captures, same frames
     assert second.stages.captures == stages.captures
     assert second.stages.frames == stages.frames
+
+    # the same recordings again: their related pair views are reused; under other pair
+    # evidence code they are related anew
+    related = sorted((ws / "relations").glob("*.parquet"))
+    nightly(replay)
+    assert related and sorted((ws / "relations").glob("*.parquet")) == related
+    monkeypatch.setattr("flows.tasks.evidence_digest", lambda: "other evidence code")
+    nightly(replay)
+    assert set(related) < set((ws / "relations").glob("*.parquet"))
 
 
 def _gap_assembly(path: Path, gap_mm: float) -> None:

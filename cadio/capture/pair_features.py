@@ -35,9 +35,11 @@ its scale), angles degrees; a feature that could not be measured takes the value
 
 from __future__ import annotations
 
+import hashlib
 import math
 from collections.abc import Callable, Hashable, Sequence
 from dataclasses import dataclass
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -64,6 +66,7 @@ __all__ = [
     "PartCloud",
     "dominant_direction",
     "encode_features",
+    "evidence_digest",
     "pair_features",
     "pair_features_many",
     "part_cloud",
@@ -83,6 +86,18 @@ PAIR_FEATURES = (
 )
 N_PAIR_FEATURES = len(PAIR_FEATURES)
 FAR_DEG, FAR_MM = 90.0, 1000.0
+
+
+def evidence_digest() -> str:
+    """SHA-256 of the pair evidence's code (this module and ``fits``). What the evidence
+    measured is stored (a relation dataset) or cached (a night's related pair views), so a
+    change of its code must rebuild them rather than reuse vectors of another meaning."""
+    from cadio.capture import fits
+
+    digest = hashlib.sha256()
+    for source in (fits.__file__, __file__):
+        digest.update(Path(source or "").read_bytes())
+    return digest.hexdigest()
 
 
 def _angle_deg(u: FloatArray, v: FloatArray) -> float:
