@@ -43,6 +43,7 @@ class FeatureConfig:
     # normal within ``cylinder_normal_deg`` of perpendicular to the axis.
     cylinder_hypotheses: int = 64
     max_cylinders: int = 3
+    refine_cylinders: bool = True  # off: the axis the members' normals give (as before)
     cylinder_normal_deg: float = 15.0
     group_deg: float = 5.0  # plane directions within this angle are one direction
     dominant_cap: float = 10.0  # a part with a single plane direction has this ratio
@@ -222,8 +223,8 @@ def fit_cylinders(points: FloatArray, normals: FloatArray, spacing: float,
         members = np.flatnonzero(best[1])
         axis, _ = axis_of(normals[members])
         centre, radius, rms = circle(points[members], axis)
-        out.append(refine_cylinder(Cylinder(axis, centre, radius, rms, members),
-                                   points[members]))
+        first = Cylinder(axis, centre, radius, rms, members)
+        out.append(refine_cylinder(first, points[members]) if cfg.refine_cylinders else first)
         free[members] = False
     return out
 
