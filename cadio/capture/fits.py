@@ -158,10 +158,16 @@ def axis_of(normals: FloatArray) -> tuple[FloatArray, float]:
     return evecs[:, 0], float(evals[0] / max(evals[1], 1e-12))
 
 
+def across(axis: FloatArray) -> FloatArray:
+    """(3, 2) two orthonormal directions spanning the plane across a unit ``axis``."""
+    basis: FloatArray = np.linalg.svd(np.eye(3) - np.outer(axis, axis))[0][:, :2]
+    return basis
+
+
 def circle(points: FloatArray, axis: FloatArray) -> tuple[FloatArray, float, float]:
     """Centre (3,) on the plane through the points' mean, radius and rms residual of a circle
     fitted (Kasa's algebraic fit) to the points projected along ``axis``."""
-    basis = np.linalg.svd(np.eye(3) - np.outer(axis, axis))[0][:, :2]
+    basis = across(axis)
     origin = points.mean(axis=0)
     uv = (points - origin) @ basis
     design = np.column_stack([uv, np.ones(len(uv))])
@@ -240,7 +246,7 @@ def refine_cylinder(cylinder: Cylinder, points: FloatArray) -> Cylinder:
     lies on the points themselves."""
     if len(points) < 6:
         return cylinder
-    basis = np.linalg.svd(np.eye(3) - np.outer(cylinder.axis, cylinder.axis))[0][:, :2]
+    basis = across(cylinder.axis)
 
     def unpack(x: FloatArray) -> tuple[FloatArray, FloatArray]:
         axis = cylinder.axis + basis @ x[:2]
