@@ -13,10 +13,11 @@ direction (and the ratio it saw), and the misses where it found one at the wrong
 
 With ``--parts N`` it reads parts instead, at the density the pair evidence is measured on
 (``PairConfig.evidence_points`` CAD surface samples of the workspace's mesh, in the part's own
-frame): for N parts drawn from ``features/`` (seeded), whether the evidence's dominant
-direction is the B-rep's (within 3 degrees, both at least 1.5 times the runner-up), at another
-angle, missed, claimed where the B-rep has none, or rightly absent. Any workspace with meshes
-and features will do (a night's, for parts no network trained on).
+frame, with the exact normals of their faces as the ``truth`` evidence takes them, and with
+local PCA's beside them): for N parts drawn from ``features/`` (seeded), whether the
+evidence's dominant direction is the B-rep's (within 3 degrees, both at least 1.5 times the
+runner-up), at another angle, missed, claimed where the B-rep has none, or rightly absent.
+Any workspace with meshes and features will do (a night's, for parts no network trained on).
 
 Usage:
     .venv/bin/python bench/dominant_evidence.py --workspace train-workspace [--split val]
@@ -38,8 +39,10 @@ from pathlib import Path
 
 import numpy as np
 
+from cadio.capture.cad_samples import placed_cad_samples
 from cadio.capture.pair_features import FeatureConfig, dominant_direction, part_cloud
-from cadio.capture.pairs import DEFAULT_PAIRS, placed_surface_samples
+from cadio.capture.pairs import DEFAULT_PAIRS
+from cadio.records import Features
 from cadio.workspace import read_mesh
 from models.relation_data import read_split
 
@@ -87,8 +90,11 @@ def report(name: str, e: np.ndarray, labels: np.ndarray) -> None:
     print(f"  ({name}: a dominant direction on both parts in {dominant.mean():.3f} of the pairs)")
 
 
-def part_agreement(workspace: Path, n: int, cfg: FeatureConfig) -> dict[str, int]:
-    """Counts of N drawn parts: the evidence's dominant direction against the B-rep's."""
+def part_agreement(workspace: Path, n: int, cfg: FeatureConfig, exact: bool = True
+                   ) -> dict[str, int]:
+    """Counts of N drawn parts: the evidence's dominant direction against the B-rep's, on the
+    CAD samples with their faces' exact normals (as the ``truth`` input's evidence), or with
+    local PCA's (``exact`` False)."""
     ids = sorted(p.stem for p in (workspace / "features").glob("*.json"))
     rng = np.random.default_rng(0)
     ids = [ids[i] for i in sorted(rng.choice(len(ids), min(n, len(ids)), replace=False))]
@@ -97,9 +103,11 @@ def part_agreement(workspace: Path, n: int, cfg: FeatureConfig) -> dict[str, int
         brep = json.loads((workspace / "features" / f"{pid}.json").read_text())
         direction, runner_up = brep.get("dominant_plane"), brep.get("dominant_runner_up")
         truth = direction is not None and runner_up is not None and runner_up <= 1 / RATIO
-        points = placed_surface_samples(read_mesh(workspace / "meshes" / f"{pid}.ply"), pid,
-                                        np.eye(4), DEFAULT_PAIRS.evidence_points, 1.0)
-        found, ratio = dominant_direction(part_cloud(points, cfg), cfg)
+        samples = placed_cad_samples(read_mesh(workspace / "meshes" / f"{pid}.ply"),
+                                     Features.from_dict(brep), pid, np.eye(4),
+                                     DEFAULT_PAIRS.evidence_points, 1.0)
+        cloud = part_cloud(samples[:, :3], cfg, samples[:, 3:] if exact else None)
+        found, ratio = dominant_direction(cloud, cfg)
         seen = found is not None and ratio >= RATIO
         if truth and seen:
             angle = math.degrees(math.acos(min(1.0, abs(float(np.dot(found, direction))))))
@@ -134,9 +142,11 @@ def main() -> None:
         print(f"{args.parts} parts of {args.workspace} at {DEFAULT_PAIRS.evidence_points} "
               "CAD samples each")
         for name, cfg in configs:
-            counts = part_agreement(args.workspace, args.parts, cfg)
-            right = (counts["agree"] + counts["rightly_none"]) / max(sum(counts.values()), 1)
-            print(f"{name}: {counts}; right {right:.3f}")
+            for exact in (True, False):
+                counts = part_agreement(args.workspace, args.parts, cfg, exact)
+                right = (counts["agree"] + counts["rightly_none"]) / max(sum(counts.values()), 1)
+                normals = "exact normals" if exact else "PCA normals"
+                print(f"{name}, {normals}: {counts}; right {right:.3f}")
         return
     split = read_split(args.workspace / "datasets" / "relations" / f"{args.split}.npz")
     rows = np.flatnonzero(~split.meta["near_boundary"].to_numpy())[:args.pairs]

@@ -28,24 +28,27 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
+from cadio.capture.cad_samples import placed_cad_samples
 from cadio.capture.pair_features import pair_features, part_cloud
-from cadio.capture.pairs import placed_surface_samples
-from cadio.workspace import read_mesh
+from cadio.workspace import Workspace, read_features, read_mesh
 from models.relation_data import read_split
 
 SYMMETRIC = {6: "parallel", 7: "perpendicular", 8: "concentric", 9: "coincident"}
 
 
 def _shot_features(job: tuple[str, list[dict], list[tuple[str, str]], int]) -> list[np.ndarray]:
-    """The evidence of one shot's pairs: each part's n CAD samples placed as in the shot (mm)."""
+    """The evidence of one shot's pairs: each part's n CAD samples placed as in the shot (mm),
+    with the exact normals of their faces as the ``truth`` evidence takes them."""
     _, parts, pairs, n = job
     by_id = {p["part_id"]: p for p in parts}
     clouds = {}
     for pid in {x for pair in pairs for x in pair}:
         p = by_id[pid]
         pose = np.asarray(p["pose_mm"], dtype=np.float64).reshape(4, 4)
-        clouds[pid] = part_cloud(placed_surface_samples(read_mesh(Path(p["mesh_path"])), pid,
-                                                        pose, n, 1.0))
+        mesh = Path(p["mesh_path"])
+        features = read_features(Workspace(mesh.parent.parent).features(pid))
+        samples = placed_cad_samples(read_mesh(mesh), features, pid, pose, n, 1.0)
+        clouds[pid] = part_cloud(samples[:, :3], normals=samples[:, 3:])
     return [pair_features(clouds[a], clouds[b]) for a, b in pairs]
 
 

@@ -34,14 +34,15 @@ import numpy as np
 import numpy.typing as npt
 import pandas as pd
 
+from cadio.capture.cad_samples import placed_cad_samples
 from cadio.capture.corpus import Shot
 from cadio.capture.examples import read_example
 from cadio.capture.observe import observer_rotation
 from cadio.capture.pair_features import encode_features, pair_features_many
-from cadio.capture.pairs import INPUTS, evidence_cloud, pair_category, placed_surface_samples
+from cadio.capture.pairs import INPUTS, evidence_cloud, pair_category
 from cadio.capture.pointcloud import sample_points
 from cadio.truth.corpus_labels import ShotLabels
-from cadio.workspace import atomic_write, read_mesh
+from cadio.workspace import Workspace, atomic_write, read_features, read_mesh
 from models.relations import JOINTS
 from models.relations_train import RelationData, nearest_of_pairs
 from models.train import Model, predict
@@ -185,11 +186,13 @@ def _shot_rows(corpus_dir: Path, shot: Shot, truth: ShotLabels,
 
 def placed_samples(shot: Shot, instance: int, k: int, scale: float
                    ) -> npt.NDArray[np.float32]:
-    """k CAD surface samples of one instance placed as in the shot (world metres), seeded by
-    its part as the corpus's own samples are."""
+    """(k, 6): k CAD surface samples of one instance placed as in the shot (world metres),
+    seeded by its part as the corpus's own samples are, with the exact normals of their faces
+    (``placed_cad_samples``; the features beside the mesh in its workspace)."""
     part = next(p for p in shot.parts if p.instance == instance)
-    return np.asarray(placed_surface_samples(read_mesh(Path(part.mesh_path)), part.part_id,
-                                             part.pose(), k, scale), dtype=np.float32)
+    mesh = Path(part.mesh_path)
+    features = read_features(Workspace(mesh.parent.parent).features(part.part_id))
+    return placed_cad_samples(read_mesh(mesh), features, part.part_id, part.pose(), k, scale)
 
 
 def _completed(corpus_dir: Path, shot: str, instance: int, view: int,

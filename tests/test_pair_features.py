@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 
 from cadio.cad.tessellate import tessellate
+from cadio.capture.cad_samples import surface_samples
 from cadio.capture.pair_features import (
     N_PAIR_FEATURES,
     PAIR_FEATURES,
@@ -17,7 +18,6 @@ from cadio.capture.pair_features import (
     pair_features_many,
     part_cloud,
 )
-from cadio.capture.pairs import surface_samples
 
 F = {name: i for i, name in enumerate(PAIR_FEATURES)}
 
@@ -118,9 +118,9 @@ def test_features_are_symmetric_and_cached(solids) -> None:  # type: ignore[no-u
     pairs = np.stack([np.stack([a, b]), np.stack([b, a])]) / 1000.0  # metres
     calls = []
 
-    def counted(points: np.ndarray):  # type: ignore[no-untyped-def]
+    def counted(points: np.ndarray, normals: np.ndarray | None):  # type: ignore[no-untyped-def]
         calls.append(len(points))
-        return part_cloud(points)
+        return part_cloud(points, normals=normals)
 
     out = pair_features_many(pairs, [1000.0, 1000.0], [("p", "q"), ("q", "p")], counted)
     assert np.allclose(out[0], out[1]) and len(calls) == 2
@@ -175,3 +175,4 @@ def test_a_cylinder_is_refitted_to_its_points_not_left_on_their_normals() -> Non
             refitted.append(tilt(bore.axis))
     assert np.mean(refitted) < 1.0 and np.mean(refitted) < 0.5 * np.mean(from_normals)
     assert max(refitted) < 2.0
+

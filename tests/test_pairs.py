@@ -10,7 +10,8 @@ import pytest
 
 from cadio.cad.ingest import IngestConfig, ingest
 from cadio.cad.step import write_step
-from cadio.capture.pairs import PairConfig, capture_pairs, surface_samples
+from cadio.capture.cad_samples import surface_samples
+from cadio.capture.pairs import PairConfig, capture_pairs
 from cadio.capture.scan import (
     ScanConfig,
     assembly_pairs,
@@ -143,8 +144,11 @@ def test_the_pair_evidence_reads_denser_clouds_than_the_network(ws: Workspace) -
     view = capture_pairs(path, ws, {}, PairConfig(evidence_points=2000), done)[0]
     a, b = view.evidence_clouds("truth")
     assert view.points["truth"].shape == (2, 600, 3) and len(a) == len(b) == 2000
-    # the same surface placed the same way: the network's 600 samples lie on the 2,000
-    assert cKDTree(a).query(view.points["truth"][0])[0].max() < 0.05 * np.ptp(a, axis=0).max()
+    # the same surface placed the same way: the network's 600 samples lie on the 2,000, which
+    # bring the unit normals of their CAD faces after their positions
+    assert a.shape == (2000, 6) and np.allclose(np.linalg.norm(a[:, 3:], axis=1), 1.0, atol=1e-5)
+    assert cKDTree(a[:, :3]).query(view.points["truth"][0])[0].max() < \
+        0.05 * np.ptp(a[:, :3], axis=0).max()
     done_a, _ = view.evidence_clouds("completed")
     assert view.points["completed"].shape == (2, 600, 3) and len(done_a) == 2000
     assert len(np.unique(done_a, axis=0)) == 2000  # no repeats: a spacing of zero

@@ -43,6 +43,7 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
+from cadio.capture.cad_samples import placed_surface_samples
 from cadio.capture.examples import (
     OBSERVED,
     ORACLE,
@@ -58,7 +59,6 @@ from cadio.capture.examples import (
     write_example,
 )
 from cadio.capture.noise import NoiseConfig
-from cadio.capture.pairs import placed_surface_samples
 from cadio.capture.pointcloud import sample_points
 from cadio.capture.render import CaptureConfig, PlacedPart, render_views
 from cadio.records import FloatArray

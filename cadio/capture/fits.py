@@ -1,6 +1,7 @@
 """What a part's points are made of: normals, planes, cylinders and the dominant plane
 direction, fitted to one cloud (the pair evidence of ``cadio.capture.pair_features`` compares
-two). Lengths are millimetres, angles degrees; normals come from local PCA and carry no sign.
+two). Lengths are millimetres, angles degrees; normals come from local PCA and carry no sign,
+unless the cloud brings exact ones (the CAD's samples of the ``truth`` input).
 """
 
 from __future__ import annotations
@@ -28,8 +29,12 @@ class FeatureConfig:
     plane_eps_mm: float = 0.02
     noise_factor: float = 4.0
     plane_normal_deg: float = 30.0
+    exact_normal_deg: float = 0.1  # the same, where the normals are exact (CAD samples)
     min_plane: int = 8  # points of the smallest plane kept
     max_planes: int = 12
+    # Where the normals are exact a plane costs little and never a strip of a cylinder: every
+    # face of a runner-up direction counts towards the dominant direction's ratio.
+    exact_max_planes: int = 48
     max_seeds: int = 200  # flat points proposing planes
     # A point is in the contact region when the other part is within this many point spacings
     # plus the mate's 1 mm (the faces of a concentric mate are within 1 mm).
@@ -72,10 +77,25 @@ class PartCloud:
         return [np.flatnonzero(self.plane_of == i) for i in range(len(self.planes))]
 
 
-def part_cloud(points_mm: FloatArray, cfg: FeatureConfig = DEFAULT_FEATURES) -> PartCloud:
-    """Normals, planes and spacing of one part's points (mm); non-finite points dropped."""
+def part_cloud(points_mm: FloatArray, cfg: FeatureConfig = DEFAULT_FEATURES,
+               normals: FloatArray | None = None) -> PartCloud:
+    """Normals, planes and spacing of one part's points (mm); non-finite points dropped.
+
+    ``normals``: (n, 3) unit normals known exactly (the faces of the CAD under its samples,
+    ``cadio.capture.cad_samples``), taken instead of local PCA's. A plane then holds only
+    points whose normals lie within ``exact_normal_deg`` of its own: a face's normals are one,
+    a cylinder's turn, so no strip of a cylinder passes for a plane however flat its facets,
+    and a narrow face (a washer's rim) is found wherever its points are, flat neighbourhood or
+    not."""
     pts = np.asarray(points_mm, dtype=np.float64).reshape(-1, 3)
-    pts = pts[np.all(np.isfinite(pts), axis=1)]
+    keep = np.all(np.isfinite(pts), axis=1)
+    given = None if normals is None else np.asarray(normals, dtype=np.float64).reshape(-1, 3)
+    if given is not None:
+        if len(given) != len(pts):
+            raise ValueError(f"{len(given)} normals for {len(pts)} points")
+        keep &= np.all(np.isfinite(given), axis=1)
+        given = given[keep]
+    pts = pts[keep]
     if len(pts) < 4:
         return PartCloud(pts, np.zeros_like(pts), np.zeros(len(pts), dtype=bool), (), 0.0,
                          np.full(len(pts), -1, dtype=np.int64))
@@ -84,23 +104,42 @@ def part_cloud(points_mm: FloatArray, cfg: FeatureConfig = DEFAULT_FEATURES) -> 
     local = pts[nbr] - pts[nbr].mean(axis=1, keepdims=True)  # (n, k, 3)
     evals, evecs = np.linalg.eigh(np.einsum("nki,nkj->nij", local, local))
     share = evals[:, 0] / np.maximum(evals.sum(axis=1), 1e-30)
-    normals = evecs[:, :, 0]
     spacing = float(np.median(dist[:, 1])) if k > 1 else 0.0
     noise = float(np.median(np.sqrt(np.clip(evals[:, 0], 0.0, None) / k)))
     eps = max(cfg.plane_eps_mm, cfg.noise_factor * noise)
-    plane_of, planes = _extract_planes(pts, normals, share < cfg.flat, eps, cfg)
-    return PartCloud(pts, normals, plane_of >= 0, planes, spacing, plane_of)
+    if given is None:
+        plane_of, planes = _extract_planes(pts, evecs[:, :, 0], share < cfg.flat, eps, cfg,
+                                           cfg.plane_normal_deg, cfg.max_planes)
+        return PartCloud(pts, evecs[:, :, 0], plane_of >= 0, planes, spacing, plane_of)
+    plane_of, planes = _extract_planes(pts, given, _shared_normals(pts, given, eps, cfg), eps,
+                                       cfg, cfg.exact_normal_deg, cfg.exact_max_planes)
+    return PartCloud(pts, given, plane_of >= 0, planes, spacing, plane_of)
+
+
+def _shared_normals(pts: FloatArray, normals: FloatArray, eps: float, cfg: FeatureConfig
+                    ) -> npt.NDArray[np.bool_]:
+    """(n,) one point of each exact normal direction (sign ignored) and offset (in steps of
+    ``eps``) that at least ``min_plane`` points share: the seeds of planes where the normals
+    are exact."""
+    canonical = normals * np.where(normals[:, [0]] < 0, -1.0, 1.0)
+    offset = np.einsum("ij,ij->i", canonical, pts) / max(eps, 1e-9)
+    key = np.column_stack([np.round(canonical, 4), np.round(offset)])
+    _, first, counts = np.unique(key, axis=0, return_index=True, return_counts=True)
+    seeds = np.zeros(len(normals), dtype=bool)
+    seeds[first[counts >= cfg.min_plane]] = True
+    return seeds
 
 
 def _extract_planes(pts: FloatArray, normals: FloatArray, flat: npt.NDArray[np.bool_],
-                    eps: float, cfg: FeatureConfig
+                    eps: float, cfg: FeatureConfig, normal_deg: float, most: int
                     ) -> tuple[npt.NDArray[np.int64], tuple[tuple[FloatArray, int], ...]]:
     """Planes taken greedily: every flat point proposes the plane through it along its normal;
     the proposal holding the most unclaimed points wins and claims them, unless its points bend
     away from it across their narrow side (a strip of a cylinder, which a tangent plane holds
     within ``eps``): then that proposal is dropped. Returns each point's plane (-1: none) and
-    the planes."""
-    cos = math.cos(math.radians(cfg.plane_normal_deg))
+    the planes, at most ``most``. A plane holds points whose normals lie within ``normal_deg``
+    of its own."""
+    cos = math.cos(math.radians(normal_deg))
     seeds = np.flatnonzero(flat)
     plane_of = np.full(len(pts), -1, dtype=np.int64)
     if len(seeds) == 0:
@@ -113,9 +152,9 @@ def _extract_planes(pts: FloatArray, normals: FloatArray, flat: npt.NDArray[np.b
     free = np.ones(len(pts), dtype=bool)
     counts = holds.sum(axis=1)  # points each proposal holds among the unclaimed ones
     planes: list[tuple[FloatArray, int]] = []
-    for _ in range(4 * cfg.max_planes):
+    for _ in range(4 * most):
         best = int(np.argmax(counts))
-        if counts[best] < cfg.min_plane or len(planes) == cfg.max_planes:
+        if counts[best] < cfg.min_plane or len(planes) == most:
             break
         members = holds[best] & free
         normal = normals[seeds[best]]

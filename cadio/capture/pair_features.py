@@ -27,10 +27,12 @@ summarised where mates happen and by what their definitions test:
   points (points sample area uniformly on CAD surfaces; a scan weighs them as it saw them),
   with its ratio to the runner-up, and the angle between the two parts' directions.
 
-Normals come from local PCA of each cloud. Every feature is symmetric in (a, b), so a pair and
-its swap get the same vector. Lengths are millimetres of the parts (the capture's metres over
-its scale), angles degrees; a feature that could not be measured takes the value of "far"
-(90 degrees, 1000 mm) and its ``*_found`` flag is 0.
+Normals come from local PCA of each cloud, except for the CAD samples of the ``truth`` input,
+which bring the exact normals of their faces (``cadio.capture.cad_samples``): there a plane
+holds only points of one normal, so no strip of a large cylinder passes for one. Every feature
+is symmetric in (a, b), so a pair and its swap get the same vector. Lengths are millimetres of
+the parts (the capture's metres over its scale), angles degrees; a feature that could not be
+measured takes the value of "far" (90 degrees, 1000 mm) and its ``*_found`` flag is 0.
 """
 
 from __future__ import annotations
@@ -89,13 +91,14 @@ FAR_DEG, FAR_MM = 90.0, 1000.0
 
 
 def evidence_digest() -> str:
-    """SHA-256 of the pair evidence's code (this module and ``fits``). What the evidence
-    measured is stored (a relation dataset) or cached (a night's related pair views), so a
-    change of its code must rebuild them rather than reuse vectors of another meaning."""
-    from cadio.capture import fits
+    """SHA-256 of the pair evidence's code (this module, ``fits`` and ``cad_samples``). What
+    the evidence measured is stored (a relation dataset) or cached (a night's related pair
+    views), so a change of its code must rebuild them rather than reuse vectors of another
+    meaning."""
+    from cadio.capture import cad_samples, fits
 
     digest = hashlib.sha256()
-    for source in (fits.__file__, __file__):
+    for source in (cad_samples.__file__, fits.__file__, __file__):
         digest.update(Path(source or "").read_bytes())
     return digest.hexdigest()
 
@@ -369,24 +372,33 @@ def encode_features(features: npt.NDArray[np.floating],
 def pair_features_many(points: npt.NDArray[np.floating] | Sequence[Sequence[npt.NDArray[Any]]],
                        mm_per_unit: npt.ArrayLike,
                        keys: Sequence[tuple[Hashable, Hashable]] | None = None,
-                       cloud: Callable[[FloatArray], PartCloud] = part_cloud
+                       cloud: Callable[[FloatArray, FloatArray | None], PartCloud] | None = None
                        ) -> npt.NDArray[np.float32]:
     """(N, ``N_PAIR_FEATURES``) features of pairs (N, 2, k, 3) in any unit, or of N pairs of
     clouds of any sizes (k_a, 3), (k_b, 3). Every feature is invariant under a rigid motion of
-    the pair: the clouds may be in any frame.
+    the pair: the clouds may be in any frame. A cloud of six columns (k, 6) brings each
+    point's exact unit normal after its position (``cadio.capture.cad_samples``).
 
     Args:
         mm_per_unit: (N,) millimetres of the parts per unit of ``points``.
         keys: per row, a key of each part's cloud: a cloud met again (a part of an assembly in
             many pairs) gets its normals once.
+        cloud: how a part's points (mm) and exact normals (or None) become a ``PartCloud``;
+            ``part_cloud`` by default.
     """
     mm = np.broadcast_to(np.asarray(mm_per_unit, dtype=np.float64), (len(points),))
     cache: dict[Hashable, PartCloud] = {}
 
+    def default(pts: FloatArray, normals: FloatArray | None) -> PartCloud:
+        return part_cloud(pts, normals=normals)
+
+    fit = cloud or default
+
     def part(i: int, k: int) -> PartCloud:
         key = (i, k) if keys is None else keys[i][k]
         if key not in cache:
-            cache[key] = cloud(np.asarray(points[i][k], dtype=np.float64) * mm[i])
+            arr = np.asarray(points[i][k], dtype=np.float64)
+            cache[key] = fit(arr[..., :3] * mm[i], arr[..., 3:6] if arr.shape[-1] == 6 else None)
         return cache[key]
 
     out = np.zeros((len(points), N_PAIR_FEATURES), dtype=np.float32)

@@ -22,7 +22,6 @@ the observer's frame), never the poses or the features.
 
 from __future__ import annotations
 
-import hashlib
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -32,11 +31,12 @@ import numpy as np
 import numpy.typing as npt
 import pandas as pd
 
+from cadio.capture.cad_samples import placed_cad_samples, placed_surface_samples
 from cadio.capture.mcap_io import read_scene_meta
 from cadio.capture.observe import observer_rotation
 from cadio.capture.pointcloud import sample_points
 from cadio.errors import CaptureError
-from cadio.records import Features, FloatArray, Mesh
+from cadio.records import Features, FloatArray
 from cadio.tolerances import DEFAULT_TOLERANCES, Tolerances
 from cadio.truth.relations import (
     NO_CONTACT,
@@ -81,7 +81,8 @@ class PairView:
     input name -> (2, k, 3) float32 world metres (part a, part b). world_to_camera: (4, 4) the
     view's camera. evidence: input name -> the two parts' denser clouds (world metres, any
     sizes) its pair evidence is measured on (``PairConfig.evidence_points``); an input without
-    them is measured on its points.
+    them is measured on its points. ``truth``'s are (k, 6): each CAD sample with the exact
+    unit normal of its face (``cadio.capture.cad_samples``).
     """
 
     scene: str
@@ -144,35 +145,6 @@ def read_part_points(path: Path, part_id: str) -> CapturedPart:
                                 z["observed"].astype(np.int64))
     except (OSError, KeyError, ValueError) as exc:
         raise CaptureError(path, f"no per-view observed points: {exc}") from exc
-
-
-def surface_samples(mesh: Mesh, k: int, seed: int) -> FloatArray:
-    """k points uniformly on a mesh's surface (area-weighted triangles), its unit (mm).
-
-    Raises:
-        ValueError: a mesh without area.
-    """
-    tri = mesh.vertices[mesh.triangles]  # (t, 3, 3)
-    area = 0.5 * np.linalg.norm(np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]), axis=1)
-    if not np.isfinite(area.sum()) or area.sum() <= 0:
-        raise ValueError("mesh has no surface area to sample")
-    rng = np.random.default_rng(seed)
-    pick = rng.choice(len(tri), size=k, p=area / area.sum())
-    u, v = rng.random((2, k))
-    flip = u + v > 1.0
-    u[flip], v[flip] = 1.0 - u[flip], 1.0 - v[flip]
-    t = tri[pick]
-    return np.asarray(t[:, 0] + u[:, None] * (t[:, 1] - t[:, 0]) + v[:, None] * (t[:, 2] - t[:, 0]))
-
-
-def placed_surface_samples(mesh: Mesh, part_id: str, pose_mm: FloatArray, k: int,
-                           scale: float) -> FloatArray:
-    """k surface samples of a part moved by ``pose_mm`` (4, 4) and scaled by ``scale``
-    (world units per mm), seeded by its part id: every route to a part's CAD samples (the
-    corpus, its relation dataset, the nightly) draws the same points."""
-    seed = int(hashlib.sha256(part_id.encode()).hexdigest()[:8], 16)
-    local = surface_samples(mesh, k, seed)
-    return np.asarray((local @ pose_mm[:3, :3].T + pose_mm[:3, 3]) * scale)
 
 
 def pair_category(a: str, b: str) -> str:
@@ -287,15 +259,12 @@ class _Placed:
                  k: int, dense: int) -> None:
         pose = np.asarray(meta["pose_mm"], dtype=np.float64)
         self.part_id = part_id
-        self.features: Features = read_features(ws.features(part_id)).transformed(pose)
+        own = read_features(ws.features(part_id))
+        self.features: Features = own.transformed(pose)
         mesh = read_mesh(ws.mesh(part_id))
-
-        def placed(n: int) -> Cloud:
-            return np.asarray(placed_surface_samples(mesh, part_id, pose, n, scale),
-                              dtype=np.float32)
-
-        self.truth = placed(k)
-        self.dense = placed(dense)
+        self.truth = np.asarray(placed_surface_samples(mesh, part_id, pose, k, scale),
+                                dtype=np.float32)
+        self.dense = placed_cad_samples(mesh, own, part_id, pose, dense, scale)
 
 
 def _pair_views(scene: str, a: _Placed, b: _Placed, seen_a: CapturedPart, seen_b: CapturedPart,
