@@ -27,12 +27,13 @@ import numpy as np
 import pandas as pd
 
 from cadio.capture.corpus import Shot, read_index, read_shots
-from cadio.capture.pair_features import N_PAIR_FEATURES, PAIR_FEATURES, evidence_digest
+from cadio.capture.pair_features import PAIR_FEATURES, evidence_digest
 from cadio.capture.pairs import DEFAULT_PAIRS, INPUTS
 from cadio.catalog import read_catalog
 from cadio.sandbox import Limits
 from cadio.truth.corpus_labels import LabelJob, LabelPart, ShotLabels, label_shots
 from cadio.workspace import Workspace, atomic_write
+from models.geometric import ANSWERS_READ_BY, GEOMETRIC_ANSWERS
 
 Progress = Callable[[str], None]
 
@@ -161,13 +162,15 @@ def train_relation_model(ws: Workspace, method: str, name: str, steps: int, out_
     from models.relations_train import save_relation_checkpoint, train_relations
 
     train, val = (read_split(relations_dir(ws) / f"{s}.npz") for s in ("train", "val"))
+    answers = name in ANSWERS_READ_BY
+    names = [*PAIR_FEATURES, *(GEOMETRIC_ANSWERS if answers else ())]
     cfg = RelationConfig(method=method, steps=steps,
-                         **{"pair_features": N_PAIR_FEATURES, "joints": True, **overrides})
+                         **{"pair_features": len(names), "joints": True, **overrides})
     clock = time.perf_counter()
     info = {"input": name, "train_parts": sorted(set(train.meta["part_a"].astype(str))
                                                  | set(train.meta["part_b"].astype(str))),
             "train_pairs": len(train.labels), "val_pairs": len(val.labels),
-            "pair_features": list(PAIR_FEATURES),
+            "pair_features": names,
             "dataset": str(relations_dir(ws).relative_to(ws.root))}
     result = train_relations(cfg, train.data(name), val.data(name), data_info=info,
                              progress=None if on_step is None else lambda e: on_step())
@@ -264,14 +267,16 @@ def write_relation_card(ws: Workspace, out_dir: Path, run_dir: Path, command: st
         "The neural-logic relation network `ltn` (a grounding MLP over each part's points "
         "with their distance to the other part as a contact channel, beside the pair's "
         "evidence from fitted primitives (`cadio.capture.pair_features`: contact planes and "
-        "axes, part axes, dominant plane directions), one Logic Tensor Network predicate per "
-        "relation, trained on the labelled facts and the fuzzy-logic axioms) and `mlp` (the "
-        "same network on the facts only), one checkpoint per input (`truth`: CAD surface "
-        "samples, `partial`: the segmented scan, `completed`: the completion network's shape). "
-        "Each relation's decision (threshold and temperature) is fitted on the validation "
-        "split and kept in the checkpoint; the best step is chosen by mean F1 over the "
-        "relations (`val_joint`: the joint head's balanced accuracy there). The joint head "
-        "answers the pair's kinematic joint (none, planar, revolute, "
+        "axes, part axes, dominant plane directions; measured on `truth` with the exact normals "
+        "of the CAD faces, and the `truth` networks also read the `geometric` tests' four "
+        "symmetric answers, `models.geometric.network_evidence`), one Logic Tensor Network "
+        "predicate per relation, trained on the labelled facts and the fuzzy-logic axioms) "
+        "and `mlp` (the same network on the facts only), one checkpoint per input (`truth`: "
+        "CAD surface samples, `partial`: the segmented scan, `completed`: the completion "
+        "network's shape). Each relation's decision (threshold and temperature) is fitted on "
+        "the validation split and kept in the checkpoint; the best step is chosen by mean F1 "
+        "over the relations (`val_joint`: the joint head's balanced accuracy there). The "
+        "joint head answers the pair's kinematic joint (none, planar, revolute, "
         "cylindrical, slider), trained on the CAD's joints of the labelled pairs; the report's "
         "joint agreement scores it on the jointed pairs. The networks see the points in the "
         "observer's frame only. Load with `torch.load(weights_only=True)`.", "",

@@ -34,6 +34,7 @@ from cadio.errors import CaptureError
 from cadio.records import FloatArray, Relation
 from cadio.workspace import Workspace, atomic_path
 from models.errors import CheckpointError
+from models.geometric import GEOMETRIC_ANSWERS, geometric_decisions, network_evidence
 from models.relation_decision import Decision, violations
 from models.relations import RelationNet
 from models.relations_train import (
@@ -54,8 +55,6 @@ LEARNED = ("ltn", "mlp")
 METHODS = (*LEARNED, "geometric")
 RELATIONS = tuple(r.value for r in Relation)
 THRESHOLD = 0.5  # a voxel of the completion is solid above this probability
-# In the observer frame the view axis is +Y (behind), whatever the camera.
-OBSERVER_VIEW_AXIS = (0.0, 1.0, 0.0)
 _SINGLE = re.compile(rf"^{OBSERVED}-(\d+)\.npz$")
 
 
@@ -105,8 +104,9 @@ def _stale_evidence(ckpt: Mapping[str, Any]) -> str:
 
     width = int(ckpt["config"].get("pair_features", 0))
     names = ckpt["data"].get("pair_features")
+    readable = (list(PAIR_FEATURES), [*PAIR_FEATURES, *GEOMETRIC_ANSWERS])
     if width == 0 or (names is None and width == len(PAIR_FEATURES)) \
-            or list(names or []) == list(PAIR_FEATURES):
+            or list(names or []) in readable:
         return ""
     return (f"trained on {width} pair features, this code measures {len(PAIR_FEATURES)}: "
             "retrain it (mateqa train relations)")
@@ -141,66 +141,6 @@ def capture_completions(capture: str, part_ids: Iterable[str], ws: Workspace,
             for view, pts in completed_clouds(ws.inputs(capture, pid), model).items()}
 
 
-@dataclass(frozen=True)
-class GeometricTests:
-    """The ``geometric`` baseline's tests on the pair evidence (``pair_features``). A fit
-    cannot meet the CAD's tolerances (0.1 mm, 0.5 degree: those stay the truth's), so each test
-    widens them by what the points themselves cannot resolve: their spacing."""
-
-    spacings: float = 1.0  # a length test passes within tolerance + this many point spacings
-    coaxial_deg: float = 5.0  # axes of a fit agree within this (the CAD's 0.5 is far finer)
-    # a face pair (planes of the two parts facing each other with overlap) is coincident
-    # within this angle, at most the CAD's 0.1 mm apart plus the spacing, the parts on either side
-    face_deg: float = 5.0
-    flatness: float = 0.2  # the contact region's normals share an axis below this
-    parallel_deg: float = 3.0  # dominant directions within this of 0 or 90 degrees
-    dominant_ratio: float = 1.5  # the truth's own rule for a dominant direction
-
-
-def geometric_decisions(points: npt.NDArray[np.float32], mm_per_unit: npt.NDArray[Any],
-                        features: npt.NDArray[np.float32] | None = None,
-                        keys: Sequence[tuple[Any, Any]] | None = None,
-                        tests: GeometricTests = GeometricTests()) -> npt.NDArray[np.bool_]:
-    """(N, 10) the geometric baseline's relations of pairs in the observer frame.
-
-    Directional relations: the truth's 15 degree cones on the offset of the clouds' centroids.
-    Symmetric ones: fixed tests on the pair evidence, each the CAD definition widened by the
-    points' spacing (``GeometricTests``): coincident, an opposed face pair; concentric, a
-    coaxial contact axis, parts stacked on one axis, or a coaxial cylinder pair (each of the
-    three found mates the others missed on the training corpus's validation split).
-
-    Args:
-        points: (N, 2, k, 3) observer-frame points (the view axis is +Y there).
-        mm_per_unit: (N,) millimetres of the CAD per unit of ``points`` (1 / scale_m_per_mm).
-        features: (N, F) raw pair evidence (``pair_features_many``), computed when None.
-        keys: per row, a key of each part's cloud (a cloud met again is analysed once).
-    """
-    from cadio.capture.pair_features import PAIR_FEATURES, pair_features_many
-    from cadio.truth.relations import directional_truth
-
-    mm = np.asarray(mm_per_unit, dtype=np.float64)
-    raw = pair_features_many(points, mm, list(keys) if keys is not None else None) \
-        if features is None else features
-    f = {name: raw[:, i].astype(np.float64) for i, name in enumerate(PAIR_FEATURES)}
-    offsets = (points[:, 0].mean(axis=1) - points[:, 1].mean(axis=1)) * mm[:, None]
-    directional, _ = directional_truth(offsets.astype(np.float64), OBSERVER_VIEW_AXIS)
-    slack = tests.spacings * f["spacing_mm"]
-    coincident = ((f["face_found"] > 0) & (f["gap_mm"] <= 0.1 + slack)
-                  & (f["face_angle_deg"] <= tests.face_deg)
-                  & (f["face_offset_mm"] <= 0.1 + slack) & (f["face_opposed"] > 0))
-    concentric = ((f["contact_axis_found"] > 0) & (f["gap_mm"] <= 1.0 + slack)
-                  & (f["contact_axis_flatness"] <= tests.flatness)
-                  & (f["contact_axis_offset_mm"] <= 0.1 + slack)) | (
-        (f["axis_found"] > 0) & (f["gap_mm"] <= 1.0 + slack)
-        & (f["axis_angle_deg"] <= tests.coaxial_deg) & (f["axis_offset_mm"] <= 0.1 + slack)) | (
-        (f["cyl_found"] > 0) & (f["gap_mm"] <= 1.0 + slack)
-        & (f["cyl_angle_deg"] <= tests.coaxial_deg) & (f["cyl_offset_mm"] <= 0.1 + slack))
-    dominant = (f["dom_found"] > 0) & (f["dom_ratio"] >= tests.dominant_ratio)
-    parallel = dominant & (f["dom_angle_deg"] <= tests.parallel_deg) & ~coincident
-    perpendicular = dominant & (f["dom_angle_deg"] >= 90.0 - tests.parallel_deg)
-    return np.column_stack([directional, parallel, perpendicular, concentric, coincident])
-
-
 def decide(points: npt.NDArray[np.float32], mm_per_unit: npt.NDArray[Any], method: str,
            model: tuple[RelationNet, Decision] | None,
            keys: Sequence[tuple[Any, Any]] | None = None,
@@ -214,7 +154,7 @@ def decide(points: npt.NDArray[np.float32], mm_per_unit: npt.NDArray[Any], metho
     The joint is the network's joint head's answer; ``geometric``, and a network trained
     without a joint head, read it from their concentric and coincident answers
     (``cadio.truth.joints.predicted_joint``)."""
-    from cadio.capture.pair_features import encode_features, pair_features_many
+    from cadio.capture.pair_features import pair_features_many
 
     if features is None:
         features = pair_features_many(points, mm_per_unit, list(keys) if keys else None)
@@ -228,7 +168,7 @@ def decide(points: npt.NDArray[np.float32], mm_per_unit: npt.NDArray[Any], metho
         return None
     net, decision = model
     data = RelationData(points, np.zeros((len(points), len(RELATIONS)), dtype=bool),
-                        np.asarray(mm_per_unit, dtype=np.float64), encode_features(features))
+                        np.asarray(mm_per_unit, dtype=np.float64), network_evidence(features))
     pred = predict_relations(net, data, decision=decision)
     return (pred.decided, pred.confidence, violations(pred.raw_ab, pred.raw_ba),
             pred.joint() or joints_of(pred.decided))

@@ -38,11 +38,12 @@ from cadio.capture.cad_samples import placed_cad_samples
 from cadio.capture.corpus import Shot
 from cadio.capture.examples import read_example
 from cadio.capture.observe import observer_rotation
-from cadio.capture.pair_features import encode_features, pair_features_many
+from cadio.capture.pair_features import pair_features_many
 from cadio.capture.pairs import INPUTS, evidence_cloud, pair_category
 from cadio.capture.pointcloud import sample_points
 from cadio.truth.corpus_labels import ShotLabels
 from cadio.workspace import Workspace, atomic_write, read_features, read_mesh
+from models.geometric import network_evidence
 from models.relations import JOINTS
 from models.relations_train import RelationData, nearest_of_pairs
 from models.train import Model, predict
@@ -71,7 +72,7 @@ class RelationSplit:
         keep = np.ones(len(self.labels), dtype=bool) if rows is None else rows
         mm = 1.0 / self.meta["scale_m_per_mm"].to_numpy(dtype=np.float64)
         return RelationData(self.inputs[name][keep], self.labels[keep], mm[keep],
-                            encode_features(self.features[name][keep]),
+                            network_evidence(self.features[name][keep]),
                             self.near[name][keep], self.joints()[keep])
 
     def joints(self) -> npt.NDArray[np.int64]:

@@ -403,11 +403,15 @@ class RelationNet(nn.Module):
         e_a, e_b = self.embed(points, mm, near)
         f = None
         if self.features is not None:
-            if features is None or features.shape != (len(points), self.cfg.pair_features):
+            # the network reads the first ``pair_features`` columns of the evidence
+            # (``models.geometric.network_evidence``: the encoded evidence, then the geometric
+            # tests' answers, which a network trained without them leaves)
+            if features is None or features.ndim != 2 or len(features) != len(points) \
+                    or features.shape[1] < self.cfg.pair_features:
                 got = None if features is None else tuple(features.shape)
-                raise ValueError(f"pair features must have shape (B, {self.cfg.pair_features})"
+                raise ValueError(f"pair features must have shape (B, >= {self.cfg.pair_features})"
                                  f"; got {got}")
-            f = self.features(features.to(e_a.device).float())
+            f = self.features(features[:, :self.cfg.pair_features].to(e_a.device).float())
         joints = None
         if self.joint_head is not None:
             x_ab, x_ba = self.pair_vector(e_a, e_b, f), self.pair_vector(e_b, e_a, f)

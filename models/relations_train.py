@@ -75,8 +75,8 @@ class RelationData:
     points: (N, 2, P, 3) float32, the two parts' clouds in the observer's frame, any unit.
     labels: (N, 10) bool, the relations of the ordered pair (a, b) in ``Relation`` order.
     mm: (N,) millimetres of the parts per unit of ``points`` (default 1: points in mm).
-    features: (N, F) float32 encoded pair evidence (``pair_features.encode_features``), or
-        None; symmetric in the two parts.
+    features: (N, F) float32 pair evidence as the networks read it
+        (``models.geometric.network_evidence``), or None; symmetric in the two parts.
     near: (N, 2, P) float32, each point's distance to the other part's nearest point in mm;
         computed here when None.
     joints: (N,) int64, each pair's kinematic joint as an index into ``JOINTS``, -1 where

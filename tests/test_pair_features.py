@@ -176,3 +176,18 @@ def test_a_cylinder_is_refitted_to_its_points_not_left_on_their_normals() -> Non
     assert np.mean(refitted) < 1.0 and np.mean(refitted) < 0.5 * np.mean(from_normals)
     assert max(refitted) < 2.0
 
+
+def test_the_networks_evidence_is_the_encoded_evidence_then_the_tests_answers(solids) -> None:  # type: ignore[no-untyped-def]
+    from cadio.capture.pair_features import encode_features
+    from models.geometric import GEOMETRIC_ANSWERS, geometric_decisions, network_evidence
+
+    features = np.stack([_features(solids, "plate", b) for b in ("block", "lifted", "pin")])
+    points = np.stack([np.stack([_points(solids["plate"], 1), _points(solids[b], 2)])
+                       for b in ("block", "lifted", "pin")]).astype(np.float32)
+    seen = network_evidence(features)
+    assert seen.shape == (3, N_PAIR_FEATURES + len(GEOMETRIC_ANSWERS))
+    assert np.array_equal(seen[:, :N_PAIR_FEATURES], encode_features(features))
+    answers = geometric_decisions(points, np.ones(3), features)[:, 6:]
+    assert np.array_equal(seen[:, N_PAIR_FEATURES:], answers.astype(np.float32))
+    # the block resting on the plate is coincident by the tests, the lifted one is not
+    assert seen[:, -1].tolist() == [1.0, 0.0, 0.0]

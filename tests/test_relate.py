@@ -139,6 +139,36 @@ def test_a_checkpoint_trained_on_other_pair_evidence_is_left_out_with_the_reason
     assert set(pd.read_parquet(batch.path)["method"]) == {"geometric"}
 
 
+def test_a_network_reads_the_geometric_answers_when_its_checkpoint_lists_them(
+        ws: Workspace, tmp_path: Path) -> None:
+    """A checkpoint that lists the tests' answers after the evidence reads them (the width of
+    both); one trained on the evidence alone reads its first columns, as before."""
+    import dataclasses
+
+    from cadio.capture.pair_features import N_PAIR_FEATURES, PAIR_FEATURES
+    from models.geometric import GEOMETRIC_ANSWERS
+
+    torch.set_num_threads(1)
+    data = relation_pairs(16, n_points=64, seed=3)
+    width = N_PAIR_FEATURES + len(GEOMETRIC_ANSWERS)
+    rng = np.random.default_rng(0)
+    data = dataclasses.replace(data, features=rng.random((16, width), dtype=np.float32))
+    folder = tmp_path / "models"
+    for name, names in (("truth", [*PAIR_FEATURES, *GEOMETRIC_ANSWERS]),
+                        ("partial", list(PAIR_FEATURES))):
+        cfg = RelationConfig(method="ltn", steps=2, batch_size=8, eval_every=2,
+                             train_points=32, widths=(8, 8, 8, 8), embed=8, ntn_k=2,
+                             pair_features=len(names))
+        res = train_relations(cfg, data, data, data_info={"input": name, "train_parts": [],
+                                                           "pair_features": names})
+        save_relation_checkpoint(folder / f"ltn-{name}.pt", res.checkpoint)
+    captures = sorted(ws.root.glob("captures/*.mcap"))
+    batch = relate_batch(captures, ws, folder, SHIPPED, tmp_path / "rows.parquet")
+    assert batch.failed == ()
+    rows = pd.read_parquet(batch.path)
+    assert set(rows.loc[rows["method"] == "ltn", "input"]) == {"truth", "partial"}
+
+
 def test_the_completed_input_is_the_same_where_the_parts_are_not_scored(
         ws: Workspace, tmp_path: Path) -> None:
     """A capture that scores none of its parts keeps only each view's observed input: the

@@ -275,11 +275,16 @@ def test_pair_features_and_contact_reach_the_predicates() -> None:
     the outputs depend on the millimetres a unit of the points is (mates are decided in mm)."""
     net = random_net(2, pair_features=5)
     points = torch.randn(4, 2, 30, 3)
-    with pytest.raises(ValueError, match=r"\(B, 5\)"):
+    with pytest.raises(ValueError, match=r"\(B, >= 5\)"):
         net(points, torch.ones(4))
+    with pytest.raises(ValueError, match=r"\(B, >= 5\); got \(4, 4\)"):
+        net(points, torch.ones(4), torch.zeros(4, 4))
     f = torch.zeros(4, 5)
     base = net(points, torch.ones(4), f)[0]
     assert not torch.allclose(base, net(points, torch.ones(4), f + 1)[0])
+    # columns after its own width (the geometric answers a network without them leaves) are
+    # not read
+    assert torch.equal(base, net(points, torch.ones(4), torch.cat([f, torch.ones(4, 4)], 1))[0])
     assert not torch.allclose(base, net(points, torch.full((4,), 50.0), f)[0])
     swapped = net(points[:, [1, 0]], torch.ones(4), f)
     assert torch.allclose(swapped[0], net(points, torch.ones(4), f)[1], atol=1e-6)
