@@ -30,7 +30,7 @@ import pandas as pd
 
 from cadio.capture.cad_samples import placed_cad_samples
 from cadio.capture.pair_features import pair_features, part_cloud
-from cadio.workspace import Workspace, read_features, read_mesh
+from cadio.workspace import features_of_mesh, read_mesh
 from models.relation_data import read_split
 
 SYMMETRIC = {6: "parallel", 7: "perpendicular", 8: "concentric", 9: "coincident"}
@@ -46,8 +46,7 @@ def _shot_features(job: tuple[str, list[dict], list[tuple[str, str]], int]) -> l
         p = by_id[pid]
         pose = np.asarray(p["pose_mm"], dtype=np.float64).reshape(4, 4)
         mesh = Path(p["mesh_path"])
-        features = read_features(Workspace(mesh.parent.parent).features(pid))
-        samples = placed_cad_samples(read_mesh(mesh), features, pid, pose, n, 1.0)
+        samples = placed_cad_samples(read_mesh(mesh), features_of_mesh(mesh), pid, pose, n, 1.0)
         clouds[pid] = part_cloud(samples[:, :3], normals=samples[:, 3:])
     return [pair_features(clouds[a], clouds[b]) for a, b in pairs]
 

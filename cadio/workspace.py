@@ -143,6 +143,12 @@ def read_features(path: Path) -> Features:
     return Features.from_dict(json.loads(path.read_text()))
 
 
+def features_of_mesh(mesh: Path) -> Features:
+    """The features of the part whose mesh is ``mesh`` (``Workspace.mesh``), read from the same
+    workspace: what a corpus's shots name of a part is its mesh's path."""
+    return read_features(Workspace(mesh.parent.parent).features(mesh.stem))
+
+
 def write_voxels(path: Path, grid: VoxelGrid) -> None:
     """Occupancy is bit-packed then compressed: 256^3 takes ~2 MB before compression."""
     with atomic_write(path) as fh:

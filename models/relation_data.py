@@ -42,7 +42,7 @@ from cadio.capture.pair_features import pair_features_many
 from cadio.capture.pairs import INPUTS, evidence_cloud, pair_category
 from cadio.capture.pointcloud import sample_points
 from cadio.truth.corpus_labels import ShotLabels
-from cadio.workspace import Workspace, atomic_write, read_features, read_mesh
+from cadio.workspace import atomic_write, features_of_mesh, read_mesh
 from models.geometric import network_evidence
 from models.relations import JOINTS
 from models.relations_train import RelationData, nearest_of_pairs
@@ -192,8 +192,8 @@ def placed_samples(shot: Shot, instance: int, k: int, scale: float
     (``placed_cad_samples``; the features beside the mesh in its workspace)."""
     part = next(p for p in shot.parts if p.instance == instance)
     mesh = Path(part.mesh_path)
-    features = read_features(Workspace(mesh.parent.parent).features(part.part_id))
-    return placed_cad_samples(read_mesh(mesh), features, part.part_id, part.pose(), k, scale)
+    return placed_cad_samples(read_mesh(mesh), features_of_mesh(mesh), part.part_id,
+                              part.pose(), k, scale)
 
 
 def _completed(corpus_dir: Path, shot: str, instance: int, view: int,
