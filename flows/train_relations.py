@@ -27,13 +27,13 @@ import numpy as np
 import pandas as pd
 
 from cadio.capture.corpus import Shot, read_index, read_shots
-from cadio.capture.pair_features import PAIR_FEATURES, evidence_digest
+from cadio.capture.pair_features import evidence_digest
 from cadio.capture.pairs import DEFAULT_PAIRS, INPUTS
 from cadio.catalog import read_catalog
 from cadio.sandbox import Limits
 from cadio.truth.corpus_labels import LabelJob, LabelPart, ShotLabels, label_shots
 from cadio.workspace import Workspace, atomic_write
-from models.geometric import ANSWERS_READ_BY, GEOMETRIC_ANSWERS
+from models.geometric import evidence_names
 
 Progress = Callable[[str], None]
 
@@ -114,7 +114,7 @@ def build_dataset(ws: Workspace, completion_models: Path, limits: Limits,
              "completion": models.cards[key]["code_version"] if key in models.cards else "",
              "completion_step": models.cards[key]["step"] if key in models.cards else -1,
              "evidence_points": DEFAULT_PAIRS.evidence_points,
-             "pair_features": evidence_digest()}
+             "pair_features": evidence_digest(), "centres": "solid"}
     out = relations_dir(ws)
     if (out / "stamp.json").exists() and json.loads((out / "stamp.json").read_text()) == stamp:
         return {p.stem: len(read_split(p).labels) for p in sorted(out.glob("*.npz"))}
@@ -162,10 +162,10 @@ def train_relation_model(ws: Workspace, method: str, name: str, steps: int, out_
     from models.relations_train import save_relation_checkpoint, train_relations
 
     train, val = (read_split(relations_dir(ws) / f"{s}.npz") for s in ("train", "val"))
-    answers = name in ANSWERS_READ_BY
-    names = [*PAIR_FEATURES, *(GEOMETRIC_ANSWERS if answers else ())]
+    names = evidence_names(name)
     cfg = RelationConfig(method=method, steps=steps,
-                         **{"pair_features": len(names), "joints": True, **overrides})
+                         **{"pair_features": len(names), "evidence": tuple(names),
+                            "joints": True, **overrides})
     clock = time.perf_counter()
     info = {"input": name, "train_parts": sorted(set(train.meta["part_a"].astype(str))
                                                  | set(train.meta["part_b"].astype(str))),
@@ -198,7 +198,7 @@ def evaluate_relations(ws: Workspace, models_dir: Path, run_dir: Path,
     for name in INPUTS:
         for method in METHODS:
             out = decide(test.inputs[name], mm, method, models.models.get((method, name)),
-                         keys, test.features[name])
+                         keys, test.features[name], test.centres_of(name))
             if out is None:
                 continue
             rows += _rows(meta, test.labels, name, method, *out)
@@ -269,7 +269,8 @@ def write_relation_card(ws: Workspace, out_dir: Path, run_dir: Path, command: st
         "evidence from fitted primitives (`cadio.capture.pair_features`: contact planes and "
         "axes, part axes, dominant plane directions; measured on `truth` with the exact normals "
         "of the CAD faces, and the `truth` networks also read the `geometric` tests' four "
-        "symmetric answers, `models.geometric.network_evidence`), one Logic Tensor Network "
+        "symmetric answers and the pair's direction between the centroids of the parts' "
+        "solids, `models.geometric.network_evidence`), one Logic Tensor Network "
         "predicate per relation, trained on the labelled facts and the fuzzy-logic axioms) "
         "and `mlp` (the same network on the facts only), one checkpoint per input (`truth`: "
         "CAD surface samples, `partial`: the segmented scan, `completed`: the completion "

@@ -34,7 +34,7 @@ from cadio.errors import CaptureError
 from cadio.records import FloatArray, Relation
 from cadio.workspace import Workspace, atomic_path
 from models.errors import CheckpointError
-from models.geometric import GEOMETRIC_ANSWERS, geometric_decisions, network_evidence
+from models.geometric import EVIDENCE, geometric_decisions, network_evidence
 from models.relation_decision import Decision, violations
 from models.relations import RelationNet
 from models.relations_train import (
@@ -103,10 +103,11 @@ def _stale_evidence(ckpt: Mapping[str, Any]) -> str:
     from cadio.capture.pair_features import PAIR_FEATURES
 
     width = int(ckpt["config"].get("pair_features", 0))
-    names = ckpt["data"].get("pair_features")
-    readable = (list(PAIR_FEATURES), [*PAIR_FEATURES, *GEOMETRIC_ANSWERS])
-    if width == 0 or (names is None and width == len(PAIR_FEATURES)) \
-            or list(names or []) in readable:
+    names = [str(n) for n in ckpt["data"].get("pair_features") or []]
+    ours = len(PAIR_FEATURES)
+    if width == 0 or (not names and width == ours) \
+            or (names[:ours] == list(PAIR_FEATURES) and set(names) <= set(EVIDENCE)
+                and names == list(ckpt["config"].get("evidence") or names[:width])):
         return ""
     return (f"trained on {width} pair features, this code measures {len(PAIR_FEATURES)}: "
             "retrain it (mateqa train relations)")
@@ -144,12 +145,15 @@ def capture_completions(capture: str, part_ids: Iterable[str], ws: Workspace,
 def decide(points: npt.NDArray[np.float32], mm_per_unit: npt.NDArray[Any], method: str,
            model: tuple[RelationNet, Decision] | None,
            keys: Sequence[tuple[Any, Any]] | None = None,
-           features: npt.NDArray[np.float32] | None = None
+           features: npt.NDArray[np.float32] | None = None,
+           centres: npt.NDArray[np.floating] | None = None
            ) -> tuple[npt.NDArray[np.bool_], npt.NDArray[np.float64],
                       npt.NDArray[np.bool_], list[str]] | None:
     """One method's (decided, confidence, violation), each (N, 10), and joint (N,) on
     observer-frame pairs (N, 2, k, 3); None for a learned method without its checkpoint.
     ``features``: the pairs' raw evidence (``pair_features_many``), computed here when None.
+    ``centres``: (N, 2, 3) the parts' centres in the frame of ``points`` where the input knows
+    the solids (``truth``); None: the points' means.
 
     The joint is the network's joint head's answer; ``geometric``, and a network trained
     without a joint head, read it from their concentric and coincident answers
@@ -159,7 +163,7 @@ def decide(points: npt.NDArray[np.float32], mm_per_unit: npt.NDArray[Any], metho
     if features is None:
         features = pair_features_many(points, mm_per_unit, list(keys) if keys else None)
     if method == "geometric":
-        decided = geometric_decisions(points, mm_per_unit, features, keys)
+        decided = geometric_decisions(points, mm_per_unit, features, keys, centres=centres)
         # the tests are symmetric and the cones converse: nothing to violate; a hard
         # geometric decision carries no calibrated probability.
         return (decided, np.full(decided.shape, np.nan), np.zeros(decided.shape, dtype=bool),
@@ -168,7 +172,8 @@ def decide(points: npt.NDArray[np.float32], mm_per_unit: npt.NDArray[Any], metho
         return None
     net, decision = model
     data = RelationData(points, np.zeros((len(points), len(RELATIONS)), dtype=bool),
-                        np.asarray(mm_per_unit, dtype=np.float64), network_evidence(features))
+                        np.asarray(mm_per_unit, dtype=np.float64),
+                        network_evidence(features, points, centres))
     pred = predict_relations(net, data, decision=decision)
     return (pred.decided, pred.confidence, violations(pred.raw_ab, pred.raw_ba),
             pred.joint() or joints_of(pred.decided))
@@ -201,9 +206,11 @@ def relate_views(views: Sequence[PairView], models: RelationModels,
                       for v, k in zip(having, keys, strict=True)]
         features = pair_features_many([v.evidence_clouds(name) for v in having], mm,
                                       cloud_keys)
+        centres = np.stack([v.observer_centres(name) for v in having]) \
+            if all(name in v.centres for v in having) else None
         for method in methods:
             decided = decide(points, mm, method, models.models.get((method, name)), keys,
-                             features)
+                             features, centres)
             if decided is not None:
                 rows += _rows(having, name, method, *decided)
     return rows

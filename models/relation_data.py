@@ -7,7 +7,9 @@ for each view's observer. ``build_relation_dataset`` turns them into one ``<spli
 split: for each input (``truth``: CAD samples; ``partial``: the observed points of that view;
 ``completed``: the completion network's shape from that single view, the surface of its solid)
 the two parts' points in the observer's frame (N, 2, k, 3) float32, their pair evidence
-(``cadio.capture.pair_features``, raw, (N, F)), the labels (N, 10), whether the pair sits near
+(``cadio.capture.pair_features``, raw, (N, F)), for ``truth`` the centroids of the two parts'
+solids in the observer's frame (N, 2, 3) (the other inputs' centres are their points' means:
+``models.geometric.network_evidence``), the labels (N, 10), whether the pair sits near
 a tolerance in that view, the CAD's kinematic joint of the pair (``"none"`` without one), and
 which shot, view, parts and category each row is. Points are kept
 in float32: a tenth of a millimetre in a metre-sized scene needs it (float16 rounds it away).
@@ -26,7 +28,7 @@ from __future__ import annotations
 
 import logging
 from collections.abc import Callable, Mapping, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -67,12 +69,20 @@ class RelationSplit:
     near: dict[str, npt.NDArray[np.float32]]
     labels: npt.NDArray[np.bool_]
     meta: pd.DataFrame
+    # input -> (N, 2, 3) observer-frame centres of the parts where the input knows its solids
+    centres: dict[str, npt.NDArray[np.float64]] = field(default_factory=dict)
+
+    def centres_of(self, name: str) -> npt.NDArray[np.float64] | None:
+        """(N, 2, 3) the parts' centres of one input, or None: the means of its points."""
+        return self.centres.get(name)
 
     def data(self, name: str, rows: npt.NDArray[np.bool_] | None = None) -> RelationData:
         keep = np.ones(len(self.labels), dtype=bool) if rows is None else rows
         mm = 1.0 / self.meta["scale_m_per_mm"].to_numpy(dtype=np.float64)
-        return RelationData(self.inputs[name][keep], self.labels[keep], mm[keep],
-                            network_evidence(self.features[name][keep]),
+        centres = self.centres_of(name)
+        evidence = network_evidence(self.features[name][keep], self.inputs[name][keep],
+                                    None if centres is None else centres[keep])
+        return RelationData(self.inputs[name][keep], self.labels[keep], mm[keep], evidence,
                             self.near[name][keep], self.joints()[keep])
 
     def joints(self) -> npt.NDArray[np.int64]:
@@ -96,6 +106,7 @@ class _Row:
     points: dict[str, npt.NDArray[np.float32]]
     # input -> the two parts' denser clouds of the pair evidence (world metres); absent: points
     evidence: dict[str, tuple[npt.NDArray[np.float32], npt.NDArray[np.float32]]]
+    centres: npt.NDArray[np.float64]  # (2, 3) the centroids of the parts' solids, world metres
 
 
 def build_relation_dataset(corpus_dir: Path, shots: Sequence[Shot],
@@ -156,7 +167,7 @@ def _shot_rows(corpus_dir: Path, shot: Shot, truth: ShotLabels,
         scale = float(z["scale_m_per_mm"])
     completed: dict[tuple[int, int], tuple[npt.NDArray[np.float32],
                                            npt.NDArray[np.float32]]] = {}
-    dense_cad: dict[int, npt.NDArray[np.float32]] = {}
+    dense_cad: dict[int, tuple[npt.NDArray[np.float32], npt.NDArray[np.float64]]] = {}
     rows = []
     for (a, b), per_view, near, joint in zip(truth.pairs.tolist(), truth.truth, truth.near,
                                              truth.joints.tolist(), strict=True):
@@ -177,23 +188,26 @@ def _shot_rows(corpus_dir: Path, shot: Shot, truth: ShotLabels,
             for k in (a, b):
                 if k not in dense_cad:
                     dense_cad[k] = placed_samples(shot, k, evidence_points, scale)
-            evidence = {"truth": (dense_cad[a], dense_cad[b]),
+            evidence = {"truth": (dense_cad[a][0], dense_cad[b][0]),
                         "completed": (done_a[1], done_b[1])}
             rows.append(_Row(shot, view, a, b, per_view[v], bool(near[v].any()), joint, scale,
                              w2c[ka], {k: p.astype(np.float32) for k, p in points.items()},
-                             evidence))
+                             evidence, np.stack([dense_cad[a][1], dense_cad[b][1]])))
     return rows
 
 
 def placed_samples(shot: Shot, instance: int, k: int, scale: float
-                   ) -> npt.NDArray[np.float32]:
+                   ) -> tuple[npt.NDArray[np.float32], npt.NDArray[np.float64]]:
     """(k, 6): k CAD surface samples of one instance placed as in the shot (world metres),
     seeded by its part as the corpus's own samples are, with the exact normals of their faces
-    (``placed_cad_samples``; the features beside the mesh in its workspace)."""
+    (``placed_cad_samples``; the features beside the mesh in its workspace); and (3,) the
+    centroid of its solid there (world metres)."""
     part = next(p for p in shot.parts if p.instance == instance)
     mesh = Path(part.mesh_path)
-    return placed_cad_samples(read_mesh(mesh), features_of_mesh(mesh), part.part_id,
-                              part.pose(), k, scale)
+    features, pose = features_of_mesh(mesh), part.pose()
+    centre = (pose[:3, :3] @ features.centroid + pose[:3, 3]) * scale
+    return (placed_cad_samples(read_mesh(mesh), features, part.part_id, pose, k, scale),
+            np.asarray(centre, dtype=np.float64))
 
 
 def _completed(corpus_dir: Path, shot: str, instance: int, view: int,
@@ -238,6 +252,7 @@ def write_split(path: Path, rows: Sequence[_Row]) -> None:
                       else ((name, *ka), (name, *kb)) for ka, kb in keys]
         arrays[f"features_{name}"] = pair_features_many(clouds, mm, cloud_keys)
         arrays[f"near_{name}"] = nearest_of_pairs(pts, mm)
+    arrays["centres_truth"] = np.stack([r.centres @ observer_rotation(r.w2c) for r in rows])
     arrays["labels"] = np.stack([r.labels for r in rows])
     parts = [{p.instance: p for p in r.shot.parts} for r in rows]
     meta = {
@@ -261,4 +276,8 @@ def read_split(path: Path) -> RelationSplit:
         features = {n: z[f"features_{n}"].astype(np.float32) for n in INPUTS}
         near = {n: z[f"near_{n}"].astype(np.float32) for n in INPUTS}
         meta = pd.DataFrame({col: z[col] for col in META})
-        return RelationSplit(inputs, features, near, z["labels"].astype(bool), meta)
+        if "centres_truth" not in z:
+            raise ValueError(f"{path}: a relation dataset from before the parts' centres: "
+                             "rebuild it (mateqa train relations)")
+        centres = {"truth": z["centres_truth"].astype(np.float64)}
+        return RelationSplit(inputs, features, near, z["labels"].astype(bool), meta, centres)

@@ -79,6 +79,9 @@ class RelationConfig:
     train_points: int = 256
     contact: bool = True  # each point also carries the other part's nearness (N_CONTACT)
     pair_features: int = 0  # width of the pair evidence vector (0: none)
+    # The columns of ``models.geometric.EVIDENCE`` read, by name, ``pair_features`` of them;
+    # empty: the first ``pair_features`` columns (checkpoints from before the names).
+    evidence: tuple[str, ...] = ()
     feature_width: int = 16  # its encoding in the pair vector
     # Hidden widths of the per-point MLP; the pair evidence carries the mates, the points the
     # directions and shapes, and a quarter of (32, 64, 64, 128)'s cost held the same accuracy.
@@ -124,6 +127,14 @@ class RelationConfig:
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "widths", tuple(int(w) for w in self.widths))
+        object.__setattr__(self, "evidence", tuple(str(n) for n in self.evidence))
+        if self.evidence:
+            from models.geometric import EVIDENCE
+
+            unknown = sorted(set(self.evidence) - set(EVIDENCE))
+            if unknown or len(self.evidence) != self.pair_features:
+                raise ValueError(f"evidence must name pair_features ({self.pair_features}) "
+                                 f"columns of EVIDENCE; unknown {unknown}")
         if self.method not in METHODS:
             raise ValueError(f"method must be one of {METHODS}, got {self.method!r}")
         if min(self.widths, default=0) < 1 or min(self.embed, self.ntn_k, self.n_points) < 1:
@@ -401,26 +412,44 @@ class RelationNet(nn.Module):
         the same for the pair and its swap (the mean of both orders' softmax); None without
         a joint head."""
         e_a, e_b = self.embed(points, mm, near)
-        f = None
+        f_ab = f_ba = None
         if self.features is not None:
-            # the network reads the first ``pair_features`` columns of the evidence
-            # (``models.geometric.network_evidence``: the encoded evidence, then the geometric
-            # tests' answers, which a network trained without them leaves)
-            if features is None or features.ndim != 2 or len(features) != len(points) \
-                    or features.shape[1] < self.cfg.pair_features:
-                got = None if features is None else tuple(features.shape)
-                raise ValueError(f"pair features must have shape (B, >= {self.cfg.pair_features})"
-                                 f"; got {got}")
-            f = self.features(features[:, :self.cfg.pair_features].to(e_a.device).float())
+            ab, ba = self._evidence(features, len(points))
+            f_ab = self.features(ab.to(e_a.device).float())
+            f_ba = self.features(ba.to(e_a.device).float())
         joints = None
         if self.joint_head is not None:
-            x_ab, x_ba = self.pair_vector(e_a, e_b, f), self.pair_vector(e_b, e_a, f)
+            x_ab, x_ba = self.pair_vector(e_a, e_b, f_ab), self.pair_vector(e_b, e_a, f_ba)
             if self.cfg.joint_detach:
                 x_ab, x_ba = x_ab.detach(), x_ba.detach()
             probs = (torch.softmax(self.joint_head(x_ab), 1)
                      + torch.softmax(self.joint_head(x_ba), 1)) / 2
             joints = torch.log(probs.clamp_min(1e-12))
-        return self.head(e_a, e_b, f), self.head(e_b, e_a, f), joints
+        return self.head(e_a, e_b, f_ab), self.head(e_b, e_a, f_ba), joints
+
+    def _evidence(self, features: Tensor | None, n: int) -> tuple[Tensor, Tensor]:
+        """The evidence columns the network reads for (a, b) and for (b, a), (B, W) each: the
+        columns its config names of ``models.geometric.network_evidence``, the swapped pair's
+        with the direction negated (as ``models.geometric.swap_evidence``); or, named none,
+        the first W columns (symmetric).
+
+        Raises:
+            ValueError: features missing, of another row count, or too narrow.
+        """
+        from models.geometric import DIRECTION_COLUMNS, EVIDENCE
+
+        width = len(EVIDENCE) if self.cfg.evidence else self.cfg.pair_features
+        if features is None or features.ndim != 2 or len(features) != n \
+                or features.shape[1] < width:
+            got = None if features is None else tuple(features.shape)
+            raise ValueError(f"pair features must have shape (B, >= {width}); got {got}")
+        if not self.cfg.evidence:
+            return features[:, :width], features[:, :width]
+        cols = [EVIDENCE.index(name) for name in self.cfg.evidence]
+        own = features[:, :width]
+        swapped = own.clone()
+        swapped[:, DIRECTION_COLUMNS] = -own[:, DIRECTION_COLUMNS]
+        return own[:, cols], swapped[:, cols]
 
 
 def knowledge_base(t_ab: Tensor, t_ba: Tensor, labels: Tensor, cfg: RelationConfig

@@ -76,7 +76,8 @@ class RelationData:
     labels: (N, 10) bool, the relations of the ordered pair (a, b) in ``Relation`` order.
     mm: (N,) millimetres of the parts per unit of ``points`` (default 1: points in mm).
     features: (N, F) float32 pair evidence as the networks read it
-        (``models.geometric.network_evidence``), or None; symmetric in the two parts.
+        (``models.geometric.network_evidence``), or None; symmetric in the two parts but for
+        the pair's direction (``models.geometric.swap_evidence``).
     near: (N, 2, P) float32, each point's distance to the other part's nearest point in mm;
         computed here when None.
     joints: (N,) int64, each pair's kinematic joint as an index into ``JOINTS``, -1 where
@@ -130,10 +131,13 @@ class RelationData:
                             self.near[rows], None if self.joints is None else self.joints[rows])
 
     def swapped(self) -> RelationData:
-        """The pairs (b, a), labelled by the rules (the pair evidence is symmetric)."""
+        """The pairs (b, a), labelled by the rules, their evidence swapped."""
+        from models.geometric import swap_evidence
+
         assert self.near is not None
         return RelationData(self.points[:, ::-1].copy(), swap_decision(self.labels), self.mm,
-                            self.features, self.near[:, ::-1].copy(), self.joints)
+                            None if self.features is None else swap_evidence(self.features),
+                            self.near[:, ::-1].copy(), self.joints)
 
     def tensors(self, rows: slice | npt.NDArray[np.int64]) -> tuple[torch.Tensor, ...]:
         """(points, mm, features or an empty (B, 0), near) of some rows, as the network takes
@@ -214,13 +218,16 @@ def training_batch(data: RelationData, cfg: RelationConfig, step: int
     near = np.take_along_axis(near, keep, axis=2)  # (B, 2, T)
     noise = rng.standard_normal(pts.shape) * (cfg.jitter_mm / mm[:, None, None, None])
     pts = (pts + noise).astype(np.float32)
+    feats = (np.zeros((len(idx), 0), np.float32) if data.features is None
+             else data.features[idx])
     if cfg.swap_augment:
+        from models.geometric import swap_evidence
+
         flip = rng.random(len(idx)) < 0.5
         pts[flip] = pts[flip][:, ::-1]
         near[flip] = near[flip][:, ::-1]
         labels = np.where(flip[:, None], swap_decision(labels), labels)
-    feats = (np.zeros((len(idx), 0), np.float32) if data.features is None
-             else data.features[idx])
+        feats[flip] = swap_evidence(feats[flip])
     joints = np.full(len(idx), -1, np.int64) if data.joints is None else data.joints[idx]
     return (torch.from_numpy(np.ascontiguousarray(pts)), torch.from_numpy(mm),
             torch.from_numpy(feats.astype(np.float32)),

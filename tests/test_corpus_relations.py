@@ -114,6 +114,16 @@ def test_the_dataset_holds_every_input_of_every_labelled_pair_view(corpus, tmp_p
     # partial's is measured on its own points (in the world frame: the fits' rounding differs)
     of_points = pair_features_many(split.inputs["partial"], mm)
     assert np.allclose(split.features["partial"][:, spacing], of_points[:, spacing], rtol=1e-4)
+    # truth's centres are the solids' centroids: the directional relations are theirs exactly
+    # (the labels' own definition), and they lie among the truth points
+    centres = split.centres_of("truth")
+    assert centres is not None and centres.shape == (rows["train"], 2, 3)
+    assert split.centres_of("partial") is None
+    directional, _ = directional_truth((centres[:, 0] - centres[:, 1]) * mm[:, None],
+                                       (0.0, 1.0, 0.0))
+    assert np.array_equal(directional, split.labels[:, :6])
+    lo, hi = split.inputs["truth"].min(axis=2), split.inputs["truth"].max(axis=2)
+    assert np.all((centres >= lo) & (centres <= hi))
 
 
 def test_the_train_flow_trains_and_reports_the_relation_networks(corpus, tmp_path) -> None:  # type: ignore[no-untyped-def]

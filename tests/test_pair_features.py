@@ -177,17 +177,58 @@ def test_a_cylinder_is_refitted_to_its_points_not_left_on_their_normals() -> Non
     assert max(refitted) < 2.0
 
 
-def test_the_networks_evidence_is_the_encoded_evidence_then_the_tests_answers(solids) -> None:  # type: ignore[no-untyped-def]
+def test_the_networks_evidence_is_the_encoded_evidence_the_tests_answers_and_the_direction(
+        solids) -> None:  # type: ignore[no-untyped-def]
     from cadio.capture.pair_features import encode_features
-    from models.geometric import GEOMETRIC_ANSWERS, geometric_decisions, network_evidence
+    from models.geometric import (
+        EVIDENCE,
+        GEOMETRIC_ANSWERS,
+        PAIR_DIRECTION,
+        geometric_decisions,
+        network_evidence,
+        swap_evidence,
+    )
 
     features = np.stack([_features(solids, "plate", b) for b in ("block", "lifted", "pin")])
     points = np.stack([np.stack([_points(solids["plate"], 1), _points(solids[b], 2)])
                        for b in ("block", "lifted", "pin")]).astype(np.float32)
-    seen = network_evidence(features)
-    assert seen.shape == (3, N_PAIR_FEATURES + len(GEOMETRIC_ANSWERS))
+    seen = network_evidence(features, points)
+    assert seen.shape == (3, len(EVIDENCE))
     assert np.array_equal(seen[:, :N_PAIR_FEATURES], encode_features(features))
     answers = geometric_decisions(points, np.ones(3), features)[:, 6:]
-    assert np.array_equal(seen[:, N_PAIR_FEATURES:], answers.astype(np.float32))
+    end = N_PAIR_FEATURES + len(GEOMETRIC_ANSWERS)
+    assert np.array_equal(seen[:, N_PAIR_FEATURES:end], answers.astype(np.float32))
     # the block resting on the plate is coincident by the tests, the lifted one is not
-    assert seen[:, -1].tolist() == [1.0, 0.0, 0.0]
+    assert seen[:, end - 1].tolist() == [1.0, 0.0, 0.0]
+    # the direction from b's points' mean to a's: the plate lies below what rests on it
+    offset = points[:, 0].mean(1) - points[:, 1].mean(1)
+    direction = seen[:, end:]
+    assert direction.shape == (3, len(PAIR_DIRECTION))
+    assert np.allclose(direction, offset / np.linalg.norm(offset, axis=1, keepdims=True),
+                       atol=1e-6)
+    assert (direction[:, 2] < -0.5).all()
+    # given centres replace the means; the swapped pair reads the direction negated
+    centres = np.zeros((3, 2, 3))
+    centres[:, 0, 0] = 5.0
+    assert np.allclose(network_evidence(features, points, centres)[:, end:], [[1, 0, 0]] * 3)
+    swapped = swap_evidence(seen)
+    assert np.array_equal(swapped[:, end:], -seen[:, end:])
+    assert np.array_equal(swapped[:, :end], seen[:, :end])
+
+
+def test_geometric_directions_follow_the_given_centres_not_the_points() -> None:
+    """Surface samples crowd where a part has much surface (a thin fin), its solid's centroid
+    lies elsewhere: the directional tests read the centres where the input knows them."""
+    from models.geometric import geometric_decisions
+    from models.relations import RELATIONS
+
+    rng = np.random.default_rng(0)
+    a = rng.uniform(-1, 1, (300, 3)).astype(np.float32) + np.float32([0, 0, 10])
+    b = rng.uniform(-1, 1, (300, 3)).astype(np.float32)
+    points = np.stack([a, b])[None]
+    above, left = RELATIONS.index("above"), RELATIONS.index("left")
+    by_points = geometric_decisions(points, np.ones(1))
+    assert by_points[0, above] and not by_points[0, left]
+    centres = np.array([[[-10.0, 0.0, 0.0], [0.0, 0.0, 0.0]]])
+    by_centres = geometric_decisions(points, np.ones(1), centres=centres)
+    assert by_centres[0, left] and not by_centres[0, above]

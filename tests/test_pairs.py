@@ -11,6 +11,7 @@ import pytest
 from cadio.cad.ingest import IngestConfig, ingest
 from cadio.cad.step import write_step
 from cadio.capture.cad_samples import surface_samples
+from cadio.capture.observe import observer_rotation
 from cadio.capture.pairs import PairConfig, capture_pairs
 from cadio.capture.scan import (
     ScanConfig,
@@ -154,6 +155,14 @@ def test_the_pair_evidence_reads_denser_clouds_than_the_network(ws: Workspace) -
     assert len(np.unique(done_a, axis=0)) == 2000  # no repeats: a spacing of zero
     # the observed points are the capture's: their evidence is measured on them
     assert np.array_equal(view.evidence_clouds("partial")[0], view.points["partial"][0])
+    # truth knows the solids: its centres are their centroids (an axis-aligned block's: the
+    # middle of its box), the other inputs' the means of their points
+    lo, hi = a[:, :3].min(axis=0), a[:, :3].max(axis=0)
+    assert np.allclose(view.centres["truth"][0], (lo + hi) / 2, atol=0.01 * np.ptp(a[:, :3]))
+    assert np.allclose(view.observer_centres("truth"), view.centres["truth"]
+                       @ observer_rotation(view.world_to_camera))
+    assert np.allclose(view.observer_centres("partial"),
+                       view.observer_points("partial").mean(axis=1))
 
 
 def test_surface_samples_are_on_the_mesh_and_seeded(ws: Workspace) -> None:

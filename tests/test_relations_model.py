@@ -290,6 +290,40 @@ def test_pair_features_and_contact_reach_the_predicates() -> None:
     assert torch.allclose(swapped[0], net(points, torch.ones(4), f)[1], atol=1e-6)
 
 
+def test_a_network_reads_its_named_evidence_and_the_swap_reads_the_direction_negated() -> None:
+    """The pair's direction is the one ordered column of the evidence: the network reads the
+    columns its config names, and answers the swapped pair, handed the swapped evidence,
+    exactly as it answers the pair's second order."""
+    from models.geometric import EVIDENCE, evidence_names, swap_evidence
+
+    names = evidence_names("partial")
+    with pytest.raises(ValueError, match="evidence must name"):
+        tiny(pair_features=2, evidence=("gap_mm", "no_such_column"))
+    net = random_net(4, pair_features=len(names), evidence=tuple(names), joints=True)
+    gen = np.random.default_rng(4)
+    points = gen.normal(size=(6, 2, 30, 3)).astype(np.float32)
+    evidence = gen.normal(size=(6, len(EVIDENCE))).astype(np.float32)
+    with pytest.raises(ValueError, match=rf"\(B, >= {len(EVIDENCE)}\)"):
+        net(torch.from_numpy(points), torch.ones(6), torch.from_numpy(evidence[:, :-1]))
+    labels = np.zeros((6, 10), bool)
+    data = RelationData(points, labels, np.ones(6), evidence)
+    ab, ba = predict_relations(net, data), predict_relations(net, data.swapped())
+    np.testing.assert_array_equal(ba.raw_ab, ab.raw_ba)
+    np.testing.assert_array_equal(ba.decided, swap_decision(ab.decided))
+    assert ab.joint() == ba.joint()
+    # the direction reaches the predicates; a column the config does not name does not
+    turned = evidence.copy()
+    turned[:, -3:] = -turned[:, -3:]
+    assert not np.allclose(predict_relations(net, RelationData(points, labels, np.ones(6),
+                                                               turned)).raw_ab, ab.raw_ab)
+    answers = evidence.copy()
+    answers[:, EVIDENCE.index("geometric_coincident")] += 1
+    np.testing.assert_array_equal(
+        predict_relations(net, RelationData(points, labels, np.ones(6), answers)).raw_ab,
+        ab.raw_ab)
+    np.testing.assert_array_equal(swap_evidence(swap_evidence(evidence)), evidence)
+
+
 def test_violations_and_calibration_error() -> None:
     raw_ab, raw_ba = np.full((3, 10), 0.1), np.full((3, 10), 0.1)
     raw_ab[0, IDX[Relation.LEFT]] = raw_ba[0, IDX[Relation.RIGHT]] = 0.9  # consistent

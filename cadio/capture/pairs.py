@@ -82,7 +82,9 @@ class PairView:
     view's camera. evidence: input name -> the two parts' denser clouds (world metres, any
     sizes) its pair evidence is measured on (``PairConfig.evidence_points``); an input without
     them is measured on its points. ``truth``'s are (k, 6): each CAD sample with the exact
-    unit normal of its face (``cadio.capture.cad_samples``).
+    unit normal of its face (``cadio.capture.cad_samples``). centres: input name -> (2, 3)
+    world metres, the centroids of the two parts' solids where the input knows them
+    (``truth``: the CAD's); the other inputs' centres are their points' means.
     """
 
     scene: str
@@ -97,6 +99,17 @@ class PairView:
     points: dict[str, Cloud]
     near: npt.NDArray[np.bool_] = field(default_factory=lambda: np.zeros(10, dtype=bool))
     evidence: dict[str, tuple[Cloud, Cloud]] = field(default_factory=dict)
+    centres: dict[str, FloatArray] = field(default_factory=dict)
+
+    def observer_centres(self, name: str) -> FloatArray:
+        """(2, 3) float64: the two parts' centres in the observer frame (``observer_points``),
+        the solids' centroids where the input knows them, else the points' means."""
+        if name in self.centres:
+            turned: FloatArray = np.asarray(
+                self.centres[name] @ observer_rotation(self.world_to_camera), dtype=np.float64)
+            return turned
+        means: FloatArray = np.asarray(self.observer_points(name), dtype=np.float64).mean(axis=1)
+        return means
 
     def evidence_clouds(self, name: str) -> tuple[Cloud, Cloud]:
         """The two clouds the pair evidence of input ``name`` is measured on (world metres)."""
@@ -265,6 +278,7 @@ class _Placed:
         self.truth = np.asarray(placed_surface_samples(mesh, part_id, pose, k, scale),
                                 dtype=np.float32)
         self.dense = placed_cad_samples(mesh, own, part_id, pose, dense, scale)
+        self.centre = np.asarray(self.features.centroid * scale, dtype=np.float64)
 
 
 def _pair_views(scene: str, a: _Placed, b: _Placed, seen_a: CapturedPart, seen_b: CapturedPart,
@@ -291,7 +305,8 @@ def _pair_views(scene: str, a: _Placed, b: _Placed, seen_a: CapturedPart, seen_b
                 np.asarray(evidence_cloud(done_b, cfg.evidence_points), dtype=np.float32))
         out.append(PairView(scene, view, seen_a.part_id, seen_b.part_id, category,
                             np.array(rr.truth, dtype=bool), rr.near_boundary(), w2c, scale,
-                            points, np.array(rr.near, dtype=bool), evidence))
+                            points, np.array(rr.near, dtype=bool), evidence,
+                            {"truth": np.stack([a.centre, b.centre])}))
     return out
 
 
