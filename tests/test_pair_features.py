@@ -181,6 +181,7 @@ def test_the_networks_evidence_is_the_encoded_evidence_the_tests_answers_and_the
         solids) -> None:  # type: ignore[no-untyped-def]
     from cadio.capture.pair_features import encode_features
     from models.geometric import (
+        DIRECTION_GAIN,
         EVIDENCE,
         GEOMETRIC_ANSWERS,
         PAIR_DIRECTION,
@@ -204,13 +205,14 @@ def test_the_networks_evidence_is_the_encoded_evidence_the_tests_answers_and_the
     offset = points[:, 0].mean(1) - points[:, 1].mean(1)
     direction = seen[:, end:]
     assert direction.shape == (3, len(PAIR_DIRECTION))
-    assert np.allclose(direction, offset / np.linalg.norm(offset, axis=1, keepdims=True),
-                       atol=1e-6)
-    assert (direction[:, 2] < -0.5).all()
+    unit = offset / np.linalg.norm(offset, axis=1, keepdims=True)
+    assert np.allclose(direction, DIRECTION_GAIN * unit, atol=1e-5)
+    assert (direction[:, 2] < -0.5 * DIRECTION_GAIN).all()
     # given centres replace the means; the swapped pair reads the direction negated
     centres = np.zeros((3, 2, 3))
     centres[:, 0, 0] = 5.0
-    assert np.allclose(network_evidence(features, points, centres)[:, end:], [[1, 0, 0]] * 3)
+    assert np.allclose(network_evidence(features, points, centres)[:, end:],
+                       [[DIRECTION_GAIN, 0, 0]] * 3)
     swapped = swap_evidence(seen)
     assert np.array_equal(swapped[:, end:], -seen[:, end:])
     assert np.array_equal(swapped[:, :end], seen[:, :end])
