@@ -70,7 +70,7 @@ from models.relate import RelateBatch, relate_batch
 # Bump when a stage's code changes what it writes, so cached batches are redone.
 CAPTURE_VERSION = "capture-2"
 COMPLETION_VERSION = "completion-1"
-RELATE_VERSION = "relate-2"
+RELATE_VERSION = "relate-3"
 
 
 @dataclass(frozen=True)

@@ -40,10 +40,10 @@ import numpy.typing as npt
 from cadio.capture.pair_features import PAIR_FEATURES, encode_features, pair_features_many
 from cadio.truth.relations import directional_truth
 
-__all__ = ["ANSWERS_READ_BY", "DIRECTION_COLUMNS", "DIRECTION_GAIN", "EVIDENCE",
+__all__ = ["ANSWERS_READ_BY", "DIRECTION_COLUMNS", "DIRECTION_GAIN", "EVIDENCE", "EXACT_INPUTS",
            "GEOMETRIC_ANSWERS", "OBSERVER_VIEW_AXIS", "PAIR_DIRECTION", "GeometricTests",
            "evidence_names", "geometric_decisions", "geometric_symmetric", "network_evidence",
-           "pair_direction", "swap_evidence"]
+           "pair_direction", "swap_evidence", "tests_for"]
 
 # In the observer frame the view axis is +Y (behind), whatever the camera.
 OBSERVER_VIEW_AXIS = (0.0, 1.0, 0.0)
@@ -82,6 +82,19 @@ class GeometricTests:
     flatness: float = 0.2  # the contact region's normals share an axis below this
     parallel_deg: float = 3.0  # dominant directions within this of 0 or 90 degrees
     dominant_ratio: float = 1.5  # the truth's own rule for a dominant direction
+    # The evidence's planes are the faces' own (CAD samples, each with its face's normal): a
+    # face pair's offset then takes no spacing. Held-out night, truth: coincident pairs' faces
+    # 0.0035 mm apart at most, bolt heads on a washer 1.59 mm over the flange (spacing 2.7 mm).
+    exact_planes: bool = False
+
+
+# The inputs whose evidence is measured on the CAD's own surfaces (``tests_for``).
+EXACT_INPUTS = ("truth",)
+
+
+def tests_for(input_name: str) -> GeometricTests:
+    """The tests for one input's evidence: exact planes where the input is the CAD."""
+    return GeometricTests(exact_planes=input_name in EXACT_INPUTS)
 
 
 def geometric_symmetric(features: npt.NDArray[np.floating],
@@ -94,9 +107,10 @@ def geometric_symmetric(features: npt.NDArray[np.floating],
     raw = np.asarray(features)
     f = {name: raw[:, i].astype(np.float64) for i, name in enumerate(PAIR_FEATURES)}
     slack = tests.spacings * f["spacing_mm"]
+    plane_slack = 0.0 if tests.exact_planes else slack
     coincident = ((f["face_found"] > 0) & (f["gap_mm"] <= 0.1 + slack)
                   & (f["face_angle_deg"] <= tests.face_deg)
-                  & (f["face_offset_mm"] <= 0.1 + slack) & (f["face_opposed"] > 0))
+                  & (f["face_offset_mm"] <= 0.1 + plane_slack) & (f["face_opposed"] > 0))
     concentric = ((f["contact_axis_found"] > 0) & (f["gap_mm"] <= 1.0 + slack)
                   & (f["contact_axis_flatness"] <= tests.flatness)
                   & (f["contact_axis_offset_mm"] <= 0.1 + slack)) | (
@@ -160,15 +174,15 @@ def pair_direction(centres: npt.NDArray[np.floating]) -> npt.NDArray[np.float32]
 
 def network_evidence(features: npt.NDArray[np.floating],
                      points: npt.NDArray[np.floating],
-                     centres: npt.NDArray[np.floating] | None = None
-                     ) -> npt.NDArray[np.float32]:
+                     centres: npt.NDArray[np.floating] | None = None,
+                     tests: GeometricTests = GeometricTests()) -> npt.NDArray[np.float32]:
     """(N, len(``EVIDENCE``)) what a relation network may read of its pairs: the encoded raw
     evidence (``encode_features`` of ``features``), the tests' four symmetric answers (0 or 1,
     in ``GEOMETRIC_ANSWERS`` order) and ``DIRECTION_GAIN`` times the pair's direction
     (``pair_direction``) of the parts' ``centres`` (N, 2, 3), or of the means of ``points``
-    (N, 2, k, 3) when None."""
+    (N, 2, k, 3) when None. ``tests``: the input's (``tests_for``)."""
     raw = np.asarray(features)
-    answers = geometric_symmetric(raw).astype(np.float32)
+    answers = geometric_symmetric(raw, tests).astype(np.float32)
     direction = DIRECTION_GAIN * pair_direction(_centres(points, centres))
     return np.concatenate([encode_features(raw), answers, direction], axis=1).astype(np.float32)
 

@@ -34,7 +34,13 @@ from cadio.errors import CaptureError
 from cadio.records import FloatArray, Relation
 from cadio.workspace import Workspace, atomic_path
 from models.errors import CheckpointError
-from models.geometric import EVIDENCE, geometric_decisions, network_evidence
+from models.geometric import (
+    EVIDENCE,
+    GeometricTests,
+    geometric_decisions,
+    network_evidence,
+    tests_for,
+)
 from models.relation_decision import Decision, violations
 from models.relations import RelationNet
 from models.relations_train import (
@@ -146,14 +152,17 @@ def decide(points: npt.NDArray[np.float32], mm_per_unit: npt.NDArray[Any], metho
            model: tuple[RelationNet, Decision] | None,
            keys: Sequence[tuple[Any, Any]] | None = None,
            features: npt.NDArray[np.float32] | None = None,
-           centres: npt.NDArray[np.floating] | None = None
+           centres: npt.NDArray[np.floating] | None = None,
+           tests: GeometricTests | None = None
            ) -> tuple[npt.NDArray[np.bool_], npt.NDArray[np.float64],
                       npt.NDArray[np.bool_], list[str]] | None:
     """One method's (decided, confidence, violation), each (N, 10), and joint (N,) on
     observer-frame pairs (N, 2, k, 3); None for a learned method without its checkpoint.
     ``features``: the pairs' raw evidence (``pair_features_many``), computed here when None.
     ``centres``: (N, 2, 3) the parts' centres in the frame of ``points`` where the input knows
-    the solids (``truth``); None: the points' means.
+    the solids (``truth``); None: the points' means. ``tests``: the input's geometric tests
+    (``models.geometric.tests_for``; None: the fitted points'), decided by ``geometric`` and
+    read by the networks.
 
     The joint is the network's joint head's answer; ``geometric``, and a network trained
     without a joint head, read it from their concentric and coincident answers
@@ -162,8 +171,9 @@ def decide(points: npt.NDArray[np.float32], mm_per_unit: npt.NDArray[Any], metho
 
     if features is None:
         features = pair_features_many(points, mm_per_unit, list(keys) if keys else None)
+    tests = tests or GeometricTests()
     if method == "geometric":
-        decided = geometric_decisions(points, mm_per_unit, features, keys, centres=centres)
+        decided = geometric_decisions(points, mm_per_unit, features, keys, tests, centres)
         # the tests are symmetric and the cones converse: nothing to violate; a hard
         # geometric decision carries no calibrated probability.
         return (decided, np.full(decided.shape, np.nan), np.zeros(decided.shape, dtype=bool),
@@ -173,7 +183,7 @@ def decide(points: npt.NDArray[np.float32], mm_per_unit: npt.NDArray[Any], metho
     net, decision = model
     data = RelationData(points, np.zeros((len(points), len(RELATIONS)), dtype=bool),
                         np.asarray(mm_per_unit, dtype=np.float64),
-                        network_evidence(features, points, centres))
+                        network_evidence(features, points, centres, tests))
     pred = predict_relations(net, data, decision=decision)
     return (pred.decided, pred.confidence, violations(pred.raw_ab, pred.raw_ba),
             pred.joint() or joints_of(pred.decided))
@@ -210,7 +220,7 @@ def relate_views(views: Sequence[PairView], models: RelationModels,
             if all(name in v.centres for v in having) else None
         for method in methods:
             decided = decide(points, mm, method, models.models.get((method, name)), keys,
-                             features, centres)
+                             features, centres, tests_for(name))
             if decided is not None:
                 rows += _rows(having, name, method, *decided)
     return rows

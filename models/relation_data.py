@@ -45,7 +45,7 @@ from cadio.capture.pairs import INPUTS, evidence_cloud, pair_category
 from cadio.capture.pointcloud import sample_points
 from cadio.truth.corpus_labels import ShotLabels
 from cadio.workspace import atomic_write, features_of_mesh, read_mesh
-from models.geometric import network_evidence
+from models.geometric import network_evidence, tests_for
 from models.relations import JOINTS
 from models.relations_train import RelationData, nearest_of_pairs
 from models.train import Model, predict
@@ -81,7 +81,7 @@ class RelationSplit:
         mm = 1.0 / self.meta["scale_m_per_mm"].to_numpy(dtype=np.float64)
         centres = self.centres_of(name)
         evidence = network_evidence(self.features[name][keep], self.inputs[name][keep],
-                                    None if centres is None else centres[keep])
+                                    None if centres is None else centres[keep], tests_for(name))
         return RelationData(self.inputs[name][keep], self.labels[keep], mm[keep], evidence,
                             self.near[name][keep], self.joints()[keep])
 

@@ -234,3 +234,24 @@ def test_geometric_directions_follow_the_given_centres_not_the_points() -> None:
     centres = np.array([[[-10.0, 0.0, 0.0], [0.0, 0.0, 0.0]]])
     by_centres = geometric_decisions(points, np.ones(1), centres=centres)
     assert by_centres[0, left] and not by_centres[0, above]
+
+
+def test_exact_planes_take_no_spacing_on_a_face_pairs_offset() -> None:
+    """On the CAD's own samples a fitted plane is its face's: a bolt head resting on a washer
+    1.59 mm above the flange faces the flange, within the 2.7 mm spacing of the samples but not
+    in contact. The fitted points' tests take it for coincident; the exact input's do not, and
+    faces that touch stay coincident in both."""
+    from models.geometric import EXACT_INPUTS, GeometricTests, geometric_symmetric, tests_for
+
+    raw = np.zeros((2, N_PAIR_FEATURES))
+    column = {name: PAIR_FEATURES.index(name) for name in PAIR_FEATURES}
+    for row, offset in enumerate((1.5875, 0.0035)):
+        raw[row, column["face_found"]] = raw[row, column["face_opposed"]] = 1.0
+        raw[row, column["gap_mm"]], raw[row, column["spacing_mm"]] = 0.2, 2.66
+        raw[row, column["face_offset_mm"]] = offset
+    coincident = -1
+    assert geometric_symmetric(raw)[:, coincident].tolist() == [True, True]
+    exact = geometric_symmetric(raw, GeometricTests(exact_planes=True))
+    assert exact[:, coincident].tolist() == [False, True]
+    assert EXACT_INPUTS == ("truth",) and tests_for("truth").exact_planes
+    assert not tests_for("partial").exact_planes and not tests_for("completed").exact_planes
