@@ -216,8 +216,7 @@ def relate_views(views: Sequence[PairView], models: RelationModels,
                       for v, k in zip(having, keys, strict=True)]
         features = pair_features_many([v.evidence_clouds(name) for v in having], mm,
                                       cloud_keys)
-        centres = np.stack([v.observer_centres(name) for v in having]) \
-            if all(name in v.centres for v in having) else None
+        centres = np.stack([v.observer_centres(name) for v in having])
         for method in methods:
             decided = decide(points, mm, method, models.models.get((method, name)), keys,
                              features, centres, tests_for(name))
