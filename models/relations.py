@@ -430,13 +430,13 @@ class RelationNet(nn.Module):
     def _evidence(self, features: Tensor | None, n: int) -> tuple[Tensor, Tensor]:
         """The evidence columns the network reads for (a, b) and for (b, a), (B, W) each: the
         columns its config names of ``models.geometric.network_evidence``, the swapped pair's
-        with the direction negated (as ``models.geometric.swap_evidence``); or, named none,
+        with the ordered columns negated (as ``models.geometric.swap_evidence``); or, named none,
         the first W columns (symmetric).
 
         Raises:
             ValueError: features missing, of another row count, or too narrow.
         """
-        from models.geometric import DIRECTION_COLUMNS, EVIDENCE
+        from models.geometric import EVIDENCE, ORDERED_COLUMNS
 
         width = len(EVIDENCE) if self.cfg.evidence else self.cfg.pair_features
         if features is None or features.ndim != 2 or len(features) != n \
@@ -448,7 +448,7 @@ class RelationNet(nn.Module):
         cols = [EVIDENCE.index(name) for name in self.cfg.evidence]
         own = features[:, :width]
         swapped = own.clone()
-        swapped[:, DIRECTION_COLUMNS] = -own[:, DIRECTION_COLUMNS]
+        swapped[:, ORDERED_COLUMNS] = -own[:, ORDERED_COLUMNS]
         return own[:, cols], swapped[:, cols]
 
 

@@ -203,7 +203,7 @@ def test_the_networks_evidence_is_the_encoded_evidence_the_tests_answers_and_the
     assert seen[:, end - 1].tolist() == [1.0, 0.0, 0.0]
     # the direction from b's points' mean to a's: the plate lies below what rests on it
     offset = points[:, 0].mean(1) - points[:, 1].mean(1)
-    direction = seen[:, end:]
+    direction = seen[:, end:end + len(PAIR_DIRECTION)]
     assert direction.shape == (3, len(PAIR_DIRECTION))
     unit = offset / np.linalg.norm(offset, axis=1, keepdims=True)
     assert np.allclose(direction, DIRECTION_GAIN * unit, atol=1e-5)
@@ -211,11 +211,38 @@ def test_the_networks_evidence_is_the_encoded_evidence_the_tests_answers_and_the
     # given centres replace the means; the swapped pair reads the direction negated
     centres = np.zeros((3, 2, 3))
     centres[:, 0, 0] = 5.0
-    assert np.allclose(network_evidence(features, points, centres)[:, end:],
+    assert np.allclose(network_evidence(features, points, centres)[:, end:end + 3],
                        [[DIRECTION_GAIN, 0, 0]] * 3)
     swapped = swap_evidence(seen)
     assert np.array_equal(swapped[:, end:], -seen[:, end:])
     assert np.array_equal(swapped[:, :end], seen[:, :end])
+
+
+def test_cone_codes_cross_one_on_the_truths_cone_edge_and_are_odd() -> None:
+    """A cone code is near 2 inside the + cone of its axis, -2 inside the - cone, 0 between,
+    and crosses 1 on the truth's own edge: 14 and 16 degrees off an axis lie on either side."""
+    from cadio.tolerances import DEFAULT_TOLERANCES
+    from models.geometric import cone_codes
+
+    cone = DEFAULT_TOLERANCES.direction_cone_deg
+
+    def off_up(deg: float, towards: tuple[float, float]) -> list[float]:
+        r = np.radians(deg)  # tilted from +Z towards (x, y)
+        return [np.sin(r) * towards[0], np.sin(r) * towards[1], np.cos(r)]
+
+    offsets = np.array([off_up(0.0, (1, 0)), off_up(cone - 1, (1, 0)), off_up(cone + 1, (0, 1)),
+                        off_up(cone, (1, 0)), off_up(45.0, (1, 0)), off_up(90.0, (0, 1)),
+                        [0.0, 0.0, 0.0]])
+    centres = np.zeros((len(offsets), 2, 3))
+    centres[:, 0] = offsets + 0.25
+    centres[:, 1] = 0.25  # b's centre, a's at b + offset (metres: any unit)
+    codes = cone_codes(centres)
+    up = codes[:, 2]
+    assert up[0] > 1.9 and up[1] > 1.2 and up[2] < 0.8 and abs(up[3] - 1.0) < 1e-3
+    assert abs(up[4]) < 0.01 and abs(up[5]) < 1e-6
+    assert codes[5, 1] > 1.9  # 90 degrees from up, straight behind: inside the behind cone
+    assert np.array_equal(codes[6], np.zeros(3))  # no direction, no cone
+    assert np.allclose(cone_codes(centres[:, ::-1]), -codes, atol=1e-6)
 
 
 def test_geometric_directions_follow_the_given_centres_not_the_points() -> None:
