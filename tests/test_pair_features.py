@@ -88,6 +88,21 @@ def test_a_block_resting_on_a_plate_is_a_face_pair_and_geometric_says_coincident
     assert coincident.tolist() == [True, False, False]
 
 
+def test_exact_faces_touching_within_the_contact_tolerance_come_first() -> None:
+    """A caster's fork rests on its plate on two narrow faces beside a wider pair 2 mm apart.
+    Where the planes are the faces' own, the touching pair is the evidence; fitted planes keep
+    the widest opposed pair (their offsets carry the points' noise)."""
+    from cadio.capture.pair_features import FacePair, _face_pair
+
+    wide = FacePair(angle_deg=0.0, offset_mm=2.0, area_mm2=120.6, opposed=1.0)
+    touching = FacePair(angle_deg=0.0, offset_mm=0.0, area_mm2=57.9, opposed=1.0)
+    flush = FacePair(angle_deg=0.0, offset_mm=0.0, area_mm2=300.0, opposed=0.0)
+    assert _face_pair([wide, touching, flush], exact=True)[2] == 0.0
+    assert _face_pair([wide, touching, flush], exact=True)[3] == 57.9
+    assert _face_pair([wide, touching, flush])[2] == 2.0
+    assert _face_pair([flush], exact=True)[4] == 0.0
+
+
 def test_a_face_pair_knows_parts_side_by_side_from_parts_face_to_face() -> None:
     from cadio.capture.pair_features import _face_pair, face_pairs
 

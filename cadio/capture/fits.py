@@ -30,6 +30,11 @@ class FeatureConfig:
     noise_factor: float = 4.0
     plane_normal_deg: float = 30.0
     exact_normal_deg: float = 0.1  # the same, where the normals are exact (CAD samples)
+    # ...and the distance, there: CAD samples lie on their faces. The noise of a local PCA
+    # (neighbourhoods across edges) merged faces millimetres apart into one plane: a caster's
+    # plate held its faces 111.0 to 113.5 mm along its normal, and the face pair of its mate
+    # read 1.16 mm apart, not the CAD's 0.
+    exact_plane_mm: float = 0.02
     min_plane: int = 8  # points of the smallest plane kept
     max_planes: int = 12
     # Where the normals are exact a plane costs little and never a strip of a cylinder: every
@@ -61,7 +66,8 @@ DEFAULT_FEATURES = FeatureConfig()
 class PartCloud:
     """A part's points (n, 3) mm with unit normals (n, 3), which points lie on a fitted plane
     (n,) bool, the planes (unit normal, inlier count), the median spacing (mm) and each point's
-    plane (n,) int, an index into ``planes`` or -1."""
+    plane (n,) int, an index into ``planes`` or -1. exact: the normals were given (the CAD's
+    faces under its samples), so each plane is one face's plane."""
 
     points: FloatArray
     normals: FloatArray
@@ -69,6 +75,7 @@ class PartCloud:
     planes: tuple[tuple[FloatArray, int], ...]
     spacing: float
     plane_of: npt.NDArray[np.int64] | None = None
+    exact: bool = False
 
     def plane_members(self) -> list[npt.NDArray[np.int64]]:
         """The point indices of each plane, in ``planes`` order."""
@@ -111,9 +118,10 @@ def part_cloud(points_mm: FloatArray, cfg: FeatureConfig = DEFAULT_FEATURES,
         plane_of, planes = _extract_planes(pts, evecs[:, :, 0], share < cfg.flat, eps, cfg,
                                            cfg.plane_normal_deg, cfg.max_planes)
         return PartCloud(pts, evecs[:, :, 0], plane_of >= 0, planes, spacing, plane_of)
+    eps = cfg.exact_plane_mm
     plane_of, planes = _extract_planes(pts, given, _shared_normals(pts, given, eps, cfg), eps,
                                        cfg, cfg.exact_normal_deg, cfg.exact_max_planes)
-    return PartCloud(pts, given, plane_of >= 0, planes, spacing, plane_of)
+    return PartCloud(pts, given, plane_of >= 0, planes, spacing, plane_of, exact=True)
 
 
 def _shared_normals(pts: FloatArray, normals: FloatArray, eps: float, cfg: FeatureConfig

@@ -60,6 +60,7 @@ from cadio.capture.fits import (
     part_cloud,
 )
 from cadio.records import FloatArray
+from cadio.tolerances import DEFAULT_TOLERANCES
 
 __all__ = [
     "N_PAIR_FEATURES",
@@ -150,7 +151,7 @@ def pair_features(a: PartCloud, b: PartCloud,
     feats += _dominant_pair(a, b, cfg)
     feats.append(max(a.spacing, b.spacing))
     feats += _contact_axes_apart(a, b, in_a, in_b, cfg)
-    feats += _face_pair(face_pairs(a, b, reach, cfg))
+    feats += _face_pair(face_pairs(a, b, reach, cfg), exact=a.exact and b.exact)
     feats += _cylinder_pair(cylinder_pairs(a, b, in_a, in_b, cfg))
     return np.array(feats, dtype=np.float32)
 
@@ -208,12 +209,20 @@ NO_FACE_PAIR = (0.0, FAR_DEG, FAR_MM, 0.0, 0.0)
 FACE_PAIR_DEG = 10.0  # planes of the two parts further apart than this are no face pair
 
 
-def _face_pair(faces: Sequence[FacePair]) -> list[float]:
+def _face_pair(faces: Sequence[FacePair], exact: bool = False) -> list[float]:
     """(found, angle, offset, overlap area, opposed) of the best face pair: the opposed one
-    (then any) with the largest overlap."""
+    (then any) with the largest overlap. ``exact``: the planes are the faces' own (CAD
+    samples), and a pair of them touching within the CAD's contact tolerance comes first
+    among the opposed: a caster's fork rests on its plate on two narrow faces beside a wider
+    pair 2 mm apart."""
     if not faces:
         return list(NO_FACE_PAIR)
-    best = max(faces, key=lambda f: (f.opposed, f.area_mm2))
+    touch = DEFAULT_TOLERANCES.contact_mm
+
+    def rank(f: FacePair) -> tuple[float, bool, float]:
+        return f.opposed, exact and f.offset_mm <= touch, f.area_mm2
+
+    best = max(faces, key=rank)
     return [1.0, best.angle_deg, best.offset_mm, best.area_mm2, best.opposed]
 
 
