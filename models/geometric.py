@@ -100,6 +100,18 @@ class GeometricTests:
     # face pair's offset then takes no spacing. Held-out night, truth: coincident pairs' faces
     # 0.0035 mm apart at most, bolt heads on a washer 1.59 mm over the flange (spacing 2.7 mm).
     exact_planes: bool = False
+    # ...and its cylinders the faces' own: a concentric mate is then a coaxial cylinder pair
+    # (the ``coax_*`` evidence: one's points about the other's axis) whose own faces lie within
+    # the CAD's 1 mm, not parts that touch somewhere near coaxial faces. Held-out night, truth:
+    # six bolts of a pipe flange stand coaxial over its holes 1.59 mm above them, their washers
+    # touching it.
+    # The two knobs were chosen on the training corpus's train and validation splits, where
+    # the exact tests agree with the clear concentric labels 96.7 and 96.4% (the tests before:
+    # 96.3 and 96.3%) with 23 and 0 false mates (140 and 23): what they miss is a mate's
+    # cylinder that the samples of a large part hardly cover (3,000 of them on a 400 mm base).
+    coaxial_faces: bool = False
+    coaxial_spread_mm: float = 0.5  # the points' rms about the other's axis
+    face_gap_mm: float = 0.5  # a face gap passes within the CAD's 1 mm plus this
 
 
 # The inputs whose evidence is measured on the CAD's own surfaces (``tests_for``).
@@ -107,8 +119,10 @@ EXACT_INPUTS = ("truth",)
 
 
 def tests_for(input_name: str) -> GeometricTests:
-    """The tests for one input's evidence: exact planes where the input is the CAD."""
-    return GeometricTests(exact_planes=input_name in EXACT_INPUTS)
+    """The tests for one input's evidence: exact planes and cylinders where the input is the
+    CAD."""
+    exact = input_name in EXACT_INPUTS
+    return GeometricTests(exact_planes=exact, coaxial_faces=exact)
 
 
 def geometric_symmetric(features: npt.NDArray[np.floating],
@@ -132,6 +146,10 @@ def geometric_symmetric(features: npt.NDArray[np.floating],
         & (f["axis_angle_deg"] <= tests.coaxial_deg) & (f["axis_offset_mm"] <= 0.1 + slack)) | (
         (f["cyl_found"] > 0) & (f["gap_mm"] <= 1.0 + slack)
         & (f["cyl_angle_deg"] <= tests.coaxial_deg) & (f["cyl_offset_mm"] <= 0.1 + slack))
+    if tests.coaxial_faces:
+        concentric = ((f["coax_found"] > 0) & (f["coax_spread_mm"] <= tests.coaxial_spread_mm)
+                      & (f["coax_normal_deg"] <= tests.coaxial_deg)
+                      & (f["coax_face_gap_mm"] <= 1.0 + tests.face_gap_mm))
     dominant = (f["dom_found"] > 0) & (f["dom_ratio"] >= tests.dominant_ratio)
     parallel = dominant & (f["dom_angle_deg"] <= tests.parallel_deg) & ~coincident
     perpendicular = dominant & (f["dom_angle_deg"] >= 90.0 - tests.parallel_deg)

@@ -111,8 +111,10 @@ def _stale_evidence(ckpt: Mapping[str, Any]) -> str:
     width = int(ckpt["config"].get("pair_features", 0))
     names = [str(n) for n in ckpt["data"].get("pair_features") or []]
     ours = len(PAIR_FEATURES)
+    # A checkpoint that names its columns reads them by name (the evidence is only ever
+    # appended to); one that names none reads the first ``width``, so it must be all of them.
     if width == 0 or (not names and width == ours) \
-            or (names[:ours] == list(PAIR_FEATURES) and set(names) <= set(EVIDENCE)
+            or (names and set(names) <= set(EVIDENCE)
                 and names == list(ckpt["config"].get("evidence") or names[:width])):
         return ""
     return (f"trained on {width} pair features, this code measures {len(PAIR_FEATURES)}: "

@@ -129,3 +129,29 @@ def test_exact_planes_are_single_faces_however_curved_the_rest_of_the_part() -> 
     measured = pair_features(cloud, part_cloud(b[:, :3], normals=b[:, 3:]))
     f = dict(zip(PAIR_FEATURES, measured, strict=True))
     assert f["face_found"] == 1 and f["face_opposed"] == 1 and f["face_offset_mm"] < 1e-3
+
+
+def test_a_pin_standing_coaxial_over_a_bore_is_no_concentric_mate(solids) -> None:  # type: ignore[no-untyped-def]
+    """A pin in the plate's bore and the same axis's pin standing 1.6 mm over the plate (a
+    bolt over a flange's hole, its washer between): both are coaxial with the bore, but only
+    the first has faces within the CAD's 1 mm of it. On the faces' own samples the coaxial
+    evidence measures the faces' gap, and the exact tests answer concentric for the first
+    alone."""
+    import build123d as bd
+
+    from models.geometric import geometric_symmetric, tests_for
+
+    over = bd.Pos(0, 0, 3 + 1.6 + 10) * bd.Cylinder(4.9, 20)
+    plate = _meshed(solids["plate"])
+    a = placed_cad_samples(*plate, "plate", np.eye(4), 3000, 1.0)
+    cloud = part_cloud(a[:, :3], normals=a[:, 3:])
+    rows = []
+    for name, pin in (("in", solids["pin"]), ("over", over)):
+        b = placed_cad_samples(*_meshed(pin), name, np.eye(4), 3000, 1.0)
+        rows.append(pair_features(cloud, part_cloud(b[:, :3], normals=b[:, 3:])))
+    f = {n: np.array([r[i] for r in rows]) for i, n in enumerate(PAIR_FEATURES)}
+    assert f["coax_found"].tolist() == [1, 1]
+    assert max(f["coax_spread_mm"]) < 0.05 and max(f["coax_normal_deg"]) < 1.0
+    assert f["coax_face_gap_mm"][0] < 0.2 and 1.55 < f["coax_face_gap_mm"][1] < 4.0
+    concentric = geometric_symmetric(np.stack(rows), tests_for("truth"))[:, 2]
+    assert concentric.tolist() == [True, False]

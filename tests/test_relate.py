@@ -186,3 +186,15 @@ def test_the_completed_input_is_the_same_where_the_parts_are_not_scored(
         again = completions_of(capture, light, model)
         assert full.keys() == again.keys() and full
         assert all(np.array_equal(full[k], again[k]) for k in full)
+
+
+def test_a_checkpoint_naming_its_columns_reads_them_after_evidence_is_appended() -> None:
+    """The evidence is only ever appended to: a shipped network trained before the coaxial
+    columns names the columns it reads, so it still loads and reads exactly those."""
+    from cadio.capture.pair_features import PAIR_FEATURES
+    from models.relate import load_relation_models
+
+    models = load_relation_models(SHIPPED_RELATIONS)
+    assert models.errors == ()
+    names = models.cards[("ltn", "partial")]["data"]["pair_features"]
+    assert "coax_face_gap_mm" in PAIR_FEATURES and "coax_face_gap_mm" not in names

@@ -50,6 +50,7 @@ from scipy.spatial import cKDTree
 
 from cadio.capture.fits import (
     DEFAULT_FEATURES,
+    Cylinder,
     FeatureConfig,
     PartCloud,
     axis_of,
@@ -86,6 +87,8 @@ PAIR_FEATURES = (
     "contact_axis_worse_flatness", "contact_axis_angle_deg",
     "face_found", "face_angle_deg", "face_offset_mm", "face_overlap_mm2", "face_opposed",
     "cyl_found", "cyl_angle_deg", "cyl_offset_mm", "cyl_radius_diff_mm", "cyl_support",
+    # appended: a checkpoint reads its columns by name, and one trained before reads its own
+    "coax_found", "coax_spread_mm", "coax_normal_deg", "coax_face_gap_mm",
 )
 N_PAIR_FEATURES = len(PAIR_FEATURES)
 FAR_DEG, FAR_MM = 90.0, 1000.0
@@ -128,6 +131,10 @@ class CylinderPair:
     offset_mm: float
     radius_diff_mm: float
     support: float
+    # the other cylinder's points measured about the better-supported one's axis
+    spread_mm: float = FAR_MM
+    normal_deg: float = FAR_DEG
+    face_gap_mm: float = FAR_MM
 
 
 def pair_features(a: PartCloud, b: PartCloud,
@@ -136,7 +143,7 @@ def pair_features(a: PartCloud, b: PartCloud,
     if len(a.points) == 0 or len(b.points) == 0:
         out = np.array([FAR_MM, 0, 0, 0, FAR_MM, 0, 0, 0, 0, FAR_MM, FAR_MM, FAR_MM,
                         0, FAR_DEG, FAR_MM, 0, FAR_DEG, 0, 0, 1.0, FAR_DEG, *NO_FACE_PAIR,
-                        *NO_CYLINDER_PAIR],
+                        *NO_CYLINDER_PAIR, *NO_COAXIAL_PAIR],
                        dtype=np.float32)
         return out
     da = cKDTree(b.points).query(a.points, k=1)[0]
@@ -152,7 +159,9 @@ def pair_features(a: PartCloud, b: PartCloud,
     feats.append(max(a.spacing, b.spacing))
     feats += _contact_axes_apart(a, b, in_a, in_b, cfg)
     feats += _face_pair(face_pairs(a, b, reach, cfg), exact=a.exact and b.exact)
-    feats += _cylinder_pair(cylinder_pairs(a, b, in_a, in_b, cfg))
+    cylinders = cylinder_pairs(a, b, in_a, in_b, cfg)
+    feats += _cylinder_pair(cylinders)
+    feats += _coaxial_pair(cylinders)
     return np.array(feats, dtype=np.float32)
 
 
@@ -304,6 +313,51 @@ def _cylinder_pair(cylinders: Sequence[CylinderPair]) -> list[float]:
     return [1.0, best.angle_deg, best.offset_mm, best.radius_diff_mm, best.support]
 
 
+# The coaxial pair's values when either part shows no cylinder in the contact region.
+NO_COAXIAL_PAIR = (0.0, FAR_MM, FAR_DEG, FAR_MM)
+COAXIAL_SPREAD_MM = 1.0  # a pair whose points spread more about the axis is not coaxial
+
+
+def _coaxial_pair(cylinders: Sequence[CylinderPair]) -> list[float]:
+    """(found, spread, normal angle, face gap) of the cylinder pair whose faces lie nearest
+    among the coaxial ones (within ``FACE_PAIR_DEG`` of radial normals and
+    ``COAXIAL_SPREAD_MM`` of spread), else the least spread: the evidence of a concentric mate
+    as the CAD defines one, coaxial faces within 1 mm of each other. Unlike the pair of
+    ``_cylinder_pair``, the faces' distance is their own, not the parts' (six bolts of a pipe
+    flange stand coaxial over its holes, 1.59 mm above them, while their washers touch it)."""
+    if not cylinders:
+        return list(NO_COAXIAL_PAIR)
+
+    def coaxial(c: CylinderPair) -> bool:
+        return c.normal_deg <= FACE_PAIR_DEG and c.spread_mm <= COAXIAL_SPREAD_MM
+
+    best = min(cylinders, key=lambda c: (not coaxial(c),
+                                         c.face_gap_mm if coaxial(c) else c.spread_mm))
+    return [1.0, best.spread_mm, best.normal_deg, best.face_gap_mm]
+
+
+def about_axis(ref: Cylinder, ref_points: FloatArray, points: FloatArray, normals: FloatArray
+               ) -> tuple[float, float, float]:
+    """(spread, normal angle, face gap) of one cylinder's points (mm) and unit normals about
+    another's axis (``ref``, fitted to ``ref_points``). spread: the rms of their distances
+    from the axis about the median (0 on a coaxial cylinder, whatever the arc they cover);
+    normal angle: the mean angle (degrees, sign-free) between their normals and the radial
+    direction; face gap: the distance of the two faces, the radius difference and the gap
+    between the two point sets along the axis, combined (0 where they overlap)."""
+    rel = points - ref.centre
+    radial = rel - np.outer(rel @ ref.axis, ref.axis)
+    dist = np.linalg.norm(radial, axis=1)
+    spread = float(np.sqrt(np.mean((dist - np.median(dist)) ** 2)))
+    unit = radial / np.maximum(dist, 1e-12)[:, None]
+    cos = np.clip(np.abs(np.sum(unit * normals, axis=1)), 0.0, 1.0)
+    normal = float(np.degrees(np.arccos(cos)).mean())
+    ref_rel = ref_points - ref.centre
+    ref_dist = np.linalg.norm(ref_rel - np.outer(ref_rel @ ref.axis, ref.axis), axis=1)
+    along, ref_along = rel @ ref.axis, ref_rel @ ref.axis
+    axial = max(0.0, float(max(along.min(), ref_along.min()) - min(along.max(), ref_along.max())))
+    return spread, normal, math.hypot(float(np.median(dist) - np.median(ref_dist)), axial)
+
+
 def cylinder_pairs(a: PartCloud, b: PartCloud, in_a: npt.NDArray[np.bool_],
                    in_b: npt.NDArray[np.bool_],
                    cfg: FeatureConfig = DEFAULT_FEATURES) -> list[CylinderPair]:
@@ -326,7 +380,13 @@ def cylinder_pairs(a: PartCloud, b: PartCloud, in_a: npt.NDArray[np.bool_],
                          offset_across(cb.centre, ca.centre, cb.axis))
             support = min(len(ca.members) / max(int(in_a.sum()), 1),
                           len(cb.members) / max(int(in_b.sum()), 1))
-            out.append(CylinderPair(angle, offset, abs(ca.radius - cb.radius), support))
+            pa, pb = a.points[curved_a][ca.members], b.points[curved_b][cb.members]
+            na, nb = a.normals[curved_a][ca.members], b.normals[curved_b][cb.members]
+            # the better-supported cylinder gives the axis: a bore's few points about a
+            # shaft's many, however short the arc they cover
+            about = (about_axis(ca, pa, pb, nb) if len(ca.members) >= len(cb.members)
+                     else about_axis(cb, pb, pa, na))
+            out.append(CylinderPair(angle, offset, abs(ca.radius - cb.radius), support, *about))
     return out
 
 
