@@ -108,7 +108,7 @@ class GeometricTests:
     # The two knobs were chosen on the training corpus's train and validation splits, where
     # the exact tests agree with the clear concentric labels 96.7 and 96.4% (the tests before:
     # 96.3 and 96.3%) with 23 and 0 false mates (140 and 23): what they miss is a mate's
-    # cylinder that the samples of a large part hardly cover (3,000 of them on a 400 mm base).
+    # cylinder that the samples of a large part hardly cover (3,000 of them, 3.4 mm apart).
     coaxial_faces: bool = False
     coaxial_spread_mm: float = 0.5  # the points' rms about the other's axis
     face_gap_mm: float = 0.5  # a face gap passes within the CAD's 1 mm plus this
@@ -130,7 +130,8 @@ def geometric_symmetric(features: npt.NDArray[np.floating],
     """(N, 4) parallel, perpendicular, concentric, coincident of pairs by their raw evidence
     (N, ``N_PAIR_FEATURES``): coincident, an opposed face pair; concentric, a coaxial contact
     axis, parts stacked on one axis, or a coaxial cylinder pair (each of the three found mates
-    the others missed on the training corpus's validation split); parallel and perpendicular,
+    the others missed on the training corpus's validation split; on exact evidence, a coaxial
+    cylinder pair whose faces lie within 1 mm, ``coaxial_faces``); parallel and perpendicular,
     the angle between dominant plane directions."""
     raw = np.asarray(features)
     f = {name: raw[:, i].astype(np.float64) for i, name in enumerate(PAIR_FEATURES)}
