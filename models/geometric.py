@@ -141,17 +141,19 @@ def geometric_symmetric(features: npt.NDArray[np.floating],
     coincident = ((f["face_found"] > 0) & (f["gap_mm"] <= 0.1 + slack)
                   & (f["face_angle_deg"] <= tests.face_deg)
                   & (f["face_offset_mm"] <= 0.1 + plane_slack) & (f["face_opposed"] > 0))
-    concentric = ((f["contact_axis_found"] > 0) & (f["gap_mm"] <= 1.0 + slack)
-                  & (f["contact_axis_flatness"] <= tests.flatness)
-                  & (f["contact_axis_offset_mm"] <= 0.1 + slack)) | (
-        (f["axis_found"] > 0) & (f["gap_mm"] <= 1.0 + slack)
-        & (f["axis_angle_deg"] <= tests.coaxial_deg) & (f["axis_offset_mm"] <= 0.1 + slack)) | (
-        (f["cyl_found"] > 0) & (f["gap_mm"] <= 1.0 + slack)
-        & (f["cyl_angle_deg"] <= tests.coaxial_deg) & (f["cyl_offset_mm"] <= 0.1 + slack))
     if tests.coaxial_faces:
         concentric = ((f["coax_found"] > 0) & (f["coax_spread_mm"] <= tests.coaxial_spread_mm)
                       & (f["coax_normal_deg"] <= tests.coaxial_deg)
                       & (f["coax_face_gap_mm"] <= 1.0 + tests.face_gap_mm))
+    else:
+        concentric = ((f["contact_axis_found"] > 0) & (f["gap_mm"] <= 1.0 + slack)
+                      & (f["contact_axis_flatness"] <= tests.flatness)
+                      & (f["contact_axis_offset_mm"] <= 0.1 + slack)) | (
+            (f["axis_found"] > 0) & (f["gap_mm"] <= 1.0 + slack)
+            & (f["axis_angle_deg"] <= tests.coaxial_deg)
+            & (f["axis_offset_mm"] <= 0.1 + slack)) | (
+            (f["cyl_found"] > 0) & (f["gap_mm"] <= 1.0 + slack)
+            & (f["cyl_angle_deg"] <= tests.coaxial_deg) & (f["cyl_offset_mm"] <= 0.1 + slack))
     dominant = (f["dom_found"] > 0) & (f["dom_ratio"] >= tests.dominant_ratio)
     parallel = dominant & (f["dom_angle_deg"] <= tests.parallel_deg) & ~coincident
     perpendicular = dominant & (f["dom_angle_deg"] >= 90.0 - tests.parallel_deg)

@@ -132,9 +132,9 @@ class CylinderPair:
     radius_diff_mm: float
     support: float
     # the other cylinder's points measured about the better-supported one's axis
-    spread_mm: float = FAR_MM
-    normal_deg: float = FAR_DEG
-    face_gap_mm: float = FAR_MM
+    spread_mm: float
+    normal_deg: float
+    face_gap_mm: float
 
 
 def pair_features(a: PartCloud, b: PartCloud,
@@ -344,18 +344,24 @@ def about_axis(ref: Cylinder, ref_points: FloatArray, points: FloatArray, normal
     normal angle: the mean angle (degrees, sign-free) between their normals and the radial
     direction; face gap: the distance of the two faces, the radius difference and the gap
     between the two point sets along the axis, combined (0 where they overlap)."""
-    rel = points - ref.centre
-    radial = rel - np.outer(rel @ ref.axis, ref.axis)
+    radial, along = _about(ref, points)
     dist = np.linalg.norm(radial, axis=1)
     spread = float(np.sqrt(np.mean((dist - np.median(dist)) ** 2)))
     unit = radial / np.maximum(dist, 1e-12)[:, None]
     cos = np.clip(np.abs(np.sum(unit * normals, axis=1)), 0.0, 1.0)
     normal = float(np.degrees(np.arccos(cos)).mean())
-    ref_rel = ref_points - ref.centre
-    ref_dist = np.linalg.norm(ref_rel - np.outer(ref_rel @ ref.axis, ref.axis), axis=1)
-    along, ref_along = rel @ ref.axis, ref_rel @ ref.axis
+    ref_radial, ref_along = _about(ref, ref_points)
+    ref_dist = np.linalg.norm(ref_radial, axis=1)
     axial = max(0.0, float(max(along.min(), ref_along.min()) - min(along.max(), ref_along.max())))
     return spread, normal, math.hypot(float(np.median(dist) - np.median(ref_dist)), axial)
+
+
+def _about(cylinder: Cylinder, points: FloatArray) -> tuple[FloatArray, FloatArray]:
+    """(n, 3) each point's offset from the cylinder's axis line, across it, and (n,) its
+    position along the axis."""
+    rel = points - cylinder.centre
+    along = rel @ cylinder.axis
+    return rel - np.outer(along, cylinder.axis), along
 
 
 def cylinder_pairs(a: PartCloud, b: PartCloud, in_a: npt.NDArray[np.bool_],
