@@ -1,0 +1,130 @@
+"""What a perfect completion would give the relation stage: the ``completed`` input's ceiling.
+
+The ``completed`` input reads each part's completion as the centres of its surface voxels
+(``models.relate.completed_clouds``), the evidence fitting planes and cylinders to them with
+local PCA's normals. This asks how far that route can go, whatever the network: in the captures
+of the held-out assemblies of a night's workspace, it swaps each part's completion for the
+CAD's own surface (dense CAD samples of the part as placed, ``placed_cad_samples``) snapped to
+the centres of an N^3 grid over the view's observed cube (the cube the completion predicts in,
+``read_example(...).grid``): a completion that is right at every voxel, at resolution N. N = 0
+keeps the samples where they are (no grid at all). Beside them, ``network``: the shipped
+``gan_lstm``'s own completion, as a night reads it.
+
+For each variant it prints the F1 of every method on ``completed`` against the CAD mates of the
+assemblies (``assembly_f1_table``, the nightly's ``assembly_mates.csv``), and writes them to
+``--out`` (CSV). ``geometric`` reads any cloud as it comes; the networks were trained on the
+shipped completion's 64^3 voxels, so only ``geometric`` shows what better clouds could give
+without retraining.
+
+Usage:
+    .venv/bin/python bench/completion_ceiling.py --workspace heldout/ws [--grids 64 128 256 0]
+        [--out completion_ceiling.csv]
+
+The workspace is a night's (``bench/heldout_night.py``, then ``mateqa nightly``), whose
+captures, inputs, meshes and features it reads. Nothing is asserted.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+from cadio.capture.cad_samples import placed_cad_samples
+from cadio.capture.examples import OBSERVED, read_example
+from cadio.capture.mcap_io import read_scene_meta
+from cadio.capture.pairs import DEFAULT_PAIRS, PairView, capture_pairs
+from cadio.catalog import read_catalog
+from cadio.records import FloatArray
+from cadio.workspace import Workspace, read_features, read_mesh
+from models.evaluate import SHIPPED, load_models
+from models.relate import SHIPPED_RELATIONS, completions_of, load_relation_models, relate_views
+from reports.relations import assembly_f1_table
+
+SAMPLES = 20_000  # CAD samples per part before snapping: several per voxel at 256^3
+
+
+def snapped(points: FloatArray, corner: FloatArray, rotation: FloatArray, side: float,
+            n: int) -> FloatArray:
+    """The centres of the voxels of an n^3 grid over a cube (corner, rotation, side: world)
+    that hold at least one of the points (world metres); n = 0: the points themselves."""
+    if n == 0:
+        return points
+    ijk = np.unique(np.floor((points - corner) @ rotation / side * n).astype(np.int64), axis=0)
+    ijk = ijk[np.all((ijk >= 0) & (ijk < n), axis=1)]
+    return np.asarray(((ijk + 0.5) / n * side) @ rotation.T + corner, dtype=np.float64)
+
+
+def perfect(capture: Path, ws: Workspace, n: int) -> dict[tuple[str, int], FloatArray]:
+    """(instance id as text, view) -> the CAD surface of that instance snapped to an n^3 grid
+    over the view's observed cube, for every single observed view of the capture's parts."""
+    meta = read_scene_meta(capture) or {}
+    scale = float(meta.get("scale_m_per_mm", 0.0))
+    out = {}
+    for part in meta.get("parts", []):
+        instance, pid = str(part["instance_id"]), str(part["part_id"])
+        folder = ws.inputs(capture.stem, instance)
+        files = sorted(folder.glob(f"{OBSERVED}-*.npz"))
+        if not files:
+            continue
+        pose = np.asarray(part["pose_mm"], dtype=np.float64)
+        cloud = placed_cad_samples(read_mesh(ws.mesh(pid)), read_features(ws.features(pid)),
+                                   pid, pose, SAMPLES, scale)
+        surface = np.asarray(cloud, dtype=np.float64)[:, :3]
+        for path in files:
+            view = path.stem.removeprefix(f"{OBSERVED}-")
+            if not view.isdigit():
+                continue  # an example of several views
+            grid = read_example(path).grid
+            out[(instance, int(view))] = snapped(surface, grid.corner, grid.rotation,
+                                                 grid.side, n)
+    return out
+
+
+def completed_only(views: list[PairView]) -> list[PairView]:
+    """The views with their ``completed`` input alone (the others are not measured here)."""
+    return [replace(v, points={"completed": v.points["completed"]},
+                    evidence={k: e for k, e in v.evidence.items() if k == "completed"},
+                    centres={}) for v in views if "completed" in v.points]
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--workspace", type=Path, default=Path("heldout/ws"))
+    parser.add_argument("--grids", type=int, nargs="+", default=[64, 128, 256, 0])
+    parser.add_argument("--out", type=Path, default=Path("completion_ceiling.csv"))
+    args = parser.parse_args()
+    ws = Workspace(args.workspace)
+    catalog = read_catalog(ws.catalog)
+    categories = dict(zip(catalog["part_id"].astype(str), catalog["category"].astype(str),
+                          strict=True))
+    captures = sorted((ws.root / "captures").glob("assembly-*.mcap"))
+    if not captures:
+        sys.exit(f"{ws.root}: no assembly captures (run a night on it first)")
+    relations = load_relation_models(SHIPPED_RELATIONS)
+    completion = load_models(SHIPPED).models.get(("gan_lstm", OBSERVED))
+    tables = []
+    for grid in ["network", *args.grids]:
+        views: list[PairView] = []
+        for capture in captures:
+            done = (completions_of(capture, ws, completion) if grid == "network"
+                    else perfect(capture, ws, int(grid)))
+            views += capture_pairs(capture, ws, categories, DEFAULT_PAIRS, done)
+        rows = relate_views(completed_only(views), relations)
+        table = assembly_f1_table(pd.DataFrame(rows))
+        label = grid if grid == "network" else ("exact" if grid == 0 else f"{grid}^3")
+        print(f"\n{label}: {len(rows) // 30} pair views")
+        print(table.round(3).to_string())
+        tables.append(table.rename(columns=lambda c, g=label: f"{g} {c}"))
+    pd.concat(tables, axis=1).to_csv(args.out)
+    print(f"\nwrote {args.out}")
+
+
+if __name__ == "__main__":
+    main()
