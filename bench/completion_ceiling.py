@@ -116,10 +116,10 @@ def main() -> None:
             done = (completions_of(capture, ws, completion) if grid == "network"
                     else perfect(capture, ws, int(grid)))
             views += capture_pairs(capture, ws, categories, DEFAULT_PAIRS, done)
-        rows = relate_views(completed_only(views), relations)
-        table = assembly_f1_table(pd.DataFrame(rows))
+        kept = completed_only(views)
+        table = assembly_f1_table(pd.DataFrame(relate_views(kept, relations)))
         label = grid if grid == "network" else ("exact" if grid == 0 else f"{grid}^3")
-        print(f"\n{label}: {len(rows) // 30} pair views")
+        print(f"\n{label}: {len(kept)} pair views")
         print(table.round(3).to_string())
         tables.append(table.rename(columns=lambda c, g=label: f"{g} {c}"))
     pd.concat(tables, axis=1).to_csv(args.out)
