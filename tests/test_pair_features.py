@@ -297,3 +297,51 @@ def test_exact_planes_take_no_spacing_on_a_face_pairs_offset() -> None:
     assert exact[:, coincident].tolist() == [False, True]
     assert EXACT_INPUTS == ("truth",) and tests_for("truth").exact_planes
     assert not tests_for("partial").exact_planes and not tests_for("completed").exact_planes
+
+
+def _face(origin, u, v, normal, nu: int, nv: int):  # type: ignore[no-untyped-def]
+    """(nu * nv, 6) points on a grid over one planar face with its outward normal."""
+    s, t = np.meshgrid(np.linspace(0, 1, nu), np.linspace(0, 1, nv))
+    pts = np.asarray(origin) + np.outer(s.ravel(), u) + np.outer(t.ravel(), v)
+    return np.column_stack([pts, np.tile(normal, (len(pts), 1))]).astype(np.float64)
+
+
+def test_a_block_resting_in_a_pocket_faces_its_floor_on_exact_normals() -> None:
+    """On the CAD's samples every normal points out of its part, so two faces rest against
+    each other when their outward normals meet. A block in a pocket (a pillow block's housing
+    on its base) has the pocket's walls beside it, on its own side of the floor, and no other
+    point of the base within reach: the parts do not lie on opposite sides there, yet the faces
+    are a coincident mate. Flush faces side by side (outward normals alike) stay no mate."""
+    from models.geometric import geometric_symmetric, tests_for
+
+    x, y, z = np.eye(3)
+    pocket = np.concatenate([
+        _face([-10, -10, 0], 20 * x, 20 * y, z, 21, 21),  # floor, facing up
+        _face([-10, -10, 0], 20 * y, 10 * z, x, 21, 11),  # the walls, facing into the pocket
+        _face([10, -10, 0], 20 * y, 10 * z, -x, 21, 11),
+        _face([-14, -10, -12], 20 * y, 22 * z, -x, 21, 23),  # outer sides and the rims
+        _face([14, -10, -12], 20 * y, 22 * z, x, 21, 23),
+        _face([-14, -10, 10], 4 * x, 20 * y, z, 5, 21),
+        _face([10, -10, 10], 4 * x, 20 * y, z, 5, 21),
+        _face([-14, -10, -12], 28 * x, 20 * y, -z, 29, 21),  # the base's bottom, out of reach
+    ])
+    block = np.concatenate([
+        _face([-9, -10, 0], 18 * x, 20 * y, -z, 19, 21),  # resting on the floor
+        _face([-9, -10, 8], 18 * x, 20 * y, z, 19, 21),
+        _face([-9, -10, 0], 20 * y, 8 * z, -x, 21, 9),
+        _face([9, -10, 0], 20 * y, 8 * z, x, 21, 9),
+    ])
+
+    def cloud(c):  # type: ignore[no-untyped-def]
+        return part_cloud(c[:, :3], normals=c[:, 3:])
+
+    f = pair_features(cloud(pocket), cloud(block))
+    assert f[F["face_found"]] == 1 and f[F["face_offset_mm"]] < 0.01
+    assert f[F["face_opposed"]] == 1
+    assert geometric_symmetric(f[None], tests_for("truth"))[0, -1]
+    # two slabs side by side, 0.5 mm apart: only their flush tops and bottoms face each other
+    slab = block[np.abs(block[:, 5]) > 0.5]
+    f = pair_features(cloud(slab), cloud(slab + np.array([18.5, 0, 0, 0, 0, 0])))
+    assert f[F["face_found"]] == 1 and f[F["face_offset_mm"]] < 0.01
+    assert f[F["face_opposed"]] == 0
+    assert not geometric_symmetric(f[None], tests_for("truth"))[0, -1]

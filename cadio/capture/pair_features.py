@@ -29,7 +29,9 @@ summarised where mates happen and by what their definitions test:
 
 Normals come from local PCA of each cloud, except for the CAD samples of the ``truth`` input,
 which bring the exact normals of their faces (``cadio.capture.cad_samples``): there a plane
-holds only points of one normal, so no strip of a large cylinder passes for one. Every feature
+holds only points of one normal, so no strip of a large cylinder passes for one, and two faces
+are opposed when their outward normals meet (the parts around them may lie on both sides: a
+block in a pocket). Every feature
 is symmetric in (a, b), so a pair and its swap get the same vector. Lengths are millimetres of
 the parts (the capture's metres over its scale), angles degrees; a feature that could not be
 measured takes the value of "far" (90 degrees, 1000 mm) and its ``*_found`` flag is 0.
@@ -246,7 +248,10 @@ def face_pairs(a: PartCloud, b: PartCloud, reach: float,
     along their mean normal at the overlap (mm); overlap: the smaller of the two parts'
     overlapping points times their spacing squared (mm^2); opposed: 1 when the parts' other
     points near the overlap lie on opposite sides of it (the faces rest against each other),
-    0 when on one side (flush side by side), 0.5 when a part shows no such points.
+    0 when on one side (flush side by side), 0.5 when a part shows no such points. Where both
+    clouds bring exact normals (outward, ``cadio.capture.cad_samples``), 1 when the two faces'
+    outward normals meet and 0 when they agree: the sides of the points read a block resting
+    in a pocket as flush, the pocket's walls standing on the block's side of the floor.
     """
     out = []
     cos = math.cos(math.radians(FACE_PAIR_DEG))
@@ -273,7 +278,11 @@ def face_pairs(a: PartCloud, b: PartCloud, reach: float,
             offset = abs(float((pb.mean(axis=0) - pa.mean(axis=0)) @ normal))
             area = min(len(near_a) * a.spacing**2, len(near_b) * b.spacing**2)
             angle = _angle_deg(na, nb)
-            opposed = _opposed(a, b, np.concatenate([pa, pb]), normal, ia, ib)
+            # exact normals point out of their parts: faces whose outward normals meet rest
+            # against each other, whatever else of the parts lies around them (a block in a
+            # pocket has the pocket's walls on both sides of the face it rests on)
+            opposed = (float(na @ nb < 0) if a.exact and b.exact
+                       else _opposed(a, b, np.concatenate([pa, pb]), normal, ia, ib))
             out.append(FacePair(angle, offset, area, opposed))
     return out
 
