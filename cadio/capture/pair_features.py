@@ -30,9 +30,8 @@ summarised where mates happen and by what their definitions test:
 Normals come from local PCA of each cloud, except for the CAD samples of the ``truth`` input,
 which bring the exact normals of their faces (``cadio.capture.cad_samples``): there a plane
 holds only points of one normal, so no strip of a large cylinder passes for one, and two faces
-are opposed when their outward normals meet (the parts around them may lie on both sides: a
-block in a pocket). Every feature
-is symmetric in (a, b), so a pair and its swap get the same vector. Lengths are millimetres of
+are opposed when their outward normals meet (``face_pairs``). Every feature is symmetric in
+(a, b), so a pair and its swap get the same vector. Lengths are millimetres of
 the parts (the capture's metres over its scale), angles degrees; a feature that could not be
 measured takes the value of "far" (90 degrees, 1000 mm) and its ``*_found`` flag is 0.
 """
@@ -278,9 +277,7 @@ def face_pairs(a: PartCloud, b: PartCloud, reach: float,
             offset = abs(float((pb.mean(axis=0) - pa.mean(axis=0)) @ normal))
             area = min(len(near_a) * a.spacing**2, len(near_b) * b.spacing**2)
             angle = _angle_deg(na, nb)
-            # exact normals point out of their parts: faces whose outward normals meet rest
-            # against each other, whatever else of the parts lies around them (a block in a
-            # pocket has the pocket's walls on both sides of the face it rests on)
+            # exact normals point out of their parts (see the docstring)
             opposed = (float(na @ nb < 0) if a.exact and b.exact
                        else _opposed(a, b, np.concatenate([pa, pb]), normal, ia, ib))
             out.append(FacePair(angle, offset, area, opposed))
