@@ -33,7 +33,7 @@ from cadio.catalog import read_catalog
 from cadio.sandbox import Limits
 from cadio.truth.corpus_labels import LabelJob, LabelPart, ShotLabels, label_shots
 from cadio.workspace import Workspace, atomic_write
-from models.geometric import evidence_names, tests_for
+from models.geometric import evidence_gains, evidence_names, tests_for
 
 Progress = Callable[[str], None]
 
@@ -165,6 +165,7 @@ def train_relation_model(ws: Workspace, method: str, name: str, steps: int, out_
     names = evidence_names(name)
     cfg = RelationConfig(method=method, steps=steps,
                          **{"pair_features": len(names), "evidence": tuple(names),
+                            "evidence_gains": evidence_gains(name),
                             "joints": True, **overrides})
     clock = time.perf_counter()
     info = {"input": name, "train_parts": sorted(set(train.meta["part_a"].astype(str))
@@ -272,8 +273,8 @@ def write_relation_card(ws: Workspace, out_dir: Path, run_dir: Path, command: st
         "of the CAD faces; every network also reads the pair's direction between the parts' "
         "centres and its cone codes, the centres being the centroids of the solids on "
         "`truth` and the points' means elsewhere, and the `truth` networks the `geometric` "
-        "tests' four symmetric answers, `models.geometric.network_evidence`), one Logic "
-        "Tensor Network "
+        "tests' four symmetric answers, the coincident one at gain 10, "
+        "`models.geometric.network_evidence` and `ANSWER_GAINS`), one Logic Tensor Network "
         "predicate per relation, trained on the labelled facts and the fuzzy-logic axioms) "
         "and `mlp` (the same network on the facts only), one checkpoint per input (`truth`: "
         "CAD surface samples, `partial`: the segmented scan, `completed`: the completion "

@@ -324,6 +324,36 @@ def test_a_network_reads_its_named_evidence_and_the_swap_reads_the_direction_neg
     np.testing.assert_array_equal(swap_evidence(swap_evidence(evidence)), evidence)
 
 
+def test_a_gained_evidence_column_reads_as_the_column_times_its_gain() -> None:
+    """A network whose config scales a column reads that column times the gain, and the
+    swapped pair's likewise; a gain on a column it does not read is refused."""
+    from models.geometric import ANSWER_GAINS, EVIDENCE, evidence_gains, evidence_names
+
+    names = tuple(evidence_names("truth"))
+    assert evidence_gains("truth") == ANSWER_GAINS and evidence_gains("completed") == ()
+    with pytest.raises(ValueError, match="evidence_gains"):
+        tiny(pair_features=len(names) - 4, evidence=evidence_names("partial"),
+             evidence_gains=(("geometric_coincident", 10.0),))
+    with pytest.raises(ValueError, match="evidence_gains"):
+        tiny(pair_features=len(names), evidence=names,
+             evidence_gains=(("geometric_coincident", 0.0),))
+    plain = random_net(5, pair_features=len(names), evidence=names)
+    gained = random_net(5, pair_features=len(names), evidence=names,
+                        evidence_gains=(("geometric_coincident", 10.0),))
+    assert gained.cfg == RelationConfig.from_dict(dataclasses.asdict(gained.cfg))
+    gen = np.random.default_rng(5)
+    points = torch.from_numpy(gen.normal(size=(4, 2, 30, 3)).astype(np.float32))
+    evidence = torch.from_numpy(gen.normal(size=(4, len(EVIDENCE))).astype(np.float32))
+    scaled = evidence.clone()
+    scaled[:, EVIDENCE.index("geometric_coincident")] *= 10
+    with torch.no_grad():
+        for got, want in zip(gained(points, torch.ones(4), evidence),
+                             plain(points, torch.ones(4), scaled), strict=True):
+            torch.testing.assert_close(got, want)
+        assert not torch.allclose(gained(points, torch.ones(4), evidence)[0],
+                                  plain(points, torch.ones(4), evidence)[0])
+
+
 def test_violations_and_calibration_error() -> None:
     raw_ab, raw_ba = np.full((3, 10), 0.1), np.full((3, 10), 0.1)
     raw_ab[0, IDX[Relation.LEFT]] = raw_ba[0, IDX[Relation.RIGHT]] = 0.9  # consistent
