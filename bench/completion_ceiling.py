@@ -10,6 +10,10 @@ the centres of an N^3 grid over the view's observed cube (the cube the completio
 keeps the samples where they are (no grid at all). Beside them, ``network``: the shipped
 ``gan_lstm``'s own completion, as a night reads it.
 
+``--normals``: each voxel of a perfect completion also carries the mean exact normal of the CAD
+samples in it (their faces' outward normals), as a completion that gives normals would; the
+pair evidence then reads normals as it reads the ``truth`` input's.
+
 For each variant it prints the F1 of every method on ``completed`` against the CAD mates of the
 assemblies (``assembly_f1_table``, the nightly's ``assembly_mates.csv``), and writes them to
 ``--out`` (CSV). ``geometric`` reads any cloud as it comes; the networks were trained on the
@@ -18,7 +22,7 @@ without retraining.
 
 Usage:
     .venv/bin/python bench/completion_ceiling.py --workspace heldout/ws [--grids 64 128 256 0]
-        [--out completion_ceiling.csv]
+        [--normals] [--out completion_ceiling.csv]
 
 The workspace is a night's (``bench/heldout_night.py``, then ``mateqa nightly``), whose
 captures, inputs, meshes and features it reads. Nothing is asserted.
@@ -51,19 +55,33 @@ SAMPLES = 20_000  # CAD samples per part before snapping: several per voxel at 2
 
 
 def snapped(points: FloatArray, corner: FloatArray, rotation: FloatArray, side: float,
-            n: int) -> FloatArray:
+            n: int, normals: FloatArray | None = None) -> FloatArray:
     """The centres of the voxels of an n^3 grid over a cube (corner, rotation, side: world)
-    that hold at least one of the points (world metres); n = 0: the points themselves."""
+    that hold at least one of the points (world metres); n = 0: the points themselves. With
+    ``normals`` (the points' unit normals), (m, 6): each centre and the mean normal of its
+    points after it."""
     if n == 0:
-        return points
-    ijk = np.unique(np.floor((points - corner) @ rotation / side * n).astype(np.int64), axis=0)
-    ijk = ijk[np.all((ijk >= 0) & (ijk < n), axis=1)]
-    return np.asarray(((ijk + 0.5) / n * side) @ rotation.T + corner, dtype=np.float64)
+        return points if normals is None else np.hstack([points, normals])
+    ijk = np.floor((points - corner) @ rotation / side * n).astype(np.int64)
+    inside = np.all((ijk >= 0) & (ijk < n), axis=1)
+    cells, which = np.unique(ijk[inside], axis=0, return_inverse=True)
+    centres = np.asarray(((cells + 0.5) / n * side) @ rotation.T + corner, dtype=np.float64)
+    if normals is None:
+        return centres
+    which = which.ravel()
+    mean = np.zeros((len(cells), 3))
+    np.add.at(mean, which, normals[inside])
+    length = np.linalg.norm(mean, axis=1, keepdims=True)
+    # opposite normals in one voxel (both sides of a thin wall) cancel: keep the first one
+    first = normals[inside][np.unique(which, return_index=True)[1]]
+    return np.hstack([centres, np.where(length > 1e-6, mean / np.maximum(length, 1e-12), first)])
 
 
-def perfect(capture: Path, ws: Workspace, n: int) -> dict[tuple[str, int], FloatArray]:
+def perfect(capture: Path, ws: Workspace, n: int, normals: bool = False
+            ) -> dict[tuple[str, int], FloatArray]:
     """(instance id as text, view) -> the CAD surface of that instance snapped to an n^3 grid
-    over the view's observed cube, for every single observed view of the capture's parts."""
+    over the view's observed cube, for every single observed view of the capture's parts; with
+    ``normals``, each voxel's mean exact normal after its centre (``snapped``)."""
     meta = read_scene_meta(capture) or {}
     scale = float(meta.get("scale_m_per_mm", 0.0))
     out = {}
@@ -74,16 +92,17 @@ def perfect(capture: Path, ws: Workspace, n: int) -> dict[tuple[str, int], Float
         if not files:
             continue
         pose = np.asarray(part["pose_mm"], dtype=np.float64)
-        cloud = placed_cad_samples(read_mesh(ws.mesh(pid)), read_features(ws.features(pid)),
-                                   pid, pose, SAMPLES, scale)
-        surface = np.asarray(cloud, dtype=np.float64)[:, :3]
+        cloud = np.asarray(placed_cad_samples(read_mesh(ws.mesh(pid)),
+                                              read_features(ws.features(pid)), pid, pose,
+                                              SAMPLES, scale), dtype=np.float64)
         for path in files:
             view = path.stem.removeprefix(f"{OBSERVED}-")
             if not view.isdigit():
                 continue  # an example of several views
             grid = read_example(path).grid
-            out[(instance, int(view))] = snapped(surface, grid.corner, grid.rotation,
-                                                 grid.side, n)
+            out[(instance, int(view))] = snapped(cloud[:, :3], grid.corner, grid.rotation,
+                                                 grid.side, n,
+                                                 cloud[:, 3:6] if normals else None)
     return out
 
 
@@ -98,6 +117,8 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--workspace", type=Path, default=Path("heldout/ws"))
     parser.add_argument("--grids", type=int, nargs="+", default=[64, 128, 256, 0])
+    parser.add_argument("--normals", action="store_true",
+                        help="perfect completions carry their voxels' exact normals")
     parser.add_argument("--out", type=Path, default=Path("completion_ceiling.csv"))
     args = parser.parse_args()
     ws = Workspace(args.workspace)
@@ -114,11 +135,12 @@ def main() -> None:
         views: list[PairView] = []
         for capture in captures:
             done = (completions_of(capture, ws, completion) if grid == "network"
-                    else perfect(capture, ws, int(grid)))
+                    else perfect(capture, ws, int(grid), args.normals))
             views += capture_pairs(capture, ws, categories, DEFAULT_PAIRS, done)
         kept = completed_only(views)
         table = assembly_f1_table(pd.DataFrame(relate_views(kept, relations)))
         label = grid if grid == "network" else ("exact" if grid == 0 else f"{grid}^3")
+        label += " normals" if args.normals and grid != "network" else ""
         print(f"\n{label}: {len(kept)} pair views")
         print(table.round(3).to_string())
         tables.append(table.rename(columns=lambda c, g=label: f"{g} {c}"))

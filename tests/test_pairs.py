@@ -153,6 +153,14 @@ def test_the_pair_evidence_reads_denser_clouds_than_the_network(ws: Workspace) -
     done_a, _ = view.evidence_clouds("completed")
     assert view.points["completed"].shape == (2, 600, 3) and len(done_a) == 2000
     assert len(np.unique(done_a, axis=0)) == 2000  # no repeats: a spacing of zero
+    # a completion that gives normals: the network reads the positions, the evidence both
+    normals = rng.normal(size=(5000, 3))
+    with_normals = {k: np.hstack([pts, normals / np.linalg.norm(normals, axis=1, keepdims=True)])
+                    for k, pts in done.items()}
+    both = capture_pairs(path, ws, {}, PairConfig(evidence_points=2000), with_normals)[0]
+    assert np.array_equal(both.points["completed"], view.points["completed"])
+    six, _ = both.evidence_clouds("completed")
+    assert six.shape == (2000, 6) and np.array_equal(six[:, :3], done_a)
     # the observed points are the capture's: their evidence is measured on them
     assert np.array_equal(view.evidence_clouds("partial")[0], view.points["partial"][0])
     # truth knows the solids: its centres are their centroids (an axis-aligned block's: the

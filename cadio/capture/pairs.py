@@ -180,7 +180,10 @@ def capture_pairs(capture: Path, ws: Workspace, categories: Mapping[str, str],
         ws: the workspace holding the parts' features, meshes and the capture's inputs.
         categories: part id -> category.
         completed: (instance id as text, view) -> (m, 3) world metres, the completion of that
-            view (the keys of ``ws.inputs(capture, instance)``).
+            view (the keys of ``ws.inputs(capture, instance)``); or (m, 6), each point's
+            outward unit normal after it (a completion that gives normals): the network's
+            points take the positions, the pair evidence reads the normals as it reads the
+            CAD samples' exact ones.
 
     Raises:
         CaptureError: the capture has no scene description, or its pairs no face-mate truth.
@@ -298,8 +301,8 @@ def _pair_views(scene: str, a: _Placed, b: _Placed, seen_a: CapturedPart, seen_b
         evidence = {"truth": (a.dense, b.dense)}
         done_a, done_b = (completed.get((k, view)) for k in (0, 1))
         if done_a is not None and done_b is not None:
-            points["completed"] = np.stack([_k_points(done_a, cfg.n_points),
-                                            _k_points(done_b, cfg.n_points)])
+            points["completed"] = np.stack([_k_points(done_a[:, :3], cfg.n_points),
+                                            _k_points(done_b[:, :3], cfg.n_points)])
             evidence["completed"] = (
                 np.asarray(evidence_cloud(done_a, cfg.evidence_points), dtype=np.float32),
                 np.asarray(evidence_cloud(done_b, cfg.evidence_points), dtype=np.float32))
