@@ -65,9 +65,9 @@ GEOMETRIC_ANSWERS = ("geometric_parallel", "geometric_perpendicular", "geometric
 ANSWERS_READ_BY = ("truth",)
 # Their gains where they read them (``RelationConfig.evidence_gains``). The coincident answer
 # reads at 10: at 1 the ``truth`` ltn called a stacked pair 0.42 mm apart coincident on 8 of 8
-# held-out views (clear-pair coincident 98.7%); at 10, 100% (two seeds). The concentric answer
-# stays at 1: at 10 it cost held-out clear-pair concentric 2-7 points (the exact coaxial test
-# errs on 1.6% of those pairs).
+# held-out views (clear-pair coincident 98.7%); at 10, 100% and 99.9% (seeds 0 and 1). The
+# concentric answer stays at 1: at 10 it cost held-out clear-pair concentric 2-7 points (the
+# exact coaxial test errs on 1.6% of those pairs).
 ANSWER_GAINS = (("geometric_coincident", 10.0),)
 # The unit vector from b's centre to a's in the observer frame (right, behind, up): ordered.
 PAIR_DIRECTION = ("direction_right", "direction_behind", "direction_up")
