@@ -51,14 +51,13 @@ from models.relation_decision import (
     swap_decision,
     violations,
 )
+from models.relation_logic import joint_knowledge_base, knowledge_base
 from models.relations import (
     JOINTS,
     METHODS,
     RELATIONS,
     RelationConfig,
     RelationNet,
-    joint_knowledge_base,
-    knowledge_base,
 )
 from models.train import TrainEvent, seeded
 from reports.relations import expected_calibration_error

@@ -16,19 +16,14 @@ from models.checkpoint import build_model, make_checkpoint, save_checkpoint
 from models.completion import CompletionConfig
 from models.errors import CheckpointError
 from models.relation_decision import combine, decide, swap_decision, violations
+from models.relation_logic import and_, exists, forall, implies, knowledge_base, or_
 from models.relations import (
     PARALLEL,
     PERPENDICULAR,
     RELATIONS,
     RelationConfig,
     RelationNet,
-    and_,
-    exists,
-    forall,
-    implies,
-    knowledge_base,
     normalise_pair,
-    or_,
 )
 from models.relations_train import (
     Decision,
@@ -402,7 +397,7 @@ def test_the_joint_head_learns_the_joint_and_answers_a_pair_and_its_swap_alike(
     swapped = predict_relations(res.checkpoint, data.swapped())
     assert swapped.joint() == pred.joint()
     # its knowledge base, facts and rules tying each joint to the mates it implies, holds
-    from models.relations import joint_knowledge_base
+    from models.relation_logic import joint_knowledge_base
 
     sat = joint_knowledge_base(torch.from_numpy(pred.joint_probability).float(),
                                torch.from_numpy(joints), torch.from_numpy(pred.raw_ab), cfg)
