@@ -162,7 +162,7 @@ def stages(root: Path) -> None:
     from cadio.cad.faces import indexed_faces
     from cadio.cad.features import extract_features
     from cadio.cad.ingest import IngestConfig, discover
-    from cadio.cad.integrate import part_integrals
+    from cadio.cad.solid_props import part_integrals
     from cadio.cad.step import read_step
     from cadio.cad.tessellate import MASS_PROPS_REL_EPS, tessellate
     from cadio.cad.voxels import voxelize_sizes

@@ -65,7 +65,8 @@ def _fixed_rule_terms(face, origin):  # type: ignore[no-untyped-def]
 def _mixed(shape, faces, numpy_on, other):  # type: ignore[no-untyped-def]
     """``part_integrals`` with the NumPy quadrature on the faces ``numpy_on`` picks and
     ``other(face, origin)`` (eight terms) on the rest and where the quadrature declines."""
-    from cadio.cad.integrate import _vertex_mean, face_integrals, summed
+    from cadio.cad.integrate import face_integrals
+    from cadio.cad.solid_props import _vertex_mean, summed
 
     origin = _vertex_mean(shape)
     terms = []
@@ -108,7 +109,7 @@ def main() -> None:
 
     from cadio.cad.faces import indexed_faces
     from cadio.cad.ingest import discover
-    from cadio.cad.integrate import _occt_terms, part_integrals, prefer_numpy
+    from cadio.cad.solid_props import _occt_terms, part_integrals, prefer_numpy
     from cadio.cad.step import read_step
     from cadio.cad.tessellate import MASS_PROPS_REL_EPS
 

@@ -23,7 +23,7 @@ from OCP.TopoDS import TopoDS_Face, TopoDS_Shape
 from cadio.cad import features as features_module
 from cadio.cad.faces import CONE, indexed_faces, recognise_faces
 from cadio.cad.features import extract_features, tight_bbox
-from cadio.cad.integrate import part_integrals
+from cadio.cad.solid_props import part_integrals
 from cadio.cad.tessellate import MASS_PROPS_REL_EPS, brep_mass
 from cadio.records import Features, FloatArray
 from cadio.tolerances import DEFAULT_TOLERANCES

@@ -1,4 +1,4 @@
-"""Tests of cadio.cad.integrate: B-spline face integrals against OpenCascade's adaptive rule."""
+"""Tests of cadio.cad.integrate and cadio.cad.solid_props: face integrals against OpenCascade."""
 
 from __future__ import annotations
 
@@ -10,17 +10,8 @@ import pytest
 from OCP.BRepBuilderAPI import BRepBuilderAPI_NurbsConvert
 
 from cadio.cad.faces import indexed_faces
-from cadio.cad.integrate import (
-    AREA,
-    AREA_MOMENT,
-    VOLUME,
-    VOLUME_MOMENT,
-    _occt_terms,
-    _vertex_mean,
-    face_integrals,
-    part_integrals,
-    prefer_numpy,
-)
+from cadio.cad.integrate import AREA, AREA_MOMENT, VOLUME, VOLUME_MOMENT, face_integrals
+from cadio.cad.solid_props import _occt_terms, _vertex_mean, part_integrals, prefer_numpy
 from cadio.cad.step import read_step
 from cadio.cad.tessellate import MASS_PROPS_REL_EPS, brep_mass
 
@@ -177,7 +168,7 @@ def test_rational_faces_with_close_weights_stay_with_opencascade(build) -> None:
 def test_an_instance_of_a_shared_solid_is_the_first_moved() -> None:
     """Two placements of one B-rep: the second is not integrated again, and its integrals
     are those of integrating it in place."""
-    from cadio.cad.integrate import InstanceIntegrals
+    from cadio.cad.solid_props import InstanceIntegrals
 
     base = bd.fillet(bd.Box(12, 8, 6).edges(), 1) - bd.Cylinder(2, 6)
     placed = [base.wrapped, (bd.Pos(40, -3, 7) * bd.Rot(10, 70, -25) * base).wrapped]

@@ -38,7 +38,7 @@ from cadio.cad.faces import (
     indexed_faces,
     recognise_faces,
 )
-from cadio.cad.integrate import PartIntegrals, part_integrals
+from cadio.cad.solid_props import PartIntegrals, part_integrals
 from cadio.cad.tessellate import MASS_PROPS_REL_EPS
 from cadio.errors import GeometryError
 from cadio.records import (

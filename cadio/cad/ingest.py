@@ -37,7 +37,7 @@ if TYPE_CHECKING:
     import pandas as pd
     from OCP.TopoDS import TopoDS_Shape
 
-    from cadio.cad.integrate import PartIntegrals
+    from cadio.cad.solid_props import PartIntegrals
     from cadio.cad.step import StepSolid
 
 log = logging.getLogger(__name__)
@@ -366,7 +366,7 @@ def process_file(job: IngestJob) -> list[CatalogRow]:
     Raises:
         StepReadError: the file cannot be read into solids.
     """
-    from cadio.cad.integrate import InstanceIntegrals
+    from cadio.cad.solid_props import InstanceIntegrals
     from cadio.cad.step import read_step
     from cadio.cad.tessellate import MASS_PROPS_REL_EPS
 
