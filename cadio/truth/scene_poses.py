@@ -1,0 +1,98 @@
+"""Poses of a scene pair from the parts' features: directional, parallel and perpendicular.
+
+A directional pair puts a's centroid off b's along a direction at a chosen angle from the
+relation's axis, clear of b's box; a parallel pair turns both dominant plane directions
+vertical and stacks the parts apart; a perpendicular pair turns b's horizontal. Near-boundary
+pairs (``side``) sit just inside or outside the cone or the angle tolerance. The scenes stage
+(``cadio.truth.scenes``) chooses the parts and labels the placed pair with the truth.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+from cadio.records import DIRECTIONAL, Features, FloatArray, Relation
+from cadio.truth.placement import align, pose, rotation, spin, tilt
+from cadio.truth.relations import direction_axes
+
+if TYPE_CHECKING:
+    from cadio.truth.scenes import SceneConfig
+
+INSIDE, OUTSIDE = "inside", "outside"  # the sides of a near-boundary pair
+_Z = np.array([0.0, 0.0, 1.0])
+
+
+def directional(a: Features, b: Features, relation: Relation, side: str,
+                rng: np.random.Generator, cfg: SceneConfig) -> tuple[FloatArray, FloatArray]:
+    """a's centroid off b's along a direction at a chosen angle from the relation's axis."""
+    ra, rb = spin(rng), spin(rng)
+    a0, b0 = a.transformed(pose(ra)), b.transformed(pose(rb))
+    axis = direction_axes(cfg.view_axis)[DIRECTIONAL.index(relation)]
+    cone, margin = cfg.tolerances.direction_cone_deg, cfg.near_directional_deg
+    if side:
+        theta = cone - margin if side == INSIDE else cone + margin
+    else:  # uniform over the spherical cap of half-angle cone - margin
+        theta = math.degrees(math.acos(rng.uniform(math.cos(math.radians(cone - margin)), 1)))
+    u = tilt(axis, theta, rng)
+    t = _separation(_rel_box(a0), _rel_box(b0), u) + rng.uniform(*cfg.gap_mm)
+    return pose(ra, t * u - a0.centroid), pose(rb, -b0.centroid)
+
+
+def parallel_or_perpendicular(a: Features, b: Features, relation: Relation, side: str,
+                              rng: np.random.Generator,
+                              cfg: SceneConfig) -> tuple[FloatArray, FloatArray]:
+    """a's dominant normal vertical; b's vertical (parallel) or horizontal (perpendicular)."""
+    assert a.dominant_plane is not None and b.dominant_plane is not None
+    near = cfg.tolerances.parallel_deg + (
+        -cfg.near_plane_deg if side == INSIDE else cfg.near_plane_deg)
+    ra = spin(rng) @ align(a.dominant_plane, _Z * rng.choice([-1.0, 1.0]))
+    if relation is Relation.PARALLEL:
+        turn = rotation(tilt(_Z, 90.0, rng), near) if side else np.eye(3)
+        rb = spin(rng) @ turn @ align(b.dominant_plane, _Z * rng.choice([-1.0, 1.0]))
+    else:  # normal to +X, raised by the near-boundary elevation, then spun about Z
+        raise_ = rotation(np.array([0.0, 1.0, 0.0]), -near) if side else np.eye(3)
+        rb = spin(rng) @ raise_ @ align(b.dominant_plane, np.array([1.0, 0.0, 0.0]))
+    a0, b0 = a.transformed(pose(ra)), b.transformed(pose(rb))
+    if relation is Relation.PARALLEL:  # stacked: disjoint heights, so no face touches
+        za, zb = stack_heights(a0, b0, rng, cfg)
+        shift = _lateral(a0, b0, rng)
+        return pose(ra, np.array([0.0, 0.0, za]) - a0.centroid * [1, 1, 0] + shift), \
+            pose(rb, np.array([0.0, 0.0, zb]) - b0.centroid * [1, 1, 0])
+    u = tilt(_Z, math.degrees(math.acos(rng.uniform(-1.0, 1.0))), rng)
+    t = _separation(_rel_box(a0), _rel_box(b0), u) + rng.uniform(*cfg.gap_mm)
+    return pose(ra, t * u - a0.centroid), pose(rb, -b0.centroid)
+
+
+def _rel_box(f: Features) -> tuple[FloatArray, FloatArray]:
+    """The bounding box relative to the centroid, mm."""
+    return f.bbox_min - f.centroid, f.bbox_max - f.centroid
+
+
+def _separation(box_a: tuple[FloatArray, FloatArray], box_b: tuple[FloatArray, FloatArray],
+                u: FloatArray) -> float:
+    """Smallest t >= 0 (mm) such that box_a moved by t*u no longer overlaps box_b."""
+    ts: list[float] = []
+    for k in range(3):
+        if u[k] > 1e-9:
+            ts.append(float((box_b[1][k] - box_a[0][k]) / u[k]))
+        elif u[k] < -1e-9:
+            ts.append(float((box_b[0][k] - box_a[1][k]) / u[k]))
+    return max(0.0, min(ts))
+
+
+def stack_heights(a0: Features, b0: Features, rng: np.random.Generator,
+                  cfg: SceneConfig) -> tuple[float, float]:
+    """Z shifts (mm) putting one box above the other (random order) with a random gap."""
+    gap = rng.uniform(*cfg.gap_mm)
+    if rng.random() < 0.5:  # a on top
+        return float(b0.bbox_max[2] - a0.bbox_min[2] + gap), 0.0
+    return 0.0, float(a0.bbox_max[2] - b0.bbox_min[2] + gap)
+
+
+def _lateral(a0: Features, b0: Features, rng: np.random.Generator) -> FloatArray:
+    """A random horizontal shift (mm) within half the parts' combined footprint."""
+    half = 0.25 * ((a0.bbox_max - a0.bbox_min) + (b0.bbox_max - b0.bbox_min))
+    return np.array([rng.uniform(-half[0], half[0]), rng.uniform(-half[1], half[1]), 0.0])
