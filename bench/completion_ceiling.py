@@ -48,6 +48,7 @@ from cadio.catalog import read_catalog
 from cadio.records import FloatArray
 from cadio.workspace import Workspace, read_features, read_mesh
 from models.evaluate import SHIPPED, load_models
+from models.geometric import OBSERVED_BY
 from models.relate import SHIPPED_RELATIONS, completions_of, load_relation_models, relate_views
 from reports.relations import assembly_f1_table
 
@@ -107,9 +108,11 @@ def perfect(capture: Path, ws: Workspace, n: int, normals: bool = False
 
 
 def completed_only(views: list[PairView]) -> list[PairView]:
-    """The views with their ``completed`` input alone (the others are not measured here)."""
-    return [replace(v, points={"completed": v.points["completed"]},
-                    evidence={k: e for k, e in v.evidence.items() if k == "completed"},
+    """The views with their ``completed`` input and the observed points its networks read
+    beside it (``models.geometric.OBSERVED_BY``); the rows of ``completed`` are measured."""
+    keep = {"completed", OBSERVED_BY["completed"]}
+    return [replace(v, points={k: p for k, p in v.points.items() if k in keep},
+                    evidence={k: e for k, e in v.evidence.items() if k in keep},
                     centres={}) for v in views if "completed" in v.points]
 
 
@@ -138,7 +141,8 @@ def main() -> None:
                     else perfect(capture, ws, int(grid), args.normals))
             views += capture_pairs(capture, ws, categories, DEFAULT_PAIRS, done)
         kept = completed_only(views)
-        table = assembly_f1_table(pd.DataFrame(relate_views(kept, relations)))
+        rows = pd.DataFrame(relate_views(kept, relations))
+        table = assembly_f1_table(rows[rows["input"] == "completed"])
         label = grid if grid == "network" else ("exact" if grid == 0 else f"{grid}^3")
         label += " normals" if args.normals and grid != "network" else ""
         print(f"\n{label}: {len(kept)} pair views")

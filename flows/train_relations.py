@@ -33,7 +33,7 @@ from cadio.catalog import read_catalog
 from cadio.sandbox import Limits
 from cadio.truth.corpus_labels import LabelJob, LabelPart, ShotLabels, label_shots
 from cadio.workspace import Workspace, atomic_write
-from models.geometric import evidence_gains, evidence_names, tests_for
+from models.geometric import OBSERVED_BY, evidence_gains, evidence_names, tests_for
 
 Progress = Callable[[str], None]
 
@@ -198,8 +198,11 @@ def evaluate_relations(ws: Workspace, models_dir: Path, run_dir: Path,
     rows = []
     for name in INPUTS:
         for method in METHODS:
+            observed = OBSERVED_BY.get(name)
             out = decide(test.inputs[name], mm, method, models.models.get((method, name)),
-                         keys, test.features[name], test.centres_of(name), tests_for(name))
+                         keys, test.features[name], test.centres_of(name), tests_for(name),
+                         None if observed is None else
+                         (test.inputs[observed], test.network_evidence(observed)))
             if out is None:
                 continue
             rows += _rows(meta, test.labels, name, method, *out)

@@ -35,11 +35,14 @@ from cadio.records import FloatArray, Relation
 from cadio.workspace import Workspace, atomic_path
 from models.errors import CheckpointError
 from models.geometric import (
-    EVIDENCE,
+    ALL_EVIDENCE,
+    OBSERVED_BY,
     GeometricTests,
     geometric_decisions,
     network_evidence,
+    reads_observed,
     tests_for,
+    with_observed,
 )
 from models.relation_decision import Decision, violations
 from models.relations import RelationNet
@@ -114,7 +117,7 @@ def _stale_evidence(ckpt: Mapping[str, Any]) -> str:
     # A checkpoint that names its columns reads them by name (the evidence is only ever
     # appended to); one that names none reads the first ``width``, so it must be all of them.
     if width == 0 or (not names and width == ours) \
-            or (names and set(names) <= set(EVIDENCE)
+            or (names and set(names) <= set(ALL_EVIDENCE)
                 and names == list(ckpt["config"].get("evidence") or names[:width])):
         return ""
     return (f"trained on {width} pair features, this code measures {len(PAIR_FEATURES)}: "
@@ -155,7 +158,8 @@ def decide(points: npt.NDArray[np.float32], mm_per_unit: npt.NDArray[Any], metho
            keys: Sequence[tuple[Any, Any]] | None = None,
            features: npt.NDArray[np.float32] | None = None,
            centres: npt.NDArray[np.floating] | None = None,
-           tests: GeometricTests | None = None
+           tests: GeometricTests | None = None,
+           observed: tuple[npt.NDArray[np.float32], npt.NDArray[np.float32]] | None = None
            ) -> tuple[npt.NDArray[np.bool_], npt.NDArray[np.float64],
                       npt.NDArray[np.bool_], list[str]] | None:
     """One method's (decided, confidence, violation), each (N, 10), and joint (N,) on
@@ -164,7 +168,10 @@ def decide(points: npt.NDArray[np.float32], mm_per_unit: npt.NDArray[Any], metho
     ``centres``: (N, 2, 3) the parts' centres in the frame of ``points`` where the input knows
     the solids (``truth``); None: the points' means. ``tests``: the input's geometric tests
     (``models.geometric.tests_for``; None: the fitted points'), decided by ``geometric`` and
-    read by the networks.
+    read by the networks. ``observed``: the same views' observed points (N, 2, k, 3) and
+    their ``network_evidence``, which a network of an input in ``OBSERVED_BY`` reads in
+    place of ``points`` and beside its own evidence (None for such a network without them,
+    as without its checkpoint).
 
     The joint is the network's joint head's answer; ``geometric``, and a network trained
     without a joint head, read it from their concentric and coincident answers
@@ -180,12 +187,14 @@ def decide(points: npt.NDArray[np.float32], mm_per_unit: npt.NDArray[Any], metho
         # geometric decision carries no calibrated probability.
         return (decided, np.full(decided.shape, np.nan), np.zeros(decided.shape, dtype=bool),
                 joints_of(decided))
-    if model is None:
+    if model is None or (observed is None and reads_observed(model[0].cfg.evidence)):
         return None
     net, decision = model
+    evidence = network_evidence(features, points, centres, tests)
+    if observed is not None and reads_observed(net.cfg.evidence):
+        points, evidence = observed[0], with_observed(evidence, observed[1])
     data = RelationData(points, np.zeros((len(points), len(RELATIONS)), dtype=bool),
-                        np.asarray(mm_per_unit, dtype=np.float64),
-                        network_evidence(features, points, centres, tests))
+                        np.asarray(mm_per_unit, dtype=np.float64), evidence)
     pred = predict_relations(net, data, decision=decision)
     return (pred.decided, pred.confidence, violations(pred.raw_ab, pred.raw_ba),
             pred.joint() or joints_of(pred.decided))
@@ -202,8 +211,13 @@ def joints_of(decided: npt.NDArray[np.bool_]) -> list[str]:
 
 def relate_views(views: Sequence[PairView], models: RelationModels,
                  methods: Sequence[str] = METHODS) -> list[dict[str, Any]]:
-    """``relations_pairs`` rows of pair views: every method on every input they carry."""
+    """``relations_pairs`` rows of pair views: every method on every input they carry (the
+    networks of an input in ``OBSERVED_BY`` where the views carry the observed points too)."""
+    from cadio.capture.pair_features import pair_features_many
+
     rows: list[dict[str, Any]] = []
+    # input -> id(view) -> the view's points and network evidence of that input
+    seen: dict[str, dict[int, tuple[npt.NDArray[np.float32], npt.NDArray[np.float32]]]] = {}
     for name in INPUTS:
         having = [v for v in views if name in v.points]
         if not having:
@@ -211,17 +225,22 @@ def relate_views(views: Sequence[PairView], models: RelationModels,
         points = np.stack([v.observer_points(name) for v in having])
         mm = np.array([1.0 / v.scale_m_per_mm for v in having])
         keys = [((v.scene, v.part_a, v.view), (v.scene, v.part_b, v.view)) for v in having]
-        from cadio.capture.pair_features import pair_features_many
-
         # the evidence is measured on each view's evidence clouds (CAD samples: one per part)
         cloud_keys = [((v.scene, v.part_a), (v.scene, v.part_b)) if name == "truth" else k
                       for v, k in zip(having, keys, strict=True)]
         features = pair_features_many([v.evidence_clouds(name) for v in having], mm,
                                       cloud_keys)
         centres = np.stack([v.observer_centres(name) for v in having])
+        own = network_evidence(features, points, centres, tests_for(name))
+        seen[name] = {id(v): (p, e) for v, p, e in zip(having, points, own, strict=True)}
+        reads = seen.get(OBSERVED_BY.get(name, ""), {})
+        observed = None
+        if all(id(v) in reads for v in having):
+            observed = (np.stack([reads[id(v)][0] for v in having]),
+                        np.stack([reads[id(v)][1] for v in having]))
         for method in methods:
             decided = decide(points, mm, method, models.models.get((method, name)), keys,
-                             features, centres, tests_for(name))
+                             features, centres, tests_for(name), observed)
             if decided is not None:
                 rows += _rows(having, name, method, *decided)
     return rows

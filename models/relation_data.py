@@ -45,7 +45,7 @@ from cadio.capture.pairs import INPUTS, evidence_cloud, pair_category
 from cadio.capture.pointcloud import sample_points
 from cadio.truth.corpus_labels import ShotLabels
 from cadio.workspace import atomic_write, features_of_mesh, read_mesh
-from models.geometric import network_evidence, tests_for
+from models.geometric import OBSERVED_BY, network_evidence, tests_for, with_observed
 from models.relations import JOINTS
 from models.relations_train import RelationData, nearest_of_pairs
 from models.train import Model, predict
@@ -77,13 +77,27 @@ class RelationSplit:
         return self.centres.get(name)
 
     def data(self, name: str, rows: npt.NDArray[np.bool_] | None = None) -> RelationData:
+        """One input's pairs as its networks read them, of ``rows`` (default all): the points
+        (the observed ones for an input in ``OBSERVED_BY``) and ``evidence``."""
         keep = np.ones(len(self.labels), dtype=bool) if rows is None else rows
         mm = 1.0 / self.meta["scale_m_per_mm"].to_numpy(dtype=np.float64)
+        points = OBSERVED_BY.get(name, name)
+        return RelationData(self.inputs[points][keep], self.labels[keep], mm[keep],
+                            self.evidence(name)[keep], self.near[points][keep],
+                            self.joints()[keep])
+
+    def network_evidence(self, name: str) -> npt.NDArray[np.float32]:
+        """(N, len(``EVIDENCE``)) one input's ``models.geometric.network_evidence``."""
         centres = self.centres_of(name)
-        evidence = network_evidence(self.features[name][keep], self.inputs[name][keep],
-                                    None if centres is None else centres[keep], tests_for(name))
-        return RelationData(self.inputs[name][keep], self.labels[keep], mm[keep], evidence,
-                            self.near[name][keep], self.joints()[keep])
+        return network_evidence(self.features[name], self.inputs[name], centres,
+                                tests_for(name))
+
+    def evidence(self, name: str) -> npt.NDArray[np.float32]:
+        """What a network of one input reads: its ``network_evidence``, with the observed
+        points' after it where it reads them (``OBSERVED_BY``, ``with_observed``)."""
+        own = self.network_evidence(name)
+        observed = OBSERVED_BY.get(name)
+        return own if observed is None else with_observed(own, self.network_evidence(observed))
 
     def joints(self) -> npt.NDArray[np.int64]:
         """(N,) each row's CAD joint as an index into ``JOINTS`` (-1: a joint the head does

@@ -80,7 +80,8 @@ class RelationConfig:
     train_points: int = 256
     contact: bool = True  # each point also carries the other part's nearness (N_CONTACT)
     pair_features: int = 0  # width of the pair evidence vector (0: none)
-    # The columns of ``models.geometric.EVIDENCE`` read, by name, ``pair_features`` of them;
+    # The columns of ``models.geometric.ALL_EVIDENCE`` read, by name, ``pair_features`` of
+    # them (those of the observed points only where it names them: ``reads_observed``);
     # empty: the first ``pair_features`` columns (checkpoints from before the names).
     evidence: tuple[str, ...] = ()
     # Evidence columns scaled before the network reads them, as (name, gain) pairs; the rest
@@ -142,12 +143,12 @@ class RelationConfig:
             raise ValueError(f"evidence_gains must scale columns of evidence by positive "
                              f"gains; not read: {ungained}")
         if self.evidence:
-            from models.geometric import EVIDENCE
+            from models.geometric import ALL_EVIDENCE
 
-            unknown = sorted(set(self.evidence) - set(EVIDENCE))
+            unknown = sorted(set(self.evidence) - set(ALL_EVIDENCE))
             if unknown or len(self.evidence) != self.pair_features:
                 raise ValueError(f"evidence must name pair_features ({self.pair_features}) "
-                                 f"columns of EVIDENCE; unknown {unknown}")
+                                 f"columns of ALL_EVIDENCE; unknown {unknown}")
         if self.method not in METHODS:
             raise ValueError(f"method must be one of {METHODS}, got {self.method!r}")
         if min(self.widths, default=0) < 1 or min(self.embed, self.ntn_k, self.n_points) < 1:
@@ -389,26 +390,29 @@ class RelationNet(nn.Module):
 
     def _evidence(self, features: Tensor | None, n: int) -> tuple[Tensor, Tensor]:
         """The evidence columns the network reads for (a, b) and for (b, a), (B, W) each: the
-        columns its config names of ``models.geometric.network_evidence``, the swapped pair's
-        with the ordered columns negated (as ``models.geometric.swap_evidence``), each times its
-        ``evidence_gains`` gain; or, named none, the first W columns (symmetric).
+        columns its config names of ``models.geometric.network_evidence`` (and, where it names
+        the observed points', of ``with_observed``), the swapped pair's with the ordered columns
+        negated (as ``models.geometric.swap_evidence``), each times its ``evidence_gains``
+        gain; or, named none, the first W columns (symmetric).
 
         Raises:
             ValueError: features missing, of another row count, or too narrow.
         """
-        from models.geometric import EVIDENCE, ORDERED_COLUMNS
+        from models.geometric import ALL_EVIDENCE, EVIDENCE, ORDERED_COLUMNS, reads_observed
 
-        width = len(EVIDENCE) if self.cfg.evidence else self.cfg.pair_features
+        width = ((len(ALL_EVIDENCE) if reads_observed(self.cfg.evidence) else len(EVIDENCE))
+                 if self.cfg.evidence else self.cfg.pair_features)
         if features is None or features.ndim != 2 or len(features) != n \
                 or features.shape[1] < width:
             got = None if features is None else tuple(features.shape)
             raise ValueError(f"pair features must have shape (B, >= {width}); got {got}")
         if not self.cfg.evidence:
             return features[:, :width], features[:, :width]
-        cols = [EVIDENCE.index(name) for name in self.cfg.evidence]
+        cols = [ALL_EVIDENCE.index(name) for name in self.cfg.evidence]
+        ordered = [c for c in ORDERED_COLUMNS if c < width]
         own = features[:, :width]
         swapped = own.clone()
-        swapped[:, ORDERED_COLUMNS] = -own[:, ORDERED_COLUMNS]
+        swapped[:, ordered] = -own[:, ordered]
         if not self.cfg.evidence_gains:
             return own[:, cols], swapped[:, cols]
         gains = dict(self.cfg.evidence_gains)

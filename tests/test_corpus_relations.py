@@ -28,6 +28,7 @@ from cadio.truth.relations import directional_truth
 from cadio.workspace import Workspace, read_features
 from flows.train_relations import label_jobs
 from models.checkpoint import build_model
+from models.geometric import ALL_EVIDENCE
 from models.relation_data import build_relation_dataset, read_split
 from models.relations import JOINTS
 from models.train import config_for
@@ -100,6 +101,14 @@ def test_the_dataset_holds_every_input_of_every_labelled_pair_view(corpus, tmp_p
         assert data.features is not None and np.isfinite(data.features).all()
         assert data.joints is not None
         assert [JOINTS[j] for j in data.joints] == split.meta["joint"].tolist()
+    # a network of completed reads the observed points of the same view, and their evidence
+    # after the completion's
+    own, observed = (split.network_evidence(n) for n in ("completed", "partial"))
+    completed = split.data("completed")
+    assert completed.features is not None
+    assert completed.features.shape == (rows["train"], len(ALL_EVIDENCE))
+    np.testing.assert_array_equal(completed.features, np.concatenate([own, observed], axis=1))
+    np.testing.assert_array_equal(completed.points, split.inputs["partial"])
     assert {"cylindrical", "planar"} <= set(split.meta["joint"])
     assert set(split.meta["kind"]) == {"assembly"}
     # truth points of a pair are where the parts are: the pin's samples meet the plate's

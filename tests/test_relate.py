@@ -198,3 +198,33 @@ def test_a_checkpoint_naming_its_columns_reads_them_after_evidence_is_appended()
     assert models.errors == ()
     names = models.cards[("ltn", "partial")]["data"]["pair_features"]
     assert "coax_face_gap_mm" in PAIR_FEATURES and "coax_face_gap_mm" not in names
+
+
+def test_a_completed_network_is_handed_the_observed_points_evidence_of_each_view(
+        ws: Workspace, tmp_path: Path) -> None:
+    """A ``completed`` network trained on its own evidence and the observed points' (the
+    width of both) decides every completed pair view of a night, beside the baseline."""
+    import dataclasses
+
+    from models.geometric import ALL_EVIDENCE, evidence_names
+
+    torch.set_num_threads(1)
+    names = evidence_names("completed")
+    data = relation_pairs(16, n_points=64, seed=3)
+    rng = np.random.default_rng(0)
+    data = dataclasses.replace(data, features=rng.random((16, len(ALL_EVIDENCE)),
+                                                         dtype=np.float32))
+    cfg = RelationConfig(method="ltn", steps=2, batch_size=8, eval_every=2, train_points=32,
+                         widths=(8, 8, 8, 8), embed=8, ntn_k=2, pair_features=len(names),
+                         evidence=tuple(names))
+    res = train_relations(cfg, data, data, data_info={"input": "completed", "train_parts": [],
+                                                       "pair_features": names})
+    save_relation_checkpoint(tmp_path / "models" / "ltn-completed.pt", res.checkpoint)
+    captures = sorted(ws.root.glob("captures/*.mcap"))
+    batch = relate_batch(captures, ws, tmp_path / "models", SHIPPED, tmp_path / "rows.parquet")
+    assert batch.failed == ()
+    rows = pd.read_parquet(batch.path)
+    ltn = rows[rows["method"] == "ltn"]
+    assert set(ltn["input"]) == {"completed"}
+    completed = rows[rows["input"] == "completed"]
+    assert len(ltn) == len(completed[completed["method"] == "geometric"]) > 0

@@ -413,3 +413,77 @@ def test_the_joint_head_learns_the_joint_and_answers_a_pair_and_its_swap_alike(
     # a network trained without a joint head has no joint of its own
     plain = train_relations(tiny(method="mlp"), pairs, pairs)
     assert predict_relations(plain.checkpoint, pairs).joint() is None
+
+
+def test_a_completed_network_reads_the_observed_points_evidence_beside_its_own() -> None:
+    """A network of ``completed`` reads the observed points' evidence after its own: it needs
+    both (``with_observed``), the observed direction reads negated for the swapped pair, and
+    the observed columns reach its answers."""
+    from models.geometric import (
+        ALL_EVIDENCE,
+        EVIDENCE,
+        OBSERVED_PREFIX,
+        evidence_names,
+        swap_evidence,
+        with_observed,
+    )
+
+    names = tuple(evidence_names("completed"))
+    assert names == (*evidence_names("partial"),
+                     *(OBSERVED_PREFIX + n for n in evidence_names("partial")))
+    net = random_net(6, pair_features=len(names), evidence=names)
+    gen = np.random.default_rng(6)
+    points = gen.normal(size=(5, 2, 30, 3)).astype(np.float32)
+    own, observed = (gen.normal(size=(5, len(EVIDENCE))).astype(np.float32) for _ in range(2))
+    with pytest.raises(ValueError, match="both"):
+        with_observed(own, observed[:, :-1])
+    with pytest.raises(ValueError, match=rf"\(B, >= {len(ALL_EVIDENCE)}\)"):
+        net(torch.from_numpy(points), torch.ones(5), torch.from_numpy(own))
+    both = with_observed(own, observed)
+    labels = np.zeros((5, 10), bool)
+    data = RelationData(points, labels, np.ones(5), both)
+    ab, ba = predict_relations(net, data), predict_relations(net, data.swapped())
+    np.testing.assert_array_equal(ba.raw_ab, ab.raw_ba)
+    np.testing.assert_array_equal(swap_evidence(both)[:, len(EVIDENCE):], swap_evidence(observed))
+    moved = with_observed(own, observed + 1)
+    assert not np.allclose(predict_relations(net, RelationData(points, labels, np.ones(5),
+                                                               moved)).raw_ab, ab.raw_ab)
+    # a network of its own evidence alone reads the first columns, whatever follows them
+    alone = random_net(6, pair_features=len(evidence_names("partial")),
+                       evidence=tuple(evidence_names("partial")))
+    np.testing.assert_array_equal(
+        predict_relations(alone, RelationData(points, labels, np.ones(5), both)).raw_ab,
+        predict_relations(alone, RelationData(points, labels, np.ones(5), moved)).raw_ab)
+
+
+def test_deciding_a_completed_pair_hands_its_network_the_observed_points() -> None:
+    """``decide`` gives a network that reads the observed evidence the observed points and
+    both evidence vectors; the baseline and a network of its own evidence keep the
+    completion's points; without the observed points that network has no answer."""
+    from cadio.capture.pair_features import pair_features_many
+    from models.geometric import evidence_names, network_evidence, tests_for, with_observed
+    from models.relate import decide
+    from models.relation_decision import Decision
+
+    names = tuple(evidence_names("completed"))
+    net = random_net(7, pair_features=len(names), evidence=names)
+    gen = np.random.default_rng(7)
+    completed, seen = (gen.normal(size=(3, 2, 40, 3)).astype(np.float32) for _ in range(2))
+    mm = np.ones(3)
+    raw, raw_seen = pair_features_many(completed, mm), pair_features_many(seen, mm)
+    own = network_evidence(raw, completed, None, tests_for("completed"))
+    observed = network_evidence(raw_seen, seen, None, tests_for("partial"))
+    got = decide(completed, mm, "ltn", (net, Decision.default()), None, raw, None,
+                 tests_for("completed"), (seen, observed))
+    want = predict_relations(net, RelationData(seen, np.zeros((3, 10), bool), mm,
+                                               with_observed(own, observed)))
+    assert got is not None
+    np.testing.assert_array_equal(got[0], want.decided)
+    np.testing.assert_allclose(got[1], want.confidence)
+    assert decide(completed, mm, "ltn", (net, Decision.default()), None, raw, None,
+                  tests_for("completed")) is None
+    geometric = decide(completed, mm, "geometric", None, None, raw, None,
+                       tests_for("completed"), (seen, observed))
+    alone = decide(completed, mm, "geometric", None, None, raw, None, tests_for("completed"))
+    assert geometric is not None and alone is not None
+    np.testing.assert_array_equal(geometric[0], alone[0])
