@@ -197,12 +197,12 @@ def evaluate_relations(ws: Workspace, models_dir: Path, run_dir: Path,
             zip(meta["scene"], meta["part_a"], meta["part_b"], meta["view"], strict=True)]
     rows = []
     for name in INPUTS:
+        reads = OBSERVED_BY.get(name)
+        observed = None if reads is None else (test.inputs[reads], test.network_evidence(reads))
         for method in METHODS:
-            observed = OBSERVED_BY.get(name)
             out = decide(test.inputs[name], mm, method, models.models.get((method, name)),
                          keys, test.features[name], test.centres_of(name), tests_for(name),
-                         None if observed is None else
-                         (test.inputs[observed], test.network_evidence(observed)))
+                         observed)
             if out is None:
                 continue
             rows += _rows(meta, test.labels, name, method, *out)
