@@ -216,7 +216,7 @@ def relate_views(views: Sequence[PairView], models: RelationModels,
     from cadio.capture.pair_features import pair_features_many
 
     rows: list[dict[str, Any]] = []
-    # input -> id(view) -> the view's points and network evidence of that input
+    # observed input -> id(view) -> the view's points and network evidence of that input
     seen: dict[str, dict[int, tuple[npt.NDArray[np.float32], npt.NDArray[np.float32]]]] = {}
     for name in INPUTS:
         having = [v for v in views if name in v.points]
@@ -231,8 +231,9 @@ def relate_views(views: Sequence[PairView], models: RelationModels,
         features = pair_features_many([v.evidence_clouds(name) for v in having], mm,
                                       cloud_keys)
         centres = np.stack([v.observer_centres(name) for v in having])
-        own = network_evidence(features, points, centres, tests_for(name))
-        seen[name] = {id(v): (p, e) for v, p, e in zip(having, points, own, strict=True)}
+        if name in OBSERVED_BY.values():  # kept for the networks of the inputs that read it
+            own = network_evidence(features, points, centres, tests_for(name))
+            seen[name] = {id(v): (p, e) for v, p, e in zip(having, points, own, strict=True)}
         reads = seen.get(OBSERVED_BY.get(name, ""), {})
         observed = None
         if all(id(v) in reads for v in having):
