@@ -54,6 +54,7 @@ def main() -> None:
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--pairs-per-relation", type=int, default=150)
     parser.add_argument("--contact-pairs", type=int, default=0)
+    parser.add_argument("--clearance-pairs", type=int, default=0)
     parser.add_argument("--workers", type=int, default=2)
     args = parser.parse_args()
     clock = time.perf_counter()
@@ -65,6 +66,7 @@ def main() -> None:
                             args.seed, IngestConfig(limits=limits), cfg,
                             pairs_per_relation=args.pairs_per_relation,
                             contact_pairs=args.contact_pairs,
+                            clearance_pairs=args.clearance_pairs,
                             kinds=tuple(k for k in KINDS if k != "alone"))
     print(f"corpus: {corpus.parts} parts {corpus.splits}, shots {corpus.shots}, "
           f"{corpus.failed} failed ({time.perf_counter() - clock:.0f} s)", flush=True)

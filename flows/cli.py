@@ -199,6 +199,9 @@ def _parser() -> argparse.ArgumentParser:
     p.add_argument("--contact-pairs", type=bounded(int, 0, 100_000), default=0,
                    help="completion: pair scenes of parts touching at random orientations, "
                    "seldom a face mate (none by default: see the relation model card)")
+    p.add_argument("--clearance-pairs", type=bounded(int, 0, 100_000), default=0,
+                   help="completion: pair scenes of two parts on one axis 1.5 to 4 mm apart, "
+                   "coaxial without a concentric mate (none by default)")
     p.add_argument("--protocols", nargs="+", default=["observed", "oracle-box"],
                    help="input protocols to train for")
     p.add_argument("--workers", type=bounded(int, 1, 256), default=os.cpu_count() or 1,

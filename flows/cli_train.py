@@ -41,7 +41,8 @@ def cmd_train(args: argparse.Namespace) -> int:
                                     CorpusConfig(example=ExampleConfig(
                 n_in=args.grids[0], n_out=args.grids[1],
                 grid_margin=args.tolerances.grid_margin), seed=args.seed), advance,
-                pairs_per_relation=args.pairs_per_relation, contact_pairs=args.contact_pairs)
+                pairs_per_relation=args.pairs_per_relation, contact_pairs=args.contact_pairs,
+                clearance_pairs=args.clearance_pairs)
     except (InputFileError, ValueError) as exc:
         print(f"mateqa train: {exc}", file=sys.stderr)
         return 2
@@ -62,7 +63,8 @@ def cmd_train(args: argparse.Namespace) -> int:
                             {"steps": args.steps, "variants": args.variants, "seed": args.seed,
                              "threads": args.threads,
                              "pairs_per_relation": args.pairs_per_relation,
-                             "contact_pairs": args.contact_pairs}, corpus)
+                             "contact_pairs": args.contact_pairs,
+                             "clearance_pairs": args.clearance_pairs}, corpus)
     print(Path(run_dir / "completion.md").read_text())
     print(f"model card: {card}")
     return _trained(args, out)

@@ -100,12 +100,13 @@ def prepare_corpus(ws: Workspace, shared: Path | None, variants: int, seed: int,
                    ingest_cfg: IngestConfig, corpus_cfg: CorpusConfig,
                    progress: Progress | None = None, pairs_per_relation: int = 150,
                    assemblies: int = 20 * len(FAMILIES), contact_pairs: int = 0,
+                   clearance_pairs: int = 0,
                    kinds: tuple[str, ...] = KINDS) -> Corpus:
     """Library with variants of its parts and assemblies (+ shared parts), ingest, pair
     scenes, the corpus of shots (``cadio.capture.corpus``). Reruns reuse every step; a stopped
-    build resumes. ``contact_pairs``: touching pairs among the pair scenes
-    (``SceneConfig.contact_pairs``); ``kinds``: the kinds of shot rendered (the relation
-    networks need no part alone)."""
+    build resumes. ``contact_pairs``, ``clearance_pairs``: touching pairs and coaxial pairs
+    apart among the pair scenes (``SceneConfig``); ``kinds``: the kinds of shot rendered (the
+    relation networks need no part alone)."""
     clock = time.perf_counter()
     library = corpus_library(ws)
     generate_library(library, SampleConfig(variants=variants, variant_seed=seed))
@@ -118,7 +119,8 @@ def prepare_corpus(ws: Workspace, shared: Path | None, variants: int, seed: int,
     fractions = corpus_fractions(library, shared)
     out = dataset_dir(ws)
     out.mkdir(parents=True, exist_ok=True)
-    scenes = _corpus_scenes(ws, catalog, fractions, seed, pairs_per_relation, out, contact_pairs)
+    scenes = _corpus_scenes(ws, catalog, fractions, seed, pairs_per_relation, out, contact_pairs,
+                            clearance_pairs)
     plan = plan_corpus(catalog, ws.mesh, scenes, fractions, seed)
     groups = pd.DataFrame(sorted(plan.group_split.items()), columns=["source", "split"])
     groups.to_csv(out / "groups.csv", index=False)
@@ -136,13 +138,14 @@ def prepare_corpus(ws: Workspace, shared: Path | None, variants: int, seed: int,
 
 def _corpus_scenes(ws: Workspace, catalog: pd.DataFrame,
                    fractions: Callable[[str], tuple[float, float]], seed: int,
-                   pairs_per_relation: int, out: Path, contact_pairs: int = 0) -> pd.DataFrame:
+                   pairs_per_relation: int, out: Path, contact_pairs: int = 0,
+                   clearance_pairs: int = 0) -> pd.DataFrame:
     """The pair scenes of the corpus's single parts (each part in its corpus split), kept in
     the corpus folder and reused while their stamp holds (the same config and placement rules;
     a table drawn by other rules is drawn anew, and its shots with it)."""
     path = out / "scenes.parquet"
     cfg = SceneConfig(seed=seed, pairs_per_relation=pairs_per_relation,
-                      contact_pairs=contact_pairs)
+                      contact_pairs=contact_pairs, clearance_pairs=clearance_pairs)
     if path.exists():
         kept = read_scenes(path)
         if kept.attrs["config"] == scenes_stamp(cfg):

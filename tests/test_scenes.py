@@ -17,6 +17,7 @@ from cadio.tolerances import DEFAULT_TOLERANCES as TOL
 from cadio.truth.placement import exact_gap, interfere
 from cadio.truth.relations import relation_table
 from cadio.truth.scenes import (
+    CLEARANCE,
     CONTACT,
     SPLITS,
     SceneConfig,
@@ -209,17 +210,31 @@ def test_near_misses_of_the_face_mates_are_flagged(scenes: pd.DataFrame) -> None
         assert (rows[relation] == (rows.near_side == "inside")).all()
 
 
+def _only(parts: list[ScenePart], intended: str, **count: int) -> pd.DataFrame:
+    """Scenes of one extra kind alone (``count``: its config field), each pair two different
+    parts, labelled by the truth, sharing no volume."""
+    cfg = replace(CFG, pairs_per_relation=0, val_fraction=0.0, test_fraction=1.0, **count)
+    df = generate_scenes(parts, cfg)
+    assert len(df) == sum(count.values()) and (df.intended == intended).all()
+    assert df.scene_id.is_unique and (df.part_a != df.part_b).all()
+    _check_labels(df, parts, cfg)
+    _check_apart(df, parts)
+    return df
+
+
+def _unmoved(parts: list[ScenePart], intended: str, **extra: int) -> None:
+    """The other scenes of a config do not move when scenes of ``intended`` are added."""
+    more = replace(CFG, pairs_per_relation=6, **extra)
+    fewer = replace(more, **{f"{intended}_pairs": 0})
+    plain, both = generate_scenes(parts, fewer), generate_scenes(parts, more)
+    pd.testing.assert_frame_equal(plain, both[both.intended != intended].reset_index(drop=True))
+
+
 def test_touching_pairs_meet_without_sharing_volume(parts: list[ScenePart]) -> None:
     """``contact_pairs`` places parts against each other at random orientations: they touch
     (within a tenth of the contact tolerance), share no volume, are labelled by the truth, and
     are seldom face mates, as most touching pairs of an assembly are not."""
-    cfg = replace(CFG, pairs_per_relation=0, contact_pairs=12, val_fraction=0.0,
-                  test_fraction=1.0)
-    df = generate_scenes(parts, cfg)
-    assert len(df) == 12 and (df.intended == CONTACT).all() and df.scene_id.is_unique
-    assert (df.part_a != df.part_b).all()
-    _check_labels(df, parts, cfg)
-    _check_apart(df, parts)
+    df = _only(parts, CONTACT, contact_pairs=12)
     by_id = {p.part_id: p for p in parts}
     gaps = [exact_gap(by_id[r["part_a"]].model, *scene_poses(r)[:1], by_id[r["part_b"]].model,
                       scene_poses(r)[1]) for _, r in df.iterrows()]
@@ -229,10 +244,33 @@ def test_touching_pairs_meet_without_sharing_volume(parts: list[ScenePart]) -> N
     table = scenes_table(df)
     assert table.intended.tolist() == [CONTACT] and table.scenes.tolist() == [12]
     assert table.holds.iloc[0] == pytest.approx(1.0 - mates.mean(), abs=1e-3)
-    # the relation scenes of a config do not move when touching pairs are added
-    plain = generate_scenes(parts, replace(CFG, pairs_per_relation=6))
-    both = generate_scenes(parts, replace(CFG, pairs_per_relation=6, contact_pairs=3))
-    pd.testing.assert_frame_equal(plain, both[both.intended != CONTACT].reset_index(drop=True))
+    _unmoved(parts, CONTACT, contact_pairs=3)
+
+
+def test_clearance_pairs_are_coaxial_with_their_faces_apart(parts: list[ScenePart]) -> None:
+    """``clearance_pairs`` puts two parts on one axis, a shaft in a bore or two ends stacked,
+    with 1.5 to 4 mm between them: coaxial without a concentric mate, and clear of its
+    near-boundary margin. Without them every coaxial pair of the generator is a mate."""
+    df = _only(parts, CLEARANCE, clearance_pairs=16)
+    assert not df.concentric.any() and not df.concentric_near.any()
+    by_id = {p.part_id: p for p in parts}
+    low, high = (f * TOL.concentric_gap_mm for f in CFG.clearance_factors)
+    nested = 0
+    for _, row in df.iterrows():
+        pose_a, pose_b = scene_poses(row)
+        gap = exact_gap(by_id[row["part_a"]].model, pose_a, by_id[row["part_b"]].model, pose_b)
+        assert low - 1e-6 <= gap <= high + 1e-6, (row["scene_id"], gap)
+        spans = [sorted(float((q[:3, :3] @ corner + q[:3, 3])[2]) for corner in
+                        (by_id[row[k]].features.bbox_min, by_id[row[k]].features.bbox_max))
+                 for k, q in (("part_a", pose_a), ("part_b", pose_b))]
+        nested += min(spans[0][1], spans[1][1]) > max(spans[0][0], spans[1][0])
+        # pins and rings are cylinders about their own Z axis: the placed axes are one line
+        za, zb = pose_a[:3, 2], pose_b[:3, 2]
+        assert abs(float(za @ zb)) > np.cos(np.radians(TOL.coaxial_deg)), row["scene_id"]
+        offset = pose_b[:3, 3] - pose_a[:3, 3]
+        assert np.linalg.norm(offset - (offset @ za) * za) <= TOL.coaxial_mm, row["scene_id"]
+    assert 0 < nested < len(df)  # shafts in bores (their Z spans overlap) and stacked ends
+    _unmoved(parts, CLEARANCE, contact_pairs=3, clearance_pairs=3)
 
 
 def test_eligibility(parts: list[ScenePart], scenes: pd.DataFrame) -> None:

@@ -327,10 +327,10 @@ class Nested:
 
 def coaxial_choices(pool: Sequence[Offers], stack_mm: float, nest_mm: float,
                     rng: np.random.Generator, tries: int = 20,
-                    nests: bool = True) -> Stacked | Nested | None:
-    """A random concentric placement of two different parts of the pool: ends whose radii
-    differ by at most ``stack_mm``, or (with ``nests``) a shaft at most ``nest_mm`` thinner
-    than a bore. None when ``tries`` random draws find none."""
+                    nests: bool = True, nest_min_mm: float = 0.0) -> Stacked | Nested | None:
+    """A random coaxial placement of two different parts of the pool: ends whose radii
+    differ by at most ``stack_mm``, or (with ``nests``) a shaft ``nest_min_mm`` to ``nest_mm``
+    thinner than a bore. None when ``tries`` random draws find none."""
     ends = sorted(((e.radius, i, e) for i, o in enumerate(pool) for e in o.ends),
                   key=lambda x: x[0])
     shafts = sorted(((s.radius, i, s) for i, o in enumerate(pool) for s in o.bores if s.convex),
@@ -341,7 +341,8 @@ def coaxial_choices(pool: Sequence[Offers], stack_mm: float, nest_mm: float,
     for _ in range(tries):
         if holes and (not ends or rng.random() < 0.5):
             r, i, hole = holes[int(rng.integers(len(holes)))]
-            lo, hi = bisect.bisect_left(radii_s, r - nest_mm), bisect.bisect_right(radii_s, r)
+            lo = bisect.bisect_left(radii_s, r - nest_mm)
+            hi = bisect.bisect_right(radii_s, r - nest_min_mm)
             fits = [(j, s) for _, j, s in shafts[lo:hi] if j != i]
             if fits:
                 j, shaft = fits[int(rng.integers(len(fits)))]

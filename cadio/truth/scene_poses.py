@@ -1,21 +1,37 @@
-"""Poses of a scene pair from the parts' features: directional, parallel and perpendicular.
+"""Poses of a scene pair: directional, parallel and perpendicular from the parts' features,
+coaxial from what they offer (ends, bores).
 
 A directional pair puts a's centroid off b's along a direction at a chosen angle from the
 relation's axis, clear of b's box; a parallel pair turns both dominant plane directions
-vertical and stacks the parts apart; a perpendicular pair turns b's horizontal. Near-boundary
-pairs (``side``) sit just inside or outside the cone or the angle tolerance. The scenes stage
-(``cadio.truth.scenes``) chooses the parts and labels the placed pair with the truth.
+vertical and stacks the parts apart; a perpendicular pair turns b's horizontal. A coaxial pair
+nests a shaft in a bore or stacks two ends on one axis, its faces within the concentric gap (a
+mate) or beyond it (a clearance pair). Near-boundary pairs (``side``) sit just inside or
+outside the cone, the angle or the coaxial tolerance. The scenes stage (``cadio.truth.scenes``)
+chooses the parts and labels the placed pair with the truth.
 """
 
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from typing import TYPE_CHECKING
 
 import numpy as np
 
 from cadio.records import DIRECTIONAL, Features, FloatArray, Relation
-from cadio.truth.placement import align, pose, rotation, spin, tilt
+from cadio.truth.placement import (
+    Nested,
+    Offers,
+    Stacked,
+    align,
+    coaxial_choices,
+    nest,
+    pose,
+    rotation,
+    spin,
+    stack,
+    tilt,
+)
 from cadio.truth.relations import direction_axes
 
 if TYPE_CHECKING:
@@ -96,3 +112,63 @@ def _lateral(a0: Features, b0: Features, rng: np.random.Generator) -> FloatArray
     """A random horizontal shift (mm) within half the parts' combined footprint."""
     half = 0.25 * ((a0.bbox_max - a0.bbox_min) + (b0.bbox_max - b0.bbox_min))
     return np.array([rng.uniform(-half[0], half[0]), rng.uniform(-half[1], half[1]), 0.0])
+
+
+def coaxial(found: Sequence[Offers], features: Sequence[Features], side: str,
+            rng: np.random.Generator, cfg: SceneConfig,
+            apart: tuple[float, float] | None = None) -> tuple[int, int, FloatArray, FloatArray]:
+    """Two parts on one axis: their indices in ``found`` (what each part offers) and
+    ``features``, and their poses. Nested where a shaft fits a bore and the parts do not
+    interfere (plain pairs), else stacked end to end; near-boundary pairs are stacked with the
+    upper axis shifted just inside or outside ``coaxial_mm``. Where no radii match, two ends
+    are stacked all the same, and parts without two ends are stacked apart (the truth says
+    what that makes).
+
+    ``apart``: None for a concentric mate (ends at most ``gap_fraction`` of
+    ``concentric_gap_mm`` apart, shafts at most ``nest_fraction`` of it thinner than their
+    bore); (low, high) mm for a clearance pair (shafts low to high thinner than their bore,
+    ends low to high apart along the axis).
+    """
+    gap = cfg.tolerances.concentric_gap_mm
+    if apart is None:
+        choice = coaxial_choices(found, cfg.stack_fraction * gap, cfg.nest_fraction * gap, rng,
+                                 nests=not side)
+    else:
+        choice = coaxial_choices(found, cfg.stack_fraction * gap, apart[1], rng,
+                                 nest_min_mm=apart[0])
+    if isinstance(choice, Nested):
+        placed = nest(found[choice.i], choice.hole, found[choice.j], choice.shaft, rng)
+        if placed is not None:
+            return choice.i, choice.j, *placed
+        # the parts interfere however the shaft sits: stack two parts instead
+        choice = coaxial_choices(found, cfg.stack_fraction * gap, 0.0, rng, nests=False)
+    if isinstance(choice, Stacked):
+        i, j, end_i, end_j = choice.i, choice.j, choice.first, choice.second
+    else:
+        with_ends = [k for k, o in enumerate(found) if o.ends]
+        if len(with_ends) < 2:
+            i, j = two(list(range(len(found))), rng)
+            za, zb = stack_heights(features[i], features[j], rng, cfg)
+            return i, j, pose(np.eye(3), [0.0, 0.0, za]), pose(np.eye(3), [0.0, 0.0, zb])
+        i, j = two(with_ends, rng)
+        end_i = found[i].ends[int(rng.integers(len(found[i].ends)))]
+        end_j = found[j].ends[int(rng.integers(len(found[j].ends)))]
+    if apart is not None:
+        lift = float(rng.uniform(*apart))
+    else:
+        room = max(0.0, (cfg.gap_fraction * gap) ** 2 - (end_i.radius - end_j.radius) ** 2)
+        lift = 0.0 if side else float(rng.uniform(0.0, math.sqrt(room)))
+    shift = near_factor(side, cfg) * cfg.tolerances.coaxial_mm
+    return i, j, *stack(found[i], end_i, found[j], end_j, lift, shift, rng)
+
+
+def two(choices: Sequence[int], rng: np.random.Generator) -> tuple[int, int]:
+    """Two different members of ``choices`` (at least two)."""
+    i = int(rng.integers(len(choices)))
+    j = (i + 1 + int(rng.integers(len(choices) - 1))) % len(choices)
+    return choices[i], choices[j]
+
+
+def near_factor(side: str, cfg: SceneConfig) -> float:
+    """How far a near-boundary pair of ``side`` sits from a tolerance, in tolerances."""
+    return {"": 0.0, INSIDE: cfg.near_inside_factor, OUTSIDE: cfg.near_outside_factor}[side]

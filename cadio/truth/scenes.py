@@ -12,7 +12,9 @@ The ten labels of every pair come from the one truth function on the placed part
 the intent, which is recorded separately. A part is never paired with itself. Touching pairs
 (``SceneConfig.contact_pairs``: none in a night, drawn by the training corpus) put two parts
 against each other at random orientations (``placement.touch``): contact that is seldom a face
-mate, as most touching pairs of an assembly are not.
+mate, as most touching pairs of an assembly are not. Clearance pairs (``clearance_pairs``,
+likewise) put two parts on one axis with their faces 1.5 to 4 mm apart: coaxial without a
+concentric mate.
 
 Near-boundary pairs sit just inside or just outside a tolerance (the generator's margins), and
 any pair whose truth lies within the margins of a tolerance is flagged too.
@@ -44,18 +46,7 @@ from cadio.records import DIRECTIONAL, Features, FloatArray, Relation
 from cadio.tolerances import DEFAULT_TOLERANCES, Tolerances
 from cadio.truth import placement
 from cadio.truth.labels import PartModel, label_placed, part_model
-from cadio.truth.placement import (
-    Nested,
-    Offers,
-    Stacked,
-    coaxial_choices,
-    nest,
-    offers_of,
-    pose,
-    rest_on,
-    stack,
-    touch,
-)
+from cadio.truth.placement import Offers, offers_of, rest_on, touch
 from cadio.truth.relations import (
     CAD_VIEW_AXIS,
     DEFAULT_MARGINS,
@@ -66,9 +57,11 @@ from cadio.truth.relations import (
 from cadio.truth.scene_poses import (
     INSIDE,
     OUTSIDE,
+    coaxial,
     directional,
+    near_factor,
     parallel_or_perpendicular,
-    stack_heights,
+    two,
 )
 from cadio.workspace import Workspace, atomic_write, read_features
 
@@ -129,6 +122,13 @@ class SceneConfig:
     # assembly are (a pin against a race, a ball in a groove). Every other pair of this
     # generator is apart unless it is a mate; without these, touching reads as a mate.
     contact_pairs: int = 0
+    # Coaxial pairs apart (``clearance_pairs``, over all splits like ``contact_pairs``): a
+    # shaft in a bore or two ends on one axis with their faces this many times
+    # ``concentric_gap_mm`` apart, clear of the near-boundary margin (1.2 mm): a nut standing
+    # off a flange's hole, a cage segment inside a bearing's ring. Every other coaxial pair of
+    # this generator is a concentric mate; without these, coaxial reads as concentric.
+    clearance_pairs: int = 0
+    clearance_factors: tuple[float, float] = (1.5, 4.0)
     tolerances: Tolerances = field(default=DEFAULT_TOLERANCES)
     margins: BoundaryMargins = field(default=DEFAULT_MARGINS)
 
@@ -240,6 +240,7 @@ def generate_scenes(parts: Sequence[ScenePart], cfg: SceneConfig,
             rng = np.random.default_rng([cfg.seed, s, r])
             rows += [_scene(pool, offers, relation, split, i, n, rng, cfg) for i in range(n)]
         rows += _contact_scenes(members, offers, split, s, cfg)
+        rows += _clearance_scenes(members, offers, split, s, cfg)
         if unfit:
             where = "" if one_pool else f" in split {split}"
             log.warning("no scene for %s: fewer than two of the %d parts%s fit",
@@ -311,12 +312,37 @@ def _contact_scenes(members: Sequence[ScenePart], offers: dict[str, Offers], spl
     rng = np.random.default_rng([cfg.seed, s, len(Relation)])
     rows = []
     for i in range(n):
-        a, b = (members[k] for k in _two(list(range(len(members))), rng))
+        a, b = (members[k] for k in two(list(range(len(members))), rng))
         for p in (a, b):
             if p.part_id not in offers:
                 offers[p.part_id] = offers_of(p.model)
         pose_a, pose_b = touch(offers[a.part_id], offers[b.part_id], rng)
         rows.append(_placed_row(a, b, pose_a, pose_b, CONTACT, split, i, False, "", cfg))
+    return rows
+
+
+CLEARANCE = "clearance"  # the intent of coaxial pairs apart (whatever the truth says)
+
+
+def _clearance_scenes(members: Sequence[ScenePart], offers: dict[str, Offers], split: str,
+                      s: int, cfg: SceneConfig) -> list[dict[str, Any]]:
+    """The split's ``clearance_pairs`` share of coaxial pairs apart (``clearance_factors``)."""
+    n = _split_count(cfg, split, cfg.clearance_pairs)
+    if not n:
+        return []
+    for p in members:
+        if p.part_id not in offers:
+            offers[p.part_id] = offers_of(p.model)
+    pool = [p for p in members
+            if is_eligible(p, Relation.CONCENTRIC, cfg, offers[p.part_id])]
+    if len(pool) < 2:
+        return []
+    rng = np.random.default_rng([cfg.seed, s, len(Relation) + 1])
+    low, high = (f * cfg.tolerances.concentric_gap_mm for f in cfg.clearance_factors)
+    rows = []
+    for i in range(n):
+        a, b, pose_a, pose_b = _concentric(pool, offers, "", rng, cfg, (low, high))
+        rows.append(_placed_row(a, b, pose_a, pose_b, CLEARANCE, split, i, False, "", cfg))
     return rows
 
 
@@ -333,7 +359,7 @@ def _scene(pool: Sequence[ScenePart], offers: Mapping[str, Offers], relation: Re
         ib = (ia + 1 + int(rng.integers(len(pool) - 1))) % len(pool)  # never a part with itself
         a, b = pool[ia], pool[ib]
         if relation is Relation.COINCIDENT:
-            lift = _near_factor(side, cfg) * cfg.tolerances.contact_mm
+            lift = near_factor(side, cfg) * cfg.tolerances.contact_mm
             pose_a, pose_b = rest_on(offers[a.part_id], offers[b.part_id], lift, rng)
         elif relation in DIRECTIONAL:
             pose_a, pose_b = directional(a.features, b.features, relation, side, rng, cfg)
@@ -359,10 +385,6 @@ def _placed_row(a: ScenePart, b: ScenePart, pose_a: FloatArray, pose_b: FloatArr
     }
 
 
-def _near_factor(side: str, cfg: SceneConfig) -> float:
-    return {"": 0.0, INSIDE: cfg.near_inside_factor, OUTSIDE: cfg.near_outside_factor}[side]
-
-
 def _centred(a: Features, b: Features, pose_a: FloatArray,
              pose_b: FloatArray) -> tuple[FloatArray, FloatArray]:
     """Shift both poses so that the midpoint of the placed centroids is the world origin."""
@@ -378,44 +400,13 @@ def _centred(a: Features, b: Features, pose_a: FloatArray,
 
 
 def _concentric(pool: Sequence[ScenePart], offers: Mapping[str, Offers], side: str,
-                rng: np.random.Generator, cfg: SceneConfig
+                rng: np.random.Generator, cfg: SceneConfig,
+                apart: tuple[float, float] | None = None
                 ) -> tuple[ScenePart, ScenePart, FloatArray, FloatArray]:
-    """Two parts of the pool on one axis: nested (plain pairs, where a shaft fits a bore and
-    the parts do not interfere) or stacked end to end, in random order; near-boundary pairs are
-    stacked with the upper axis shifted just inside or outside ``coaxial_mm``. Where no radii
-    of the pool match, two ends are stacked all the same (the truth says what that makes)."""
-    gap = cfg.tolerances.concentric_gap_mm
-    found = [offers[p.part_id] for p in pool]
-    choice = coaxial_choices(found, cfg.stack_fraction * gap, cfg.nest_fraction * gap, rng,
-                             nests=not side)
-    if isinstance(choice, Nested):
-        placed = nest(found[choice.i], choice.hole, found[choice.j], choice.shaft, rng)
-        if placed is not None:
-            return _ordered(pool[choice.i], pool[choice.j], *placed, rng)
-        # the parts interfere however the shaft sits: stack two parts instead
-        choice = coaxial_choices(found, cfg.stack_fraction * gap, 0.0, rng, nests=False)
-    if isinstance(choice, Stacked):
-        i, j, end_i, end_j = choice.i, choice.j, choice.first, choice.second
-    else:
-        with_ends = [k for k, o in enumerate(found) if o.ends]
-        if len(with_ends) < 2:
-            i, j = _two(list(range(len(pool))), rng)
-            return _ordered(pool[i], pool[j], *_stacked_apart(pool[i], pool[j], rng, cfg), rng)
-        i, j = _two(with_ends, rng)
-        end_i = found[i].ends[int(rng.integers(len(found[i].ends)))]
-        end_j = found[j].ends[int(rng.integers(len(found[j].ends)))]
-    room = max(0.0, (cfg.gap_fraction * gap) ** 2 - (end_i.radius - end_j.radius) ** 2)
-    lift = 0.0 if side else float(rng.uniform(0.0, math.sqrt(room)))
-    shift = _near_factor(side, cfg) * cfg.tolerances.coaxial_mm
-    return _ordered(pool[i], pool[j], *stack(found[i], end_i, found[j], end_j, lift, shift, rng),
-                    rng)
-
-
-def _two(choices: Sequence[int], rng: np.random.Generator) -> tuple[int, int]:
-    """Two different members of ``choices`` (at least two)."""
-    i = int(rng.integers(len(choices)))
-    j = (i + 1 + int(rng.integers(len(choices) - 1))) % len(choices)
-    return choices[i], choices[j]
+    """Two parts of the pool on one axis (``scene_poses.coaxial``), in random order."""
+    i, j, pose_i, pose_j = coaxial([offers[p.part_id] for p in pool],
+                                   [p.features for p in pool], side, rng, cfg, apart)
+    return _ordered(pool[i], pool[j], pose_i, pose_j, rng)
 
 
 def _ordered(p: ScenePart, q: ScenePart, pose_p: FloatArray, pose_q: FloatArray,
@@ -424,12 +415,6 @@ def _ordered(p: ScenePart, q: ScenePart, pose_p: FloatArray, pose_q: FloatArray,
     if rng.random() < 0.5:
         return p, q, pose_p, pose_q
     return q, p, pose_q, pose_p
-
-
-def _stacked_apart(p: ScenePart, q: ScenePart, rng: np.random.Generator,
-                   cfg: SceneConfig) -> tuple[FloatArray, FloatArray]:
-    za, zb = stack_heights(p.features, q.features, rng, cfg)
-    return pose(np.eye(3), [0.0, 0.0, za]), pose(np.eye(3), [0.0, 0.0, zb])
 
 
 # ---------------------------------------------------------------- the stage
