@@ -355,9 +355,7 @@ def _scene(pool: Sequence[ScenePart], offers: Mapping[str, Offers], relation: Re
     if relation is Relation.CONCENTRIC:
         a, b, pose_a, pose_b = _concentric(pool, offers, side, rng, cfg)
     else:
-        ia = int(rng.integers(len(pool)))
-        ib = (ia + 1 + int(rng.integers(len(pool) - 1))) % len(pool)  # never a part with itself
-        a, b = pool[ia], pool[ib]
+        a, b = (pool[k] for k in two(list(range(len(pool))), rng))  # never a part with itself
         if relation is Relation.COINCIDENT:
             lift = near_factor(side, cfg) * cfg.tolerances.contact_mm
             pose_a, pose_b = rest_on(offers[a.part_id], offers[b.part_id], lift, rng)
