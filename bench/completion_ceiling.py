@@ -10,6 +10,10 @@ the centres of an N^3 grid over the view's observed cube (the cube the completio
 keeps the samples where they are (no grid at all). Beside them, ``network``: the shipped
 ``gan_lstm``'s own completion, as a night reads it.
 
+``--crossings``: beside ``network``, the same completion read at sub-voxel precision: the
+points where its probabilities cross the decision threshold along the grid's edges
+(``crossings``), where the night takes the centres of its surface voxels.
+
 ``--normals``: each voxel of a perfect completion also carries the mean exact normal of the CAD
 samples in it (their faces' outward normals), as a completion that gives normals would; the
 pair evidence then reads normals as it reads the ``truth`` input's.
@@ -22,7 +26,7 @@ without retraining.
 
 Usage:
     .venv/bin/python bench/completion_ceiling.py --workspace heldout/ws [--grids 64 128 256 0]
-        [--normals] [--out completion_ceiling.csv]
+        [--normals] [--crossings] [--out completion_ceiling.csv]
 
 The workspace is a night's (``bench/heldout_night.py``, then ``mateqa nightly``), whose
 captures, inputs, meshes and features it reads. Nothing is asserted.
@@ -49,7 +53,14 @@ from cadio.records import FloatArray
 from cadio.workspace import Workspace, read_features, read_mesh
 from models.evaluate import SHIPPED, load_models
 from models.geometric import OBSERVED_BY
-from models.relate import SHIPPED_RELATIONS, completions_of, load_relation_models, relate_views
+from models.relate import (
+    SHIPPED_RELATIONS,
+    THRESHOLD,
+    completions_of,
+    load_relation_models,
+    relate_views,
+)
+from models.train import Model, predict
 from reports.relations import assembly_f1_table
 
 SAMPLES = 20_000  # CAD samples per part before snapping: several per voxel at 256^3
@@ -107,6 +118,51 @@ def perfect(capture: Path, ws: Workspace, n: int, normals: bool = False
     return out
 
 
+def crossings(probs: FloatArray, grid_to_world: FloatArray, threshold: float = THRESHOLD
+              ) -> FloatArray:
+    """(m, 3) world: where an (n, n, n) probability field crosses ``threshold`` on the edges
+    between neighbouring voxels, interpolated linearly (the vertices marching cubes would
+    place), and the outer face of every voxel above it on the grid's border."""
+    inside = probs > threshold
+    n = probs.shape[0]
+    found = []
+    for axis in range(3):
+        lo = tuple(slice(0, n - 1) if a == axis else slice(None) for a in range(3))
+        hi = tuple(slice(1, n) if a == axis else slice(None) for a in range(3))
+        cross = inside[lo] != inside[hi]
+        ijk = np.argwhere(cross).astype(np.float64)
+        p_lo, p_hi = probs[lo][cross], probs[hi][cross]
+        ijk[:, axis] += (threshold - p_lo) / (p_hi - p_lo)
+        found.append(ijk)
+        for side, offset in ((0, -0.5), (n - 1, 0.5)):
+            face = tuple(side if a == axis else slice(None) for a in range(3))
+            rest = np.argwhere(inside[face]).astype(np.float64)
+            found.append(np.insert(rest, axis, side + offset, axis=1))
+    ijk = np.concatenate(found)
+    return np.asarray(ijk @ grid_to_world[:3, :3].T + grid_to_world[:3, 3], dtype=np.float64)
+
+
+def crossing_completions(capture: Path, ws: Workspace, model: Model
+                         ) -> dict[tuple[str, int], FloatArray]:
+    """(instance id as text, view) -> the completion of every single observed view of the
+    capture's parts read as its ``crossings`` (the scan's points where nothing is predicted,
+    as the night does)."""
+    out = {}
+    for folder in sorted(p for p in (ws.root / "inputs" / capture.stem).glob("*") if p.is_dir()):
+        files = [(int(p.stem.removeprefix(f"{OBSERVED}-")), p)
+                 for p in sorted(folder.glob(f"{OBSERVED}-*.npz"))
+                 if p.stem.removeprefix(f"{OBSERVED}-").isdigit()]
+        if not files:
+            continue
+        examples = [read_example(p) for _, p in files]
+        probs = predict(model, [e.inputs for e in examples], batch_size=16)
+        for (view, _), example, prob in zip(files, examples, probs, strict=True):
+            to_world = example.grid.grid_to_world(prob.shape[-1])
+            out[(folder.name, view)] = (crossings(prob.astype(np.float64), to_world)
+                                        if (prob > THRESHOLD).any() else example.points)
+    return out
+
+
 def completed_only(views: list[PairView]) -> list[PairView]:
     """The views with their ``completed`` input and the observed points its networks read
     beside it (``models.geometric.OBSERVED_BY``); the rows of ``completed`` are measured."""
@@ -119,9 +175,11 @@ def completed_only(views: list[PairView]) -> list[PairView]:
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--workspace", type=Path, default=Path("heldout/ws"))
-    parser.add_argument("--grids", type=int, nargs="+", default=[64, 128, 256, 0])
+    parser.add_argument("--grids", type=int, nargs="*", default=[64, 128, 256, 0])
     parser.add_argument("--normals", action="store_true",
                         help="perfect completions carry their voxels' exact normals")
+    parser.add_argument("--crossings", action="store_true",
+                        help="also the network's completion read at its threshold crossings")
     parser.add_argument("--out", type=Path, default=Path("completion_ceiling.csv"))
     args = parser.parse_args()
     ws = Workspace(args.workspace)
@@ -134,17 +192,22 @@ def main() -> None:
     relations = load_relation_models(SHIPPED_RELATIONS)
     completion = load_models(SHIPPED).models.get(("gan_lstm", OBSERVED))
     tables = []
-    for grid in ["network", *args.grids]:
+    if completion is None and args.crossings:
+        sys.exit("--crossings: no shipped gan_lstm checkpoint")
+    for grid in ["network", *(["crossings"] if args.crossings else []), *args.grids]:
         views: list[PairView] = []
         for capture in captures:
             done = (completions_of(capture, ws, completion) if grid == "network"
+                    else crossing_completions(capture, ws, completion)
+                    if grid == "crossings" and completion is not None
                     else perfect(capture, ws, int(grid), args.normals))
             views += capture_pairs(capture, ws, categories, DEFAULT_PAIRS, done)
         kept = completed_only(views)
         rows = pd.DataFrame(relate_views(kept, relations))
         table = assembly_f1_table(rows[rows["input"] == "completed"])
-        label = grid if grid == "network" else ("exact" if grid == 0 else f"{grid}^3")
-        label += " normals" if args.normals and grid != "network" else ""
+        label = str(grid) if grid in ("network", "crossings") else (
+            "exact" if grid == 0 else f"{grid}^3")
+        label += " normals" if args.normals and grid not in ("network", "crossings") else ""
         print(f"\n{label}: {len(kept)} pair views")
         print(table.round(3).to_string())
         tables.append(table.rename(columns=lambda c, g=label: f"{g} {c}"))
