@@ -40,6 +40,7 @@ from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
+import numpy.typing as npt
 import pandas as pd
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
@@ -47,6 +48,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from cadio.capture.cad_samples import placed_cad_samples
 from cadio.capture.examples import OBSERVED, read_example
 from cadio.capture.mcap_io import read_scene_meta
+from cadio.capture.observe import CubeGrid
 from cadio.capture.pairs import DEFAULT_PAIRS, PairView, capture_pairs
 from cadio.catalog import read_catalog
 from cadio.records import FloatArray
@@ -60,7 +62,6 @@ from models.relate import (
     load_relation_models,
     relate_views,
 )
-from models.train import Model, predict
 from reports.relations import assembly_f1_table
 
 SAMPLES = 20_000  # CAD samples per part before snapping: several per voxel at 256^3
@@ -142,25 +143,9 @@ def crossings(probs: FloatArray, grid_to_world: FloatArray, threshold: float = T
     return np.asarray(ijk @ grid_to_world[:3, :3].T + grid_to_world[:3, 3], dtype=np.float64)
 
 
-def crossing_completions(capture: Path, ws: Workspace, model: Model
-                         ) -> dict[tuple[str, int], FloatArray]:
-    """(instance id as text, view) -> the completion of every single observed view of the
-    capture's parts read as its ``crossings`` (the scan's points where nothing is predicted,
-    as the night does)."""
-    out = {}
-    for folder in sorted(p for p in (ws.root / "inputs" / capture.stem).glob("*") if p.is_dir()):
-        files = [(int(p.stem.removeprefix(f"{OBSERVED}-")), p)
-                 for p in sorted(folder.glob(f"{OBSERVED}-*.npz"))
-                 if p.stem.removeprefix(f"{OBSERVED}-").isdigit()]
-        if not files:
-            continue
-        examples = [read_example(p) for _, p in files]
-        probs = predict(model, [e.inputs for e in examples], batch_size=16)
-        for (view, _), example, prob in zip(files, examples, probs, strict=True):
-            to_world = example.grid.grid_to_world(prob.shape[-1])
-            out[(folder.name, view)] = (crossings(prob.astype(np.float64), to_world)
-                                        if (prob > THRESHOLD).any() else example.points)
-    return out
+def crossing_surface(probs: npt.NDArray[np.float32], grid: CubeGrid) -> FloatArray:
+    """A completion's ``crossings`` over its observed grid (a ``models.relate.Surface``)."""
+    return crossings(probs.astype(np.float64), grid.grid_to_world(probs.shape[-1]))
 
 
 def completed_only(views: list[PairView]) -> list[PairView]:
@@ -192,15 +177,12 @@ def main() -> None:
     relations = load_relation_models(SHIPPED_RELATIONS)
     completion = load_models(SHIPPED).models.get(("gan_lstm", OBSERVED))
     tables = []
-    if completion is None and args.crossings:
-        sys.exit("--crossings: no shipped gan_lstm checkpoint")
     for grid in ["network", *(["crossings"] if args.crossings else []), *args.grids]:
         views: list[PairView] = []
         for capture in captures:
             done = (completions_of(capture, ws, completion) if grid == "network"
-                    else crossing_completions(capture, ws, completion)
-                    if grid == "crossings" and completion is not None
-                    else perfect(capture, ws, int(grid), args.normals))
+                    else completions_of(capture, ws, completion, crossing_surface)
+                    if grid == "crossings" else perfect(capture, ws, int(grid), args.normals))
             views += capture_pairs(capture, ws, categories, DEFAULT_PAIRS, done)
         kept = completed_only(views)
         rows = pd.DataFrame(relate_views(kept, relations))

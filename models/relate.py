@@ -18,7 +18,7 @@ from __future__ import annotations
 
 import logging
 import re
-from collections.abc import Iterable, Mapping, Sequence
+from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -55,7 +55,7 @@ from models.train import Model, predict
 from reports.metrics import surface_points
 
 if TYPE_CHECKING:
-    pass
+    from cadio.capture.observe import CubeGrid
 
 log = logging.getLogger(__name__)
 
@@ -124,9 +124,21 @@ def _stale_evidence(ckpt: Mapping[str, Any]) -> str:
             "retrain it (mateqa train relations)")
 
 
-def completed_clouds(folder: Path, model: Model) -> dict[int, FloatArray]:
+Surface = Callable[[npt.NDArray[np.float32], "CubeGrid"], FloatArray]
+
+
+def voxel_surface(probs: npt.NDArray[np.float32], grid: CubeGrid) -> FloatArray:
+    """The centres of the surface voxels of the solid predicted (probabilities over ``grid``,
+    (n, n, n)), world metres: how the night reads a completion."""
+    n = probs.shape[-1]
+    return surface_points(probs > THRESHOLD, grid.voxel_m(n), grid.grid_to_world(n))
+
+
+def completed_clouds(folder: Path, model: Model, surface: Surface = voxel_surface
+                     ) -> dict[int, FloatArray]:
     """The completion of each single observed view of one part: view -> (m, 3) world metres
-    (centres of the surface voxels of the solid predicted in the view's observed grid)."""
+    (``surface`` of the probabilities predicted in the view's observed grid; the scan's points
+    where nothing is predicted)."""
     files = sorted((int(m.group(1)), p) for p in Path(folder).glob(f"{OBSERVED}-*.npz")
                    if (m := _SINGLE.match(p.name)))
     if not files:
@@ -134,23 +146,21 @@ def completed_clouds(folder: Path, model: Model) -> dict[int, FloatArray]:
     examples = [read_example(p) for _, p in files]
     probs = predict(model, [e.inputs for e in examples], batch_size=16)
     out = {}
-    n = probs.shape[-1]
     for (view, _), example, p in zip(files, examples, probs, strict=True):
-        solid = p > THRESHOLD
-        to_world = example.grid.grid_to_world(n)
-        pts = surface_points(solid, example.grid.voxel_m(n), to_world) if solid.any() else \
+        pts = surface(p, example.grid) if (p > THRESHOLD).any() else \
             example.points  # nothing predicted: the scan is all there is
         out[view] = np.asarray(pts, dtype=np.float64)
     return out
 
 
 def capture_completions(capture: str, part_ids: Iterable[str], ws: Workspace,
-                        model: Model | None) -> dict[tuple[str, int], FloatArray]:
+                        model: Model | None, surface: Surface = voxel_surface
+                        ) -> dict[tuple[str, int], FloatArray]:
     """(part id, view) -> completed points for the parts of one capture (none without model)."""
     if model is None:
         return {}
     return {(pid, view): pts for pid in part_ids
-            for view, pts in completed_clouds(ws.inputs(capture, pid), model).items()}
+            for view, pts in completed_clouds(ws.inputs(capture, pid), model, surface).items()}
 
 
 def decide(points: npt.NDArray[np.float32], mm_per_unit: npt.NDArray[Any], method: str,
@@ -275,12 +285,12 @@ def relate_captures(captures: Sequence[Path], ws: Workspace, categories: Mapping
     return rows, failed
 
 
-def completions_of(path: Path, ws: Workspace, completion: Model | None
-                   ) -> dict[tuple[str, int], FloatArray]:
+def completions_of(path: Path, ws: Workspace, completion: Model | None,
+                   surface: Surface = voxel_surface) -> dict[tuple[str, int], FloatArray]:
     """(part id, view) -> completed points of every part with inputs under a capture."""
     folder = ws.root / "inputs" / path.stem
     parts = [p.name for p in folder.iterdir() if p.is_dir()] if folder.is_dir() else []
-    return capture_completions(path.stem, parts, ws, completion)
+    return capture_completions(path.stem, parts, ws, completion, surface)
 
 
 @dataclass(frozen=True)
