@@ -1,7 +1,7 @@
 """Benchmark of simulated RGB-D capture: rendering throughput and MCAP size per view.
 
 Renders a pair scene (a box and a finely tessellated cylinder, the paper's 640x480 camera) with
-``cadio.capture.render.render_views``, noise off and on, and compares it with the floor: bare
+``cadio.camera.render.render_views``, noise off and on, and compares it with the floor: bare
 open3d ``cast_rays`` of every ray of the camera (built with ``camera_rays`` before each call's
 clock starts) on the same freshly staged ``RaycastingScene``, nothing else. The renderer casts
 only the rays that may meet the scene's box (the share is printed); the others are background.
@@ -25,10 +25,9 @@ import open3d as o3d
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # run from anywhere
 
-from cadio.capture.mcap_io import write_capture
-from cadio.capture.noise import NoiseConfig
-from cadio.capture.raycast import camera_rays, pixel_grid
-from cadio.capture.render import (
+from cadio.camera.noise import NoiseConfig
+from cadio.camera.raycast import camera_rays, pixel_grid
+from cadio.camera.render import (
     CaptureConfig,
     PlacedPart,
     camera_intrinsics,
@@ -38,6 +37,7 @@ from cadio.capture.render import (
     scene_meta,
     stage_scene,
 )
+from cadio.recordings.mcap_io import write_capture
 from cadio.records import Mesh
 
 
@@ -108,8 +108,8 @@ def share_of_rays(parts: list[PlacedPart], cfg: CaptureConfig) -> tuple[float, f
     """The shares of the rays ``render_views`` casts and of those it meets the support plane
     with in closed form: the others miss everything (the floor casts them all, as open3d
     would be asked without those tests)."""
-    from cadio.capture.raycast import CAST, ON_TABLE
-    from cadio.capture.render import _cast
+    from cadio.camera.raycast import CAST, ON_TABLE
+    from cadio.camera.render import _cast
 
     staged = stage_scene(parts, cfg)
     grid = pixel_grid(camera_intrinsics(cfg))

@@ -45,12 +45,12 @@ import pandas as pd
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from cadio.capture.cad_samples import placed_cad_samples
 from cadio.capture.examples import OBSERVED, read_example
-from cadio.capture.mcap_io import read_scene_meta
 from cadio.capture.observe import CubeGrid
-from cadio.capture.pairs import DEFAULT_PAIRS, PairView, capture_pairs
 from cadio.catalog import read_catalog
+from cadio.evidence.cad_samples import placed_cad_samples
+from cadio.evidence.pairs import DEFAULT_PAIRS, PairView, capture_pairs
+from cadio.recordings.mcap_io import read_scene_meta
 from cadio.records import FloatArray
 from cadio.workspace import Workspace, read_features, read_mesh
 from models.evaluate import SHIPPED, load_models

@@ -2,7 +2,7 @@
 
 The truth calls a pair concentric when a cylinder or cone face of each part lies on one axis
 (0.5 degree, 0.1 mm) within 1 mm of the other's. The evidence fits up to three cylinders to
-each part's curved contact points and keeps the most coaxial pair (``cadio.capture.fits``). For
+each part's curved contact points and keeps the most coaxial pair (``cadio.evidence.fits``). For
 every concentric pair view of a night's assembly captures, on the exact CAD samples (input
 ``truth``, 3,000 per part), this prints the angle and the offset between the pair's two fitted
 axes, with each cylinder refitted to its points by least squares (the evidence) and with the
@@ -25,10 +25,10 @@ from pathlib import Path
 
 import numpy as np
 
-from cadio.capture.fits import DEFAULT_FEATURES
-from cadio.capture.pair_features import PAIR_FEATURES, pair_features, part_cloud
-from cadio.capture.pairs import DEFAULT_PAIRS, capture_pairs
 from cadio.catalog import read_catalog
+from cadio.evidence.fits import DEFAULT_FEATURES
+from cadio.evidence.pair_features import PAIR_FEATURES, pair_features, part_cloud
+from cadio.evidence.pairs import DEFAULT_PAIRS, capture_pairs
 from cadio.workspace import Workspace
 from models.relate import RELATIONS
 

@@ -39,9 +39,9 @@ from pathlib import Path
 
 import numpy as np
 
-from cadio.capture.cad_samples import placed_cad_samples
-from cadio.capture.pair_features import FeatureConfig, dominant_direction, part_cloud
-from cadio.capture.pairs import DEFAULT_PAIRS
+from cadio.evidence.cad_samples import placed_cad_samples
+from cadio.evidence.pair_features import FeatureConfig, dominant_direction, part_cloud
+from cadio.evidence.pairs import DEFAULT_PAIRS
 from cadio.records import Features
 from cadio.workspace import read_mesh
 from models.relation_data import read_split

@@ -1,7 +1,7 @@
 """How much the pair evidence says about the CAD's mates at a given number of points per part.
 
 The relation networks read 600 points per part (the paper's grounding MLP), and the pair
-evidence (``cadio.capture.pair_features``: contact plane and axis, part axes, dominant plane
+evidence (``cadio.evidence.pair_features``: contact plane and axis, part axes, dominant plane
 directions) used to be measured on the same 600. The mates it stands for are decided at 0.1-1 mm
 on faces that may be a few percent of a part's surface. This measures the evidence on exact CAD
 samples of the relation dataset's clear assembly pairs (one row per pair, not per view: CAD
@@ -28,8 +28,8 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from cadio.capture.cad_samples import placed_cad_samples
-from cadio.capture.pair_features import pair_features, part_cloud
+from cadio.evidence.cad_samples import placed_cad_samples
+from cadio.evidence.pair_features import pair_features, part_cloud
 from cadio.workspace import features_of_mesh, read_mesh
 from models.relation_data import read_split
 

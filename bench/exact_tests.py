@@ -27,7 +27,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from cadio.capture.pair_features import PAIR_FEATURES, evidence_digest
+from cadio.evidence.pair_features import PAIR_FEATURES, evidence_digest
 from models.geometric import geometric_symmetric, tests_for
 from models.relate import RELATIONS
 

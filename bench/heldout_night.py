@@ -44,8 +44,8 @@ def drawn_heldout_files(shared: Path, seed: int = 0) -> list[tuple[Path, str]]:
     """(file, category) of every file under ``shared`` that the corpus's split rule holds out,
     each keyed by its absolute path (no training workspace needed)."""
     from cadio.cad.ingest import discover
-    from cadio.capture.corpus import corpus_splits
-    from flows.train import corpus_fractions
+    from models.training.corpus import corpus_splits
+    from models.training.prepare import corpus_fractions
 
     shared = shared.resolve()
     found = {str(f.path): f for f in discover(shared)}

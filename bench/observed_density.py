@@ -1,7 +1,7 @@
 """Whether one view's observed points carry the CAD's concentric and coincident mates at all.
 
 The relation stage keeps 600 observed points per part and view (``points.npz``), and its pair
-evidence (``cadio.capture.pair_features``) is measured on them. The captures hold many more: a
+evidence (``cadio.evidence.pair_features``) is measured on them. The captures hold many more: a
 part of a held-out assembly shows thousands of pixels. The symmetric mates are decided at 1 mm,
 and the night's networks call many pairs mates that are not (a ring's cage segments 1.6 mm
 inside it, nuts 1.6 mm off a flange). This asks whether the missing precision is in the pixels
@@ -34,10 +34,10 @@ import pandas as pd
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from cadio.capture.examples import frame_supports, part_views
-from cadio.capture.mcap_io import read_capture, read_scene_meta
-from cadio.capture.pair_features import PAIR_FEATURES, pair_features_many
-from cadio.capture.pairs import DEFAULT_PAIRS, capture_pairs, evidence_cloud
 from cadio.catalog import read_catalog
+from cadio.evidence.pair_features import PAIR_FEATURES, pair_features_many
+from cadio.evidence.pairs import DEFAULT_PAIRS, capture_pairs, evidence_cloud
+from cadio.recordings.mcap_io import read_capture, read_scene_meta
 from cadio.records import FloatArray
 from cadio.workspace import Workspace
 

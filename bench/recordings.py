@@ -31,9 +31,9 @@ from mcap.reader import NonSeekingReader  # noqa: E402
 from mcap_ros2.decoder import DecoderFactory  # noqa: E402
 from ros2_recording import write_ros2_capture  # noqa: E402
 
-from cadio.capture.mcap_io import read_capture, write_capture  # noqa: E402
-from cadio.capture.noise import NoiseConfig  # noqa: E402
-from cadio.capture.render import CaptureConfig, render_views, scene_meta  # noqa: E402
+from cadio.camera.noise import NoiseConfig  # noqa: E402
+from cadio.camera.render import CaptureConfig, render_views, scene_meta  # noqa: E402
+from cadio.recordings.mcap_io import read_capture, write_capture  # noqa: E402
 
 
 def best(repeats: int, run: Callable[[], int]) -> tuple[float, int]:

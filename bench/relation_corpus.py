@@ -36,14 +36,14 @@ from pathlib import Path
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from cadio.cad.ingest import IngestConfig
-from cadio.capture.corpus import KINDS, CorpusConfig
 from cadio.capture.examples import OBSERVED, ExampleConfig
 from cadio.sandbox import Limits
 from cadio.tolerances import DEFAULT_TOLERANCES
 from cadio.workspace import Workspace
-from flows.train import prepare_corpus
-from flows.train_relations import build_dataset
 from models.evaluate import SHIPPED
+from models.training.corpus import KINDS, CorpusConfig
+from models.training.prepare import prepare_corpus
+from models.training.relations import build_dataset
 
 
 def main() -> None:

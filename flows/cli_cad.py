@@ -80,8 +80,8 @@ def cmd_mates(args: argparse.Namespace) -> int:
 
 
 def cmd_capture(args: argparse.Namespace) -> int:
-    from cadio.capture.mcap_io import summarise_capture
     from cadio.capture.scan import ScanConfig
+    from cadio.recordings.mcap_io import summarise_capture
     from cadio.sandbox import Job, run_isolated
 
     if args.read is not None:

@@ -24,11 +24,16 @@ def cmd_train(args: argparse.Namespace) -> int:
     import torch
 
     from cadio.cad.ingest import IngestConfig
-    from cadio.capture.corpus import CorpusConfig
     from cadio.capture.examples import ExampleConfig
     from cadio.sandbox import Limits
     from cadio.workspace import Workspace
-    from flows.train import evaluate_models, prepare_corpus, train_model, write_model_card
+    from models.training.completion import (
+        evaluate_models,
+        train_model,
+        write_model_card,
+    )
+    from models.training.corpus import CorpusConfig
+    from models.training.prepare import prepare_corpus
 
     torch.set_num_threads(args.threads)
     ws = Workspace(args.workspace.resolve())
@@ -78,13 +83,13 @@ def _cmd_train_relations(args: argparse.Namespace) -> int:
 
     from cadio.sandbox import Limits
     from cadio.workspace import Workspace
-    from flows.train_relations import (
+    from models.evaluate import SHIPPED
+    from models.training.relations import (
         build_dataset,
         evaluate_relations,
         train_relation_model,
         write_relation_card,
     )
-    from models.evaluate import SHIPPED
 
     torch.set_num_threads(args.threads)
     ws = Workspace(args.workspace.resolve())

@@ -29,7 +29,8 @@ from cadio.capture.scan import ScanConfig
 from cadio.catalog import read_catalog
 from cadio.contracts import CaptureSummary, MatesSummary
 from cadio.export.job import model_digests
-from cadio.truth.scenes import night_scene_config, read_scenes
+from cadio.truth.scene_config import night_scene_config
+from cadio.truth.scenes import read_scenes
 from cadio.workspace import Workspace, write_json
 from flows.config import DEFAULT_NIGHT, ConfigError, NightConfig, RuntimeOptions
 from flows.preflight import check_night

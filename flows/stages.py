@@ -19,7 +19,7 @@ from cadio.capture.scan import ScanConfig
 from cadio.catalog import read_catalog
 from cadio.export.job import model_digests
 from cadio.tolerances import DEFAULT_TOLERANCES, Tolerances
-from cadio.truth.scenes import night_scene_config
+from cadio.truth.scene_config import night_scene_config
 from cadio.workspace import Workspace
 from flows.config import ConfigError, Count, Views, VoxelSide
 from flows.preflight import check_finished_run

@@ -43,7 +43,6 @@ from cadio.capture.coverage import (
     scoring_plan,
     unscored_parts,
 )
-from cadio.capture.pair_features import evidence_digest
 from cadio.capture.scan import (
     ASSEMBLY_PREFIX,
     ScanConfig,
@@ -53,6 +52,7 @@ from cadio.capture.scan import (
 )
 from cadio.catalog import CatalogRow, read_catalog, to_frame, write_catalog
 from cadio.contracts import CaptureSummary, ExportSummary, MatesSummary, ScenesSummary
+from cadio.evidence.pair_features import evidence_digest
 from cadio.export.job import ExportJob, export_assemblies, run_jobs, write_index
 from cadio.sandbox import Limits
 from cadio.tolerances import Tolerances, write_tolerances
@@ -62,7 +62,8 @@ from cadio.truth.assemblies import (
     assembly_jobs,
     extract_assembly_mates,
 )
-from cadio.truth.scenes import SceneConfig, build_scenes, read_scenes
+from cadio.truth.scene_config import SceneConfig
+from cadio.truth.scenes import build_scenes, read_scenes
 from cadio.workspace import Workspace
 from models.evaluate import Scores, complete_parts, part_inputs
 from models.relate import RelateBatch, relate_batch

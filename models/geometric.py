@@ -2,7 +2,7 @@
 networks read.
 
 The tests decide the symmetric relations on the pair evidence of
-``cadio.capture.pair_features`` (each the CAD definition, its tolerances widened by what the
+``cadio.evidence.pair_features`` (each the CAD definition, its tolerances widened by what the
 points resolve) and the directional ones on the clouds' centroids, with the truth's own cones.
 
 A network may read the four symmetric answers beside the encoded evidence
@@ -46,7 +46,7 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
-from cadio.capture.pair_features import PAIR_FEATURES, encode_features, pair_features_many
+from cadio.evidence.pair_features import PAIR_FEATURES, encode_features, pair_features_many
 from cadio.tolerances import DEFAULT_TOLERANCES, Tolerances
 from cadio.truth.relations import directional_truth
 

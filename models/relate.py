@@ -4,12 +4,12 @@ The relation stage of the nightly flow and the held-out evaluation of ``mateqa t
 relations`` both come here. For each capture, the completion network's shape of every part in
 every view is computed (``completed_clouds``: the shipped ``gan_lstm`` under the observed
 protocol, one view at a time), the pair views are assembled with their per-view truth
-(``cadio.capture.pairs``), and each method decides the ten relations on each input:
+(``cadio.evidence.pairs``), and each method decides the ten relations on each input:
 
 - ``ltn`` and ``mlp``: the relation networks (one checkpoint per method and input), which see
   only the points in the observer's frame; a pair and its swap are decided together;
 - ``geometric``: fixed tests on the pair's evidence from fitted planes and axes
-  (``cadio.capture.pair_features``), each the CAD definition widened by what points resolve.
+  (``cadio.evidence.pair_features``), each the CAD definition widened by what points resolve.
 
 One row per pair view x input x method x relation (``reports.relations.PAIR_COLUMNS``).
 """
@@ -28,9 +28,9 @@ import numpy.typing as npt
 import pandas as pd
 
 from cadio.capture.examples import OBSERVED, read_example
-from cadio.capture.pairs import DEFAULT_PAIRS, INPUTS, PairConfig, PairView, capture_pairs
 from cadio.capture.scan import ASSEMBLY_PREFIX
 from cadio.errors import CaptureError
+from cadio.evidence.pairs import DEFAULT_PAIRS, INPUTS, PairConfig, PairView, capture_pairs
 from cadio.records import FloatArray, Relation
 from cadio.workspace import Workspace, atomic_path
 from models.errors import CheckpointError
@@ -109,7 +109,7 @@ def load_relation_models(folder: Path = SHIPPED_RELATIONS) -> RelationModels:
 def _stale_evidence(ckpt: Mapping[str, Any]) -> str:
     """Why a checkpoint cannot read this code's pair evidence ("" when it can): it was trained
     on another vector (its names, where it lists them, or its width)."""
-    from cadio.capture.pair_features import PAIR_FEATURES
+    from cadio.evidence.pair_features import PAIR_FEATURES
 
     width = int(ckpt["config"].get("pair_features", 0))
     names = [str(n) for n in ckpt["data"].get("pair_features") or []]
@@ -186,7 +186,7 @@ def decide(points: npt.NDArray[np.float32], mm_per_unit: npt.NDArray[Any], metho
     The joint is the network's joint head's answer; ``geometric``, and a network trained
     without a joint head, read it from their concentric and coincident answers
     (``cadio.truth.joints.predicted_joint``)."""
-    from cadio.capture.pair_features import pair_features_many
+    from cadio.evidence.pair_features import pair_features_many
 
     if features is None:
         features = pair_features_many(points, mm_per_unit, list(keys) if keys else None)
@@ -223,7 +223,7 @@ def relate_views(views: Sequence[PairView], models: RelationModels,
                  methods: Sequence[str] = METHODS) -> list[dict[str, Any]]:
     """``relations_pairs`` rows of pair views: every method on every input they carry (the
     networks of an input in ``OBSERVED_BY`` where the views carry the observed points too)."""
-    from cadio.capture.pair_features import pair_features_many
+    from cadio.evidence.pair_features import pair_features_many
 
     rows: list[dict[str, Any]] = []
     # observed input -> id(view) -> the view's points and network evidence of that input

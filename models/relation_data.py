@@ -1,13 +1,13 @@
 """The relation networks' dataset: the labelled pairs of a corpus's shots, view by view.
 
-The corpus (``cadio.capture.corpus``) holds, for every shot (a pair scene or an assembly as
+The corpus (``models.training.corpus``) holds, for every shot (a pair scene or an assembly as
 placed) and every view, each instance's observed points and camera, and each instance's CAD
 surface samples as placed; its truth (``cadio.truth.corpus_labels``) labels the shot's pairs
 for each view's observer. ``build_relation_dataset`` turns them into one ``<split>.npz`` per
 split: for each input (``truth``: CAD samples; ``partial``: the observed points of that view;
 ``completed``: the completion network's shape from that single view, the surface of its solid)
 the two parts' points in the observer's frame (N, 2, k, 3) float32, their pair evidence
-(``cadio.capture.pair_features``, raw, (N, F)), for ``truth`` the centroids of the two parts'
+(``cadio.evidence.pair_features``, raw, (N, F)), for ``truth`` the centroids of the two parts'
 solids in the observer's frame (N, 2, 3) (the other inputs' centres are their points' means:
 ``models.geometric.network_evidence``), the labels (N, 10), whether the pair sits near
 a tolerance in that view, the CAD's kinematic joint of the pair (``"none"`` without one), and
@@ -36,19 +36,19 @@ import numpy as np
 import numpy.typing as npt
 import pandas as pd
 
-from cadio.capture.cad_samples import placed_cad_samples
-from cadio.capture.corpus import Shot
 from cadio.capture.examples import read_example
 from cadio.capture.observe import observer_rotation
-from cadio.capture.pair_features import pair_features_many
-from cadio.capture.pairs import INPUTS, evidence_cloud, pair_category
 from cadio.capture.pointcloud import sample_points
+from cadio.evidence.cad_samples import placed_cad_samples
+from cadio.evidence.pair_features import pair_features_many
+from cadio.evidence.pairs import INPUTS, evidence_cloud, pair_category
 from cadio.truth.corpus_labels import ShotLabels
 from cadio.workspace import atomic_write, features_of_mesh, read_mesh
 from models.geometric import OBSERVED_BY, network_evidence, tests_for, with_observed
 from models.relations import JOINTS
 from models.relations_train import RelationData, nearest_of_pairs
 from models.train import Model, predict
+from models.training.corpus import Shot
 from reports.metrics import surface_points
 
 log = logging.getLogger(__name__)

@@ -5,7 +5,7 @@ Each part's point cloud is grounded by a shared five-layer per-point MLP with ma
 how near the other part is (in the parts' millimetres: the CAD mates are decided at 0.1 and
 1 mm), so the grounding sees where and how the parts touch. The pair vector [e_a, e_b,
 e_a - e_b, f] feeds one Neural Tensor Network predicate per relation, where f encodes the
-pair's evidence from fitted planes and axes (``cadio.capture.pair_features``: contact plane,
+pair's evidence from fitted planes and axes (``cadio.evidence.pair_features``: contact plane,
 contact axis, part axes, dominant plane directions; symmetric in the two parts). Training
 (``models.relations_train``) maximises the satisfaction of a knowledge base written in
 product real logic (``models.relation_logic``): the labelled facts and, for the ``ltn``

@@ -7,15 +7,15 @@ import pytest
 
 from cadio.cad.features import extract_features
 from cadio.cad.tessellate import tessellate
-from cadio.capture.cad_samples import (
+from cadio.evidence.cad_samples import (
     exact_normals,
     facet_normals,
     placed_cad_samples,
     placed_surface_samples,
     sample_triangles,
 )
-from cadio.capture.fits import dominant_direction, part_cloud
-from cadio.capture.pair_features import PAIR_FEATURES, pair_features, pair_features_many
+from cadio.evidence.fits import dominant_direction, part_cloud
+from cadio.evidence.pair_features import PAIR_FEATURES, pair_features, pair_features_many
 
 
 @pytest.fixture(scope="module")
@@ -111,7 +111,7 @@ def test_exact_planes_are_single_faces_however_curved_the_rest_of_the_part() -> 
     block resting on the plate beside the pad meets it 0 mm away, opposed."""
     import build123d as bd
 
-    from cadio.capture.fits import FeatureConfig
+    from cadio.evidence.fits import FeatureConfig
 
     plate = (bd.Box(40, 40, 4) + bd.Pos(10, 0, 2.125) * bd.Box(20, 40, 0.25)
              + bd.Pos(0, 0, -6) * bd.Torus(14, 4))

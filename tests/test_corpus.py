@@ -10,7 +10,13 @@ import pytest
 
 from cadio.cad.ingest import IngestConfig, ingest
 from cadio.cad.step import write_step
-from cadio.capture.corpus import (
+from cadio.capture.examples import ExampleConfig, read_example
+from cadio.catalog import read_catalog
+from cadio.sandbox import Limits
+from cadio.truth.scene_config import SceneConfig
+from cadio.truth.scenes import generate_scenes, read_scene_parts
+from cadio.workspace import Workspace
+from models.training.corpus import (
     CorpusConfig,
     alone_shots,
     assembly_shots,
@@ -20,11 +26,6 @@ from cadio.capture.corpus import (
     read_index,
     read_shots,
 )
-from cadio.capture.examples import ExampleConfig, read_example
-from cadio.catalog import read_catalog
-from cadio.sandbox import Limits
-from cadio.truth.scenes import SceneConfig, generate_scenes, read_scene_parts
-from cadio.workspace import Workspace
 
 CFG = CorpusConfig(example=ExampleConfig(n_in=16, n_out=32), views=2, lengths=(2,))
 

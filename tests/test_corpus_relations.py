@@ -11,27 +11,27 @@ import torch
 
 from cadio.cad.ingest import IngestConfig, ingest
 from cadio.cad.step import write_step
-from cadio.capture.corpus import (
+from cadio.capture.examples import ExampleConfig
+from cadio.catalog import read_catalog
+from cadio.evidence.pair_features import N_PAIR_FEATURES, PAIR_FEATURES, pair_features_many
+from cadio.records import Relation
+from cadio.sandbox import Limits
+from cadio.truth.corpus_labels import label_shot
+from cadio.truth.relations import directional_truth
+from cadio.workspace import Workspace, read_features
+from models.checkpoint import build_model
+from models.geometric import ALL_EVIDENCE
+from models.relation_data import build_relation_dataset, read_split
+from models.relations import JOINTS
+from models.train import config_for
+from models.training.corpus import (
     CorpusConfig,
     assembly_shots,
     build_corpus,
     read_index,
     read_shots,
 )
-from cadio.capture.examples import ExampleConfig
-from cadio.capture.pair_features import N_PAIR_FEATURES, PAIR_FEATURES, pair_features_many
-from cadio.catalog import read_catalog
-from cadio.records import Relation
-from cadio.sandbox import Limits
-from cadio.truth.corpus_labels import label_shot
-from cadio.truth.relations import directional_truth
-from cadio.workspace import Workspace, read_features
-from flows.train_relations import label_jobs
-from models.checkpoint import build_model
-from models.geometric import ALL_EVIDENCE
-from models.relation_data import build_relation_dataset, read_split
-from models.relations import JOINTS
-from models.train import config_for
+from models.training.relations import label_jobs
 
 CFG = CorpusConfig(example=ExampleConfig(n_in=16, n_out=32), views=2, lengths=())
 RELATIONS = [r.value for r in Relation]
@@ -139,9 +139,9 @@ def test_the_train_flow_trains_and_reports_the_relation_networks(corpus, tmp_pat
     """The Prefect train flow's relation steps, on the corpus: dataset completed by a
     completion checkpoint, one relation checkpoint, its held-out report and model card."""
     from flows.train import evaluate_relations_task, relation_dataset_task, train_relation_task
-    from flows.train_relations import relations_dir
     from models.checkpoint import make_checkpoint, save_checkpoint
     from models.relations_train import load_relation_model
+    from models.training.relations import relations_dir
 
     ws, _ = corpus
     torch.manual_seed(0)

@@ -27,7 +27,8 @@ from cadio.catalog import read_catalog
 from cadio.contracts import CaptureSummary
 from cadio.sandbox import Limits
 from cadio.truth.assemblies import assembly_jobs, mates_job
-from cadio.truth.scenes import SceneConfig, generate_scenes, read_scene_parts, write_scenes
+from cadio.truth.scene_config import SceneConfig
+from cadio.truth.scenes import generate_scenes, read_scene_parts, write_scenes
 from cadio.workspace import Workspace
 
 # Two views and pairs of them: the shipped completion checkpoints read 32^3 and write 64^3.

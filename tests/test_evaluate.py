@@ -11,6 +11,7 @@ import open3d as o3d
 import pytest
 import torch
 
+from cadio.camera.render import CaptureConfig
 from cadio.capture.examples import (
     ExampleConfig,
     observed_example,
@@ -19,7 +20,6 @@ from cadio.capture.examples import (
     with_truth,
     write_example,
 )
-from cadio.capture.render import CaptureConfig
 from cadio.records import Mesh
 from models.checkpoint import save_checkpoint
 from models.evaluate import (

@@ -1,4 +1,4 @@
-"""Tests of cadio.capture.mcap_io: exact round trips, independent readers, bad files."""
+"""Tests of cadio.recordings.mcap_io: exact round trips, independent readers, bad files."""
 
 from __future__ import annotations
 
@@ -19,7 +19,10 @@ from foxglove_schemas_protobuf.RawImage_pb2 import RawImage
 from google.protobuf.timestamp_pb2 import Timestamp
 from mcap_protobuf.writer import Writer as ProtobufWriter
 
-from cadio.capture.mcap_io import (
+from cadio.camera.noise import NoiseConfig
+from cadio.camera.render import CaptureConfig, PlacedPart, render_views, scene_meta
+from cadio.errors import CaptureError, CaptureTopicError
+from cadio.recordings.mcap_io import (
     CAMERA_INFO_TOPIC,
     COLOR_TOPIC,
     DEPTH_M,
@@ -32,9 +35,6 @@ from cadio.capture.mcap_io import (
     read_scene_meta,
     write_capture,
 )
-from cadio.capture.noise import NoiseConfig
-from cadio.capture.render import CaptureConfig, PlacedPart, render_views, scene_meta
-from cadio.errors import CaptureError, CaptureTopicError
 from cadio.records import Mesh, RgbdFrame
 
 READER_DIR = Path(__file__).parent / "mcap_reader"

@@ -11,6 +11,7 @@ import open3d as o3d
 import pytest
 
 from cadio.cad.voxels import voxelize
+from cadio.camera.render import CaptureConfig, camera_pose
 from cadio.capture.examples import (
     ExampleConfig,
     observed_example,
@@ -36,7 +37,6 @@ from cadio.capture.observe import (
     truth_occupancy,
     view_states,
 )
-from cadio.capture.render import CaptureConfig, camera_pose
 from cadio.records import Mesh
 
 CAPTURE = CaptureConfig()
@@ -212,8 +212,8 @@ def test_inputs_do_not_depend_on_how_many_pixels_a_voxel_catches() -> None:
 def test_an_occluded_part_gets_room_where_its_neighbour_hides_it() -> None:
     """A box half hidden behind a nearer one: its silhouette side next to the occluder is
     found, the grid goes on into the hidden space there, and it holds more of the part."""
+    from cadio.camera.render import PlacedPart, render_views
     from cadio.capture.examples import part_views
-    from cadio.capture.render import PlacedPart, render_views
 
     back, front = _box(80, 30, 30), _box(50, 20, 80)
     parts = [PlacedPart(1, back, _pose(0, (-40, 40, 0)), part_id="back"),

@@ -8,8 +8,8 @@ import numpy as np
 import pytest
 
 from cadio.cad.tessellate import tessellate
-from cadio.capture.cad_samples import surface_samples
-from cadio.capture.pair_features import (
+from cadio.evidence.cad_samples import surface_samples
+from cadio.evidence.pair_features import (
     N_PAIR_FEATURES,
     PAIR_FEATURES,
     FeatureConfig,
@@ -92,7 +92,7 @@ def test_exact_faces_touching_within_the_contact_tolerance_come_first() -> None:
     """A caster's fork rests on its plate on two narrow faces beside a wider pair 2 mm apart.
     Where the planes are the faces' own, the touching pair is the evidence; fitted planes keep
     the widest opposed pair (their offsets carry the points' noise)."""
-    from cadio.capture.pair_features import FacePair, _face_pair
+    from cadio.evidence.pair_features import FacePair, _face_pair
 
     wide = FacePair(angle_deg=0.0, offset_mm=2.0, area_mm2=120.6, opposed=1.0)
     touching = FacePair(angle_deg=0.0, offset_mm=0.0, area_mm2=57.9, opposed=1.0)
@@ -104,7 +104,7 @@ def test_exact_faces_touching_within_the_contact_tolerance_come_first() -> None:
 
 
 def test_a_face_pair_knows_parts_side_by_side_from_parts_face_to_face() -> None:
-    from cadio.capture.pair_features import _face_pair, face_pairs
+    from cadio.evidence.pair_features import _face_pair, face_pairs
 
     def face_pairs_best(a, b, reach, cfg):  # type: ignore[no-untyped-def]
         return _face_pair(face_pairs(a, b, reach, cfg))
@@ -172,7 +172,7 @@ def test_a_cylinder_is_refitted_to_its_points_not_left_on_their_normals() -> Non
     points, so an axis read from them is degrees off; the refit to the points is not."""
     import build123d as bd
 
-    from cadio.capture.fits import axis_of, fit_cylinders
+    from cadio.evidence.fits import axis_of, fit_cylinders
 
     def tilt(u: np.ndarray) -> float:  # from the bore's axis, +Z
         return math.degrees(math.acos(min(1.0, abs(float(u[2])))))
@@ -194,7 +194,7 @@ def test_a_cylinder_is_refitted_to_its_points_not_left_on_their_normals() -> Non
 
 def test_the_networks_evidence_is_the_encoded_evidence_the_tests_answers_and_the_direction(
         solids) -> None:  # type: ignore[no-untyped-def]
-    from cadio.capture.pair_features import encode_features
+    from cadio.evidence.pair_features import encode_features
     from models.geometric import (
         DIRECTION_GAIN,
         EVIDENCE,

@@ -10,9 +10,7 @@ import pytest
 
 from cadio.cad.ingest import IngestConfig, ingest
 from cadio.cad.step import write_step
-from cadio.capture.cad_samples import surface_samples
 from cadio.capture.observe import observer_rotation
-from cadio.capture.pairs import PairConfig, capture_pairs
 from cadio.capture.scan import (
     ScanConfig,
     assembly_pairs,
@@ -21,10 +19,13 @@ from cadio.capture.scan import (
     scan_inputs,
 )
 from cadio.catalog import read_catalog
+from cadio.evidence.cad_samples import surface_samples
+from cadio.evidence.pairs import PairConfig, capture_pairs
 from cadio.records import Relation
 from cadio.sandbox import Limits
 from cadio.truth.assemblies import assembly_jobs, mates_job
-from cadio.truth.scenes import SceneConfig, generate_scenes, read_scene_parts
+from cadio.truth.scene_config import SceneConfig
+from cadio.truth.scenes import generate_scenes, read_scene_parts
 from cadio.workspace import Workspace, read_mesh
 
 # Two views on opposite sides of the circle (0 and 62 of 125: 178.6 degrees apart).
@@ -133,7 +134,7 @@ def test_pair_inputs_are_the_observed_points_and_the_cad_surface(ws: Workspace) 
 def test_the_pair_evidence_reads_denser_clouds_than_the_network(ws: Workspace) -> None:
     from scipy.spatial import cKDTree
 
-    from cadio.capture.mcap_io import read_scene_meta
+    from cadio.recordings.mcap_io import read_scene_meta
 
     captured = capture_scenes(_side_by_side(ws), read_catalog(ws.catalog), ws, CFG)
     path = Path(captured[0].path)

@@ -8,7 +8,8 @@ import numpy as np
 import open3d as o3d
 import pytest
 
-from cadio.capture.noise import NoiseConfig
+from cadio.camera.noise import NoiseConfig
+from cadio.camera.render import CaptureConfig, PlacedPart, render_view, scene_meta
 from cadio.capture.pointcloud import (
     backproject,
     part_clouds,
@@ -16,7 +17,6 @@ from cadio.capture.pointcloud import (
     to_part_frame,
     valid_depth,
 )
-from cadio.capture.render import CaptureConfig, PlacedPart, render_view, scene_meta
 from cadio.capture.segment import adjusted_rand_index, segment_clusters, segmentation_score
 from cadio.records import Mesh, RgbdFrame
 

@@ -15,7 +15,8 @@ from cadio.cad.step import write_step
 from cadio.capture.scan import ScanConfig, capture_scenes
 from cadio.catalog import read_catalog
 from cadio.sandbox import Limits
-from cadio.truth.scenes import SceneConfig, generate_scenes, read_scene_parts
+from cadio.truth.scene_config import SceneConfig
+from cadio.truth.scenes import generate_scenes, read_scene_parts
 from cadio.workspace import Workspace
 from models.evaluate import SHIPPED
 from models.relate import METHODS, SHIPPED_RELATIONS, relate_batch
@@ -145,7 +146,7 @@ def test_a_network_reads_the_geometric_answers_when_its_checkpoint_lists_them(
     both); one trained on the evidence alone reads its first columns, as before."""
     import dataclasses
 
-    from cadio.capture.pair_features import N_PAIR_FEATURES, PAIR_FEATURES
+    from cadio.evidence.pair_features import N_PAIR_FEATURES, PAIR_FEATURES
     from models.geometric import GEOMETRIC_ANSWERS
 
     torch.set_num_threads(1)
@@ -191,7 +192,7 @@ def test_the_completed_input_is_the_same_where_the_parts_are_not_scored(
 def test_a_checkpoint_naming_its_columns_reads_them_after_evidence_is_appended() -> None:
     """The evidence is only ever appended to: a shipped network trained before the coaxial
     columns names the columns it reads, so it still loads and reads exactly those."""
-    from cadio.capture.pair_features import PAIR_FEATURES
+    from cadio.evidence.pair_features import PAIR_FEATURES
     from models.relate import load_relation_models
 
     models = load_relation_models(SHIPPED_RELATIONS)

@@ -460,7 +460,7 @@ def test_deciding_a_completed_pair_hands_its_network_the_observed_points() -> No
     """``decide`` gives a network that reads the observed evidence the observed points and
     both evidence vectors; the baseline and a network of its own evidence keep the
     completion's points; without the observed points that network has no answer."""
-    from cadio.capture.pair_features import pair_features_many
+    from cadio.evidence.pair_features import pair_features_many
     from models.geometric import evidence_names, network_evidence, tests_for, with_observed
     from models.relate import decide
     from models.relation_decision import Decision

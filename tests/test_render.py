@@ -1,4 +1,4 @@
-"""Tests of cadio.capture.render and .noise: camera geometry, view path, instance ids, noise."""
+"""Tests of cadio.camera.render and .noise: camera geometry, view path, instance ids, noise."""
 
 from __future__ import annotations
 
@@ -11,9 +11,9 @@ import pytest
 from scipy import stats
 from scipy.ndimage import binary_dilation
 
-from cadio.capture.noise import NoiseConfig, apply_noise
-from cadio.capture.raycast import camera_rays, pixel_grid
-from cadio.capture.render import (
+from cadio.camera.noise import NoiseConfig, apply_noise
+from cadio.camera.raycast import camera_rays, pixel_grid
+from cadio.camera.render import (
     CaptureConfig,
     PlacedPart,
     camera_intrinsics,
@@ -303,8 +303,8 @@ def test_rays_left_out_beside_the_scene_box_change_no_pixel(cfg: CaptureConfig) 
     table's depth comes from a closed form within float32 rounding of open3d's."""
     from dataclasses import replace
 
-    from cadio.capture.raycast import CAST, ON_TABLE
-    from cadio.capture.render import _cast, _frame, stage_scene
+    from cadio.camera.raycast import CAST, ON_TABLE
+    from cadio.camera.render import _cast, _frame, stage_scene
 
     parts = pair_scene()
     staged = stage_scene(parts, cfg)
@@ -339,13 +339,13 @@ def test_rays_left_out_beside_the_scene_box_change_no_pixel(cfg: CaptureConfig) 
 def test_the_box_outline_casts_every_ray_the_slab_test_casts() -> None:
     """The outline of the box's projected corners (per pixel row, plus a margin) holds every
     pixel whose ray the exact slab test sends; a camera inside the box has no outline."""
-    from cadio.capture.raycast import (
+    from cadio.camera.raycast import (
         box_outline,
         camera_axes,
         fill_rays_in_box,
         fill_rays_in_outline,
     )
-    from cadio.capture.render import stage_scene
+    from cadio.camera.render import stage_scene
 
     cfg = CaptureConfig(n_views=12, step_deg=30.0, elevation_deg=50.0)
     staged = stage_scene(pair_scene(), cfg)

@@ -28,16 +28,16 @@ from ros2_recording import (
 )
 from test_mcap_io import SMALL, pair
 
-from cadio.capture.mcap_io import (
+from cadio.camera.render import render_views, scene_meta
+from cadio.capture.scan import ScanConfig, read_captures
+from cadio.errors import CaptureTopicError, CaptureTruncatedError
+from cadio.recordings.mcap_io import (
     DEPTH_M,
     read_capture,
     read_scene_meta,
     summarise_capture,
     write_capture,
 )
-from cadio.capture.render import render_views, scene_meta
-from cadio.capture.scan import ScanConfig, read_captures
-from cadio.errors import CaptureTopicError, CaptureTruncatedError
 from cadio.records import RgbdFrame
 from cadio.workspace import Workspace, write_mesh
 from flows.cli import main

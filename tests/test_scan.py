@@ -12,7 +12,6 @@ from scipy import ndimage
 from cadio.cad.ingest import IngestConfig, file_sha256, ingest, part_id
 from cadio.cad.step import write_step
 from cadio.capture.examples import part_views, read_example
-from cadio.capture.mcap_io import read_capture, read_scene_meta
 from cadio.capture.scan import (
     ScanConfig,
     capture_scenes,
@@ -23,8 +22,10 @@ from cadio.capture.scan import (
     view_indices,
 )
 from cadio.catalog import read_catalog
+from cadio.recordings.mcap_io import read_capture, read_scene_meta
 from cadio.sandbox import Limits
-from cadio.truth.scenes import SceneConfig, generate_scenes, read_scene_parts, write_scenes
+from cadio.truth.scene_config import SceneConfig
+from cadio.truth.scenes import generate_scenes, read_scene_parts, write_scenes
 from cadio.workspace import Workspace, read_mesh, read_voxels
 
 CFG = ScanConfig(views_per_scene=2, n_in=32, n_out=32, lengths=(2,))

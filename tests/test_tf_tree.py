@@ -6,8 +6,8 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from cadio.capture.recording import TransformMsg
-from cadio.capture.tf_tree import TransformTree
+from cadio.recordings.recording import TransformMsg
+from cadio.recordings.tf_tree import TransformTree
 
 S = 10**9
 

@@ -1,13 +1,9 @@
-"""The capture room: RGB-D frames in and out.
+"""The capture stage: from scenes and recordings to what the learned stages see.
 
-``render`` simulates the paper's camera with open3d ray casting, ``noise`` is the depth sensor
-model, ``mcap_io`` reads MCAP recordings in both dialects (Foxglove protobuf, ``foxglove_mcap``,
-whose writer makes our captures; ROS 2 CDR, ``ros2_mcap``) as frames, through one form of their
-messages (``recording``), a channel sorter (``channels``), the transform tree (``tf_tree``) and
-the rules that pair images and place cameras (``pairing``),
-``pointcloud`` back-projects frames to per-part points and grids, ``segment`` separates parts
-without instance ids, and ``scan`` is the stage: scenes to captures, captures to learning inputs.
-``primitives`` is the geometric relation baseline: planes and cylinders fitted to a part's
-points by ``ransac``, then the ground truth's relation function.
-No CAD kernel is imported here.
+``scan`` is the stage (scenes to captures, captures to learning inputs), ``coverage`` decides
+where each part is scored; what a camera knows of a part: ``pointcloud`` back-projects frames
+to points, ``segment`` separates parts without instance ids, ``observe`` builds the three-state
+input grid from the observed points and the cameras, ``examples`` cuts a part's views into
+completion examples, and ``register`` lays a completion back onto its scan. The camera itself
+is ``cadio.camera``, the MCAP files ``cadio.recordings``.
 """

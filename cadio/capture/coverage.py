@@ -19,8 +19,8 @@ from collections.abc import Iterable, Mapping, Sequence
 
 import pandas as pd
 
+from cadio.camera.render import PlacedPart
 from cadio.capture.examples import part_pose
-from cadio.capture.render import PlacedPart
 from cadio.capture.scan import ASSEMBLY_PREFIX, ScanConfig, with_inputs, write_views
 from cadio.catalog import read_catalog
 from cadio.contracts import CaptureSummary

@@ -30,6 +30,7 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
+from cadio.camera.render import CaptureConfig, PlacedPart, render_views
 from cadio.capture.observe import (
     SURFACE,
     CubeGrid,
@@ -46,7 +47,6 @@ from cadio.capture.observe import (
     view_states,
 )
 from cadio.capture.pointcloud import backproject
-from cadio.capture.render import CaptureConfig, PlacedPart, render_views
 from cadio.capture.segment import SegmentConfig, fit_plane
 from cadio.records import FloatArray, Mesh, RgbdFrame
 from cadio.workspace import atomic_write

@@ -24,6 +24,8 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
+from cadio.camera.noise import NoiseConfig
+from cadio.camera.render import CaptureConfig, PlacedPart, render_views, scene_meta
 from cadio.capture.examples import (
     OBSERVED,
     PROTOCOLS,
@@ -39,14 +41,12 @@ from cadio.capture.examples import (
     with_truth,
     write_example,
 )
-from cadio.capture.mcap_io import CaptureWriter, read_capture, read_scene_meta
-from cadio.capture.noise import NoiseConfig
 from cadio.capture.pointcloud import sample_points
-from cadio.capture.render import CaptureConfig, PlacedPart, render_views, scene_meta
 from cadio.capture.segment import segment_clusters, segmentation_score
 from cadio.catalog import read_catalog
 from cadio.contracts import CaptureSummary
 from cadio.errors import CaptureError, InputFileError
+from cadio.recordings.mcap_io import CaptureWriter, read_capture, read_scene_meta
 from cadio.records import FloatArray, Mesh, Relation
 from cadio.tolerances import DEFAULT_TOLERANCES, Tolerances
 from cadio.truth.relations import PairContact
@@ -234,7 +234,7 @@ def capture_assembly(assembly: str, category: str, part_ids: list[str], ws: Work
 
 def read_captures(captures_dir: Path, ws: Workspace, cfg: ScanConfig) -> list[CaptureSummary]:
     """Learning inputs of every recording made elsewhere (``*.mcap`` under the folder, in
-    either MCAP dialect: ``cadio.capture.mcap_io``). A recording that cannot be used (no
+    either MCAP dialect: ``cadio.recordings.mcap_io``). A recording that cannot be used (no
     regular file: a folder or a pipe so named) gets its reason in the summary's ``error`` and
     the others go on."""
     out = []

@@ -1,6 +1,6 @@
 """The truth of a training corpus's shots: the ten relations of their pairs, view by view.
 
-A shot of the corpus (``cadio.capture.corpus``) is a pair scene or an assembly as placed,
+A shot of the corpus (``models.training.corpus``) is a pair scene or an assembly as placed,
 seen from a few cameras. Its pairs are labelled by the one truth function of placed parts
 (``cadio.truth.labels.label_placed``: face mates decide coincident and concentric, dominant
 plane directions parallel and perpendicular), and the directional relations of each view by

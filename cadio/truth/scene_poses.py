@@ -14,7 +14,6 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
-from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -33,9 +32,7 @@ from cadio.truth.placement import (
     tilt,
 )
 from cadio.truth.relations import direction_axes
-
-if TYPE_CHECKING:
-    from cadio.truth.scenes import SceneConfig
+from cadio.truth.scene_config import SceneConfig
 
 INSIDE, OUTSIDE = "inside", "outside"  # the sides of a near-boundary pair
 _Z = np.array([0.0, 0.0, 1.0])

@@ -1,7 +1,7 @@
 """The ROS 2 dialect of MCAP: what ``ros2 bag record`` writes (the default storage since Iron).
 
 Channels have message encoding ``cdr`` and ``ros2msg`` schemas (the concatenated message
-definitions). The reader (``cadio.capture.mcap_io``) uses four of them and skips every other
+definitions). The reader (``cadio.recordings.mcap_io``) uses four of them and skips every other
 topic a robot logs:
 
 ===============================  ==============================================================
@@ -30,7 +30,7 @@ from typing import Any
 
 from mcap_ros2.decoder import DecoderFactory
 
-from cadio.capture.recording import (
+from cadio.recordings.recording import (
     CalibrationMsg,
     Dialect,
     ImageMsg,

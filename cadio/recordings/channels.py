@@ -22,7 +22,8 @@ from typing import Any
 from google.protobuf.message import DecodeError
 from mcap.exceptions import McapError
 
-from cadio.capture.foxglove_mcap import (
+from cadio.errors import CaptureTopicError
+from cadio.recordings.foxglove_mcap import (
     CALIBRATION,
     CAMERA_INFO_TOPIC,
     COLOR_TOPIC,
@@ -33,7 +34,7 @@ from cadio.capture.foxglove_mcap import (
     TF_TOPIC,
     TRANSFORM,
 )
-from cadio.capture.recording import (
+from cadio.recordings.recording import (
     COLOUR_ENCODINGS,
     DEPTH_ENCODINGS,
     INSTANCE_ENCODINGS,
@@ -41,7 +42,7 @@ from cadio.capture.recording import (
     ImageMsg,
     Record,
 )
-from cadio.capture.ros2_mcap import (
+from cadio.recordings.ros2_mcap import (
     CAMERA_INFO,
     COMPRESSED_IMAGE,
     IMAGE,
@@ -49,7 +50,6 @@ from cadio.capture.ros2_mcap import (
     TF_MESSAGE,
     TF_STATIC_TOPIC,
 )
-from cadio.errors import CaptureTopicError
 
 log = logging.getLogger(__name__)
 

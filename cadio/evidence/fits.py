@@ -1,5 +1,5 @@
 """What a part's points are made of: normals, planes, cylinders and the dominant plane
-direction, fitted to one cloud (the pair evidence of ``cadio.capture.pair_features`` compares
+direction, fitted to one cloud (the pair evidence of ``cadio.evidence.pair_features`` compares
 two). Lengths are millimetres, angles degrees; normals come from local PCA and carry no sign,
 unless the cloud brings exact ones (the CAD's samples of the ``truth`` input).
 """
@@ -89,7 +89,7 @@ def part_cloud(points_mm: FloatArray, cfg: FeatureConfig = DEFAULT_FEATURES,
     """Normals, planes and spacing of one part's points (mm); non-finite points dropped.
 
     ``normals``: (n, 3) unit normals known exactly (the faces of the CAD under its samples,
-    ``cadio.capture.cad_samples``), taken instead of local PCA's. A plane then holds only
+    ``cadio.evidence.cad_samples``), taken instead of local PCA's. A plane then holds only
     points whose normals lie within ``exact_normal_deg`` of its own: a face's normals are one,
     a cylinder's turn, so no strip of a cylinder passes for a plane however flat its facets,
     and a narrow face (a washer's rim) is found wherever its points are, flat neighbourhood or

@@ -28,7 +28,7 @@ summarised where mates happen and by what their definitions test:
   with its ratio to the runner-up, and the angle between the two parts' directions.
 
 Normals come from local PCA of each cloud, except for the CAD samples of the ``truth`` input,
-which bring the exact normals of their faces (``cadio.capture.cad_samples``): there a plane
+which bring the exact normals of their faces (``cadio.evidence.cad_samples``): there a plane
 holds only points of one normal, so no strip of a large cylinder passes for one, and two faces
 are opposed when their outward normals meet (``face_pairs``). Every feature is symmetric in
 (a, b), so a pair and its swap get the same vector. Lengths are millimetres of
@@ -49,7 +49,7 @@ import numpy as np
 import numpy.typing as npt
 from scipy.spatial import cKDTree
 
-from cadio.capture.fits import (
+from cadio.evidence.fits import (
     DEFAULT_FEATURES,
     Cylinder,
     FeatureConfig,
@@ -100,7 +100,7 @@ def evidence_digest() -> str:
     the evidence measured is stored (a relation dataset) or cached (a night's related pair
     views), so a change of its code must rebuild them rather than reuse vectors of another
     meaning."""
-    from cadio.capture import cad_samples, fits
+    from cadio.evidence import cad_samples, fits
 
     digest = hashlib.sha256()
     for source in (cad_samples.__file__, fits.__file__, __file__):
@@ -248,7 +248,7 @@ def face_pairs(a: PartCloud, b: PartCloud, reach: float,
     overlapping points times their spacing squared (mm^2); opposed: 1 when the parts' other
     points near the overlap lie on opposite sides of it (the faces rest against each other),
     0 when on one side (flush side by side), 0.5 when a part shows no such points. Where both
-    clouds bring exact normals (outward, ``cadio.capture.cad_samples``), 1 when the two faces'
+    clouds bring exact normals (outward, ``cadio.evidence.cad_samples``), 1 when the two faces'
     outward normals meet and 0 when they agree: the sides of the points read a block resting
     in a pocket as flush, the pocket's walls standing on the block's side of the floor.
     """
@@ -458,7 +458,7 @@ def pair_features_many(points: npt.NDArray[np.floating] | Sequence[Sequence[npt.
     """(N, ``N_PAIR_FEATURES``) features of pairs (N, 2, k, 3) in any unit, or of N pairs of
     clouds of any sizes (k_a, 3), (k_b, 3). Every feature is invariant under a rigid motion of
     the pair: the clouds may be in any frame. A cloud of six columns (k, 6) brings each
-    point's exact unit normal after its position (``cadio.capture.cad_samples``).
+    point's exact unit normal after its position (``cadio.evidence.cad_samples``).
 
     Args:
         mm_per_unit: (N,) millimetres of the parts per unit of ``points``.

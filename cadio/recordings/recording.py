@@ -1,7 +1,7 @@
 """What an RGB-D recording holds, in one form for both MCAP dialects, and its pixels as arrays.
 
 The Foxglove (protobuf) and ROS 2 (CDR) readers turn their messages into these records, so that
-pairing, poses and frames (``cadio.capture.pairing``) are written once: ``ImageMsg`` (raw rows or
+pairing, poses and frames (``cadio.recordings.pairing``) are written once: ``ImageMsg`` (raw rows or
 a compressed payload), ``CalibrationMsg`` (pinhole K and P) and ``TransformMsg`` (a parent ->
 child edge of the transform tree). No MCAP library is imported here.
 

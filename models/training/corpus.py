@@ -43,7 +43,8 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from cadio.capture.cad_samples import placed_surface_samples
+from cadio.camera.noise import NoiseConfig
+from cadio.camera.render import CaptureConfig, PlacedPart, render_views
 from cadio.capture.examples import (
     OBSERVED,
     ORACLE,
@@ -58,9 +59,8 @@ from cadio.capture.examples import (
     with_truth,
     write_example,
 )
-from cadio.capture.noise import NoiseConfig
 from cadio.capture.pointcloud import sample_points
-from cadio.capture.render import CaptureConfig, PlacedPart, render_views
+from cadio.evidence.cad_samples import placed_surface_samples
 from cadio.records import FloatArray
 from cadio.sandbox import Job, Limits, run_isolated
 from cadio.workspace import atomic_path, atomic_write, read_mesh

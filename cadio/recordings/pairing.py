@@ -1,6 +1,6 @@
 """From a recording's messages to RGB-D frames: pairing by time, calibration, pose, colour.
 
-Both MCAP dialects end here (``cadio.capture.recording``'s records), so the rules are one:
+Both MCAP dialects end here (``cadio.recordings.recording``'s records), so the rules are one:
 
 - **Pairing**: each depth image is paired with the nearest colour image (and instance image)
   within a tolerance; a depth image is settled once the stream has moved a tolerance past it
@@ -11,7 +11,7 @@ Both MCAP dialects end here (``cadio.capture.recording``'s records), so the rule
   ``/camera/color/image_raw``). Drivers publish camera info with every image, unchanged; a
   depth image with none of its size waits for one (and the reader fails at the end without).
 - **Pose**: the chain of the transform tree from its root (or a named fixed frame) to the depth
-  image's frame id, at the depth image's stamp (``cadio.capture.tf_tree``).
+  image's frame id, at the depth image's stamp (``cadio.recordings.tf_tree``).
 - **Colour**: taken as is when it is registered to depth (same size and intrinsics); else
   re-projected into the depth camera through the transform between the two frames the recording
   holds (each depth pixel's point, moved into the colour camera, takes the colour of the nearest
@@ -31,8 +31,8 @@ from dataclasses import dataclass, field
 import numpy as np
 import numpy.typing as npt
 
-from cadio.capture.recording import CalibrationMsg, ImageMsg
-from cadio.capture.tf_tree import TransformTree, frame_name
+from cadio.recordings.recording import CalibrationMsg, ImageMsg
+from cadio.recordings.tf_tree import TransformTree, frame_name
 from cadio.records import CameraIntrinsics, FloatArray
 
 log = logging.getLogger(__name__)

@@ -26,20 +26,17 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from cadio.capture.corpus import Shot, read_index, read_shots
-from cadio.capture.pair_features import evidence_digest
-from cadio.capture.pairs import DEFAULT_PAIRS, INPUTS
 from cadio.catalog import read_catalog
+from cadio.evidence.pair_features import evidence_digest
+from cadio.evidence.pairs import DEFAULT_PAIRS, INPUTS
 from cadio.sandbox import Limits
 from cadio.truth.corpus_labels import LabelJob, LabelPart, ShotLabels, label_shots
 from cadio.workspace import Workspace, atomic_write
 from models.geometric import OBSERVED_BY, evidence_gains, evidence_names, tests_for
+from models.training.corpus import Shot, read_index, read_shots
+from models.training.prepare import dataset_dir
 
 Progress = Callable[[str], None]
-
-
-def corpus_dir(ws: Workspace) -> Path:
-    return ws.root / "datasets" / "corpus"
 
 
 def relations_dir(ws: Workspace) -> Path:
@@ -53,7 +50,7 @@ def label_jobs(ws: Workspace, shots: list[Shot]) -> list[LabelJob]:
     where = {str(r.part_id): (str(r.source), int(r.solid_index)) for r in catalog.itertuples()}
     jobs = []
     for shot in shots:
-        path = corpus_dir(ws) / "views" / f"{shot.shot_id}.npz"
+        path = dataset_dir(ws) / "views" / f"{shot.shot_id}.npz"
         if shot.kind == "alone" or not path.exists():
             continue
         with np.load(path) as z:
@@ -69,9 +66,9 @@ def label_jobs(ws: Workspace, shots: list[Shot]) -> list[LabelJob]:
 def label_corpus(ws: Workspace, limits: Limits, progress: Progress | None = None
                  ) -> dict[str, ShotLabels]:
     """The labels of every labelled shot of the corpus, labelling the shots not yet labelled."""
-    folder = corpus_dir(ws) / "labels"
+    folder = dataset_dir(ws) / "labels"
     folder.mkdir(parents=True, exist_ok=True)
-    jobs = label_jobs(ws, read_shots(corpus_dir(ws) / "shots.parquet"))
+    jobs = label_jobs(ws, read_shots(dataset_dir(ws) / "shots.parquet"))
     todo = [j for j in jobs if not _labelled(folder / f"{j.shot}.npz")]
     for job, labels, reason in label_shots(todo, limits):
         if labels is not None:
@@ -118,9 +115,9 @@ def build_dataset(ws: Workspace, completion_models: Path, limits: Limits,
     out = relations_dir(ws)
     if (out / "stamp.json").exists() and json.loads((out / "stamp.json").read_text()) == stamp:
         return {p.stem: len(read_split(p).labels) for p in sorted(out.glob("*.npz"))}
-    shots = read_shots(corpus_dir(ws) / "shots.parquet")
-    index = read_index(corpus_dir(ws) / "index.parquet")
-    rows = build_relation_dataset(corpus_dir(ws), shots, labels, index, models.models.get(key),
+    shots = read_shots(dataset_dir(ws) / "shots.parquet")
+    index = read_index(dataset_dir(ws) / "index.parquet")
+    rows = build_relation_dataset(dataset_dir(ws), shots, labels, index, models.models.get(key),
                                   out, n_points=DEFAULT_PAIRS.n_points,
                                   min_observed=DEFAULT_PAIRS.min_observed,
                                   evidence_points=DEFAULT_PAIRS.evidence_points,
@@ -270,7 +267,7 @@ def write_relation_card(ws: Workspace, out_dir: Path, run_dir: Path, command: st
         "# Relation checkpoints", "",
         "The neural-logic relation network `ltn` (a grounding MLP over each part's points "
         "with their distance to the other part as a contact channel, beside the pair's "
-        "evidence from fitted primitives (`cadio.capture.pair_features`: contact planes and "
+        "evidence from fitted primitives (`cadio.evidence.pair_features`: contact planes and "
         "axes, part axes, dominant plane directions, face pairs and coaxial cylinder pairs; "
         "measured on `truth` with the exact normals "
         "of the CAD faces; every network also reads the pair's direction between the parts' "

@@ -1,7 +1,7 @@
 """Points sampled on a part's CAD surfaces, and the exact normals of the B-rep faces under them.
 
 The ``truth`` input of the relation stage is the CAD itself: area-uniform samples of the part's
-tessellation. Its pair evidence (``cadio.capture.fits``) reads each point's normal. Estimated by
+tessellation. Its pair evidence (``cadio.evidence.fits``) reads each point's normal. Estimated by
 local PCA, a normal tilts by degrees on a short arc, and a facet of a large cylinder is flat: a
 strip of a bore a few samples wide then passes for a plane, and the part's dominant plane
 direction (what ``parallel`` and ``perpendicular`` are decided on) comes out wrong. The B-rep

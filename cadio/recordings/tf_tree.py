@@ -17,7 +17,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.spatial.transform import Rotation, Slerp
 
-from cadio.capture.recording import TransformMsg
+from cadio.recordings.recording import TransformMsg
 from cadio.records import FloatArray
 
 # Roots whose Z axis is up (REP 105 world-fixed frames, and a robot's base per REP 103): a pose

@@ -17,8 +17,8 @@ topic                        schema                      content
 
 Instance ids are 16UC1 so Foxglove displays them like any mono16 image; ids above 65535 are
 refused. Every image has frame_id ``camera`` (OpenCV optical frame). Reading (``FOXGLOVE``, used
-by ``cadio.capture.mcap_io``) turns RawImage, CameraCalibration and FrameTransform(s) messages
-of any topic into the records of ``cadio.capture.recording``.
+by ``cadio.recordings.mcap_io``) turns RawImage, CameraCalibration and FrameTransform(s) messages
+of any topic into the records of ``cadio.recordings.recording``.
 """
 
 from __future__ import annotations
@@ -42,7 +42,7 @@ from mcap_protobuf.decoder import DecoderFactory
 from mcap_protobuf.schema import build_file_descriptor_set
 from scipy.spatial.transform import Rotation
 
-from cadio.capture.recording import CalibrationMsg, Dialect, ImageMsg, Record, TransformMsg
+from cadio.recordings.recording import CalibrationMsg, Dialect, ImageMsg, Record, TransformMsg
 from cadio.records import CameraIntrinsics, FloatArray, RgbdFrame
 from cadio.workspace import atomic_path
 
@@ -64,7 +64,7 @@ DEPTH_MM = "16UC1"  # uint16 millimetres, 0 = missing (what ROS / RealSense driv
 DEPTH_M = "32FC1"  # float32 metres, 0 = missing
 INSTANCE_ENCODING = "16UC1"
 
-WRITER_ID = "mateqa cadio.capture.mcap_io"
+WRITER_ID = "mateqa cadio.recordings.mcap_io"
 WORLD_FRAME = "world"
 CAMERA_FRAME = "camera"
 

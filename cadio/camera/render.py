@@ -11,11 +11,11 @@ Frames: the world frame is the scene frame scaled to metres (``scale_m_per_mm``,
 scene's largest extent is ``target_size_m``), so a part's points in its own millimetre
 coordinates are ``inverse(pose) @ (p_world / scale)``. Colour is Lambertian shading (a
 headlight plus a key light from above) of each part's sRGB colour. An optional sensor model
-(``cadio.capture.noise``) adds depth-dependent noise, quantisation and the holes a real structured
+(``cadio.camera.noise``) adds depth-dependent noise, quantisation and the holes a real structured
 light / time-of-flight camera leaves at grazing angles and at depth discontinuities.
 
 Speed: the per-pixel work (rays, shading, the sensor model) runs in compiled loops (numba,
-``cadio.capture.raycast``) that release the GIL. open3d's ``cast_rays`` holds it, so
+``cadio.camera.raycast``) that release the GIL. open3d's ``cast_rays`` holds it, so
 ``render_views`` works on a frame's pixels on a worker thread while the next view is cast;
 ``bench/capture.py`` measures the whole against bare ``cast_rays`` of the same rays. Only the
 rays whose pixels lie in the image outline of the parts' box are cast; the others meet the
@@ -37,8 +37,8 @@ import numpy as np
 import numpy.typing as npt
 import open3d as o3d
 
-from cadio.capture.noise import NoiseConfig, sensor_model, sensor_rng
-from cadio.capture.raycast import (
+from cadio.camera.noise import NoiseConfig, sensor_model, sensor_rng
+from cadio.camera.raycast import (
     LEVELS,
     OUTLINE_MARGIN_PX,
     PixelGrid,

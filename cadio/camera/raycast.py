@@ -2,7 +2,7 @@
 (the scene's box, the image outline of the parts' box, the support plane in closed form), and
 shading, as compiled loops (numba) that release the GIL.
 
-``cadio.capture.render`` stages a scene and drives these per view; as numpy passes over 307k
+``cadio.camera.render`` stages a scene and drives these per view; as numpy passes over 307k
 pixels this work cost about as much as ``cast_rays`` itself, and could not run while
 ``cast_rays`` (which holds the GIL) cast the next view.
 """
@@ -17,7 +17,7 @@ import numba
 import numpy as np
 import numpy.typing as npt
 
-from cadio.capture.noise import measure_depth
+from cadio.camera.noise import measure_depth
 from cadio.records import CameraIntrinsics, FloatArray
 
 MISS = -1  # open3d's geometry id for a ray that hits nothing, 0xFFFFFFFF, read as int32

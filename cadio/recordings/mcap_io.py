@@ -3,11 +3,11 @@
 Two dialects carry RGB-D in MCAP, and the reader takes both, channel by channel:
 
 - **Foxglove** (``protobuf``): ``foxglove.RawImage``, ``CameraCalibration``,
-  ``FrameTransform(s)``. What this package writes (``cadio.capture.foxglove_mcap``, whose
+  ``FrameTransform(s)``. What this package writes (``cadio.recordings.foxglove_mcap``, whose
   writer is re-exported here) and what Foxglove's SDK logs.
 - **ROS 2** (``cdr``): ``sensor_msgs/msg/Image``, ``CompressedImage``, ``CameraInfo``,
   ``tf2_msgs/msg/TFMessage`` on ``/tf`` and ``/tf_static``. What ``ros2 bag record`` writes
-  (``cadio.capture.ros2_mcap``).
+  (``cadio.recordings.ros2_mcap``).
 
 What a recording must hold: a depth image topic (16UC1 or mono16 in depth units, 1 mm by
 default; 32FC1 in metres), a colour image topic, and camera info of the depth image's size.
@@ -17,7 +17,7 @@ every frame says so in ``meta["warnings"]``), camera info for the colour camera 
 transform between the colour and depth frames (colour from another sensor), an instance-id
 image, and the scene description (``/scene``, JSON). Topics are found by schema and encoding,
 not by name; every topic not used is skipped. The pairing, calibration, pose, colour and
-gravity rules are ``cadio.capture.pairing``'s.
+gravity rules are ``cadio.recordings.pairing``'s.
 
 Each frame's ``meta`` says where it came from: ``dialect``, ``depth_topic``, ``colour_topic``,
 ``colour_offset_ns``, ``colour`` (registered / reprojected / left out), ``pose_source`` (tf /
@@ -45,8 +45,9 @@ from mcap.reader import NonSeekingReader, SeekingReader
 from mcap.records import Channel, Schema
 from mcap.stream_reader import StreamReader
 
-from cadio.capture.channels import EXPECTED, Channels, kind_of, preferred
-from cadio.capture.foxglove_mcap import (
+from cadio.errors import CaptureError, CaptureTopicError, CaptureTruncatedError
+from cadio.recordings.channels import EXPECTED, Channels, kind_of, preferred
+from cadio.recordings.foxglove_mcap import (
     CAMERA_INFO_TOPIC,
     COLOR_TOPIC,
     DEPTH_M,
@@ -59,7 +60,7 @@ from cadio.capture.foxglove_mcap import (
     depth_to_mm,
     write_capture,
 )
-from cadio.capture.pairing import (
+from cadio.recordings.pairing import (
     Pair,
     Pairer,
     colour_extrinsic,
@@ -67,7 +68,7 @@ from cadio.capture.pairing import (
     register_colour,
     registered,
 )
-from cadio.capture.recording import (
+from cadio.recordings.recording import (
     CalibrationMsg,
     ImageMsg,
     PixelError,
@@ -77,9 +78,8 @@ from cadio.capture.recording import (
     depth_metres,
     instance_ids,
 )
-from cadio.capture.ros2_mcap import ROS2, STRING
-from cadio.capture.tf_tree import LEVEL_ROOTS, Lookup
-from cadio.errors import CaptureError, CaptureTopicError, CaptureTruncatedError
+from cadio.recordings.ros2_mcap import ROS2, STRING
+from cadio.recordings.tf_tree import LEVEL_ROOTS, Lookup
 from cadio.records import FloatArray, RgbdFrame
 
 __all__ = [
@@ -249,7 +249,7 @@ class _Reader:
 
     def _gravity(self, pair: Pair, depth: Any, look: Lookup | None,
                  camera_to_world: FloatArray) -> None:
-        """Decide, once per recording, where up is (see ``cadio.capture.pairing``)."""
+        """Decide, once per recording, where up is (see ``cadio.recordings.pairing``)."""
         if look is not None and (look.root in LEVEL_ROOTS or self.opts.fixed_frame):
             self.gravity = "tf"
             return

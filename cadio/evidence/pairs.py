@@ -31,11 +31,11 @@ import numpy as np
 import numpy.typing as npt
 import pandas as pd
 
-from cadio.capture.cad_samples import placed_cad_samples, placed_surface_samples
-from cadio.capture.mcap_io import read_scene_meta
 from cadio.capture.observe import observer_rotation
 from cadio.capture.pointcloud import sample_points
 from cadio.errors import CaptureError
+from cadio.evidence.cad_samples import placed_cad_samples, placed_surface_samples
+from cadio.recordings.mcap_io import read_scene_meta
 from cadio.records import Features, FloatArray
 from cadio.tolerances import DEFAULT_TOLERANCES, Tolerances
 from cadio.truth.relations import (
@@ -82,7 +82,7 @@ class PairView:
     view's camera. evidence: input name -> the two parts' denser clouds (world metres, any
     sizes) its pair evidence is measured on (``PairConfig.evidence_points``); an input without
     them is measured on its points. ``truth``'s are (k, 6): each CAD sample with the exact
-    unit normal of its face (``cadio.capture.cad_samples``). centres: input name -> (2, 3)
+    unit normal of its face (``cadio.evidence.cad_samples``). centres: input name -> (2, 3)
     world metres, the centroids of the two parts' solids where the input knows them
     (``truth``: the CAD's); the other inputs' centres are their points' means.
     """
