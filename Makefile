@@ -39,5 +39,5 @@ test: setup-test
 	test $$tests -eq 0 && test $$typed -eq 0
 
 bench: setup
-	.venv/bin/python bench/ingest.py
-	.venv/bin/python bench/nightly.py
+	.venv/bin/python bench/speed/ingest.py
+	.venv/bin/python bench/speed/nightly.py

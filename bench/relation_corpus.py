@@ -23,7 +23,7 @@ beside).
 The corpus is stamped with its own configuration, so ``mateqa train completion`` refuses it;
 give completion a workspace of its own. ``--shared`` is resolved to an absolute folder: the
 corpus's split draw keys each file by its path as given, and the shipped checkpoints' corpus
-was given an absolute one (``bench/heldout_night.py`` relies on that).
+was given an absolute one (``python -m models.training.heldout`` relies on that).
 """
 
 from __future__ import annotations

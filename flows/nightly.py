@@ -253,7 +253,7 @@ def run_stages(config: NightConfig) -> NightlySummary:
 
 
 def stages_of(config: NightConfig) -> NightlySummary:
-    """The body of ``run_stages`` (``bench/nightly.py`` runs it without Prefect)."""
+    """The body of ``run_stages`` (``bench/speed/nightly.py`` runs it without Prefect)."""
     lib_cfg, cap, models, limits = config.library, config.capture, config.models, config.thresholds
     tolerances = config.tolerances
     log, clock = get_run_logger(), _Stopwatch()

@@ -156,10 +156,10 @@ class GeometricTests:
     # six bolts of a pipe flange stand coaxial over its holes 1.59 mm above them, their washers
     # touching it.
     # The two knobs were chosen on the training corpus's train and validation splits
-    # (``bench/exact_tests.py``), where the exact tests agree with the clear concentric labels
-    # 97.3 and 96.1% (the tests before: 97.1 and 95.9%) with 8 and 0 false mates (103 and 19):
-    # what they miss is a mate's cylinder that the samples of a large part hardly cover
-    # (3,000 of them, 3.4 mm apart).
+    # (``bench/studies/exact_tests.py``), where the exact tests agree with the clear concentric
+    # labels 97.3 and 96.1% (the tests before: 97.1 and 95.9%) with 8 and 0 false mates (103
+    # and 19): what they miss is a mate's cylinder that the samples of a large part hardly
+    # cover (3,000 of them, 3.4 mm apart).
     coaxial_faces: bool = False
     coaxial_spread_mm: float = 0.5  # the points' rms about the other's axis
     face_gap_mm: float = 0.5  # a face gap passes within the CAD's 1 mm plus this

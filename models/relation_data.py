@@ -18,7 +18,7 @@ The pair evidence of ``truth`` and ``completed`` is measured on denser clouds th
 points the networks read (``evidence_points``, as the nightly does: ``PairConfig``): up to that
 many CAD surface samples, and surface voxels of the completion. At 600 points per part the
 mating faces of an assembly's parts hold a handful of points, metres apart in a large part
-(``bench/evidence_density.py``). ``partial`` keeps the corpus's stored observed points.
+(``bench/studies/evidence_density.py``). ``partial`` keeps the corpus's stored observed points.
 
 A pair whose parts are not both of the shot's split is left out (a training assembly holding a
 test part does not leak it), as the corpus leaves out their completion examples.

@@ -5,8 +5,8 @@ B-spline faces with many knot spans (seconds for one face of 212 spans), and it 
 face: once for the part's volume and once for the face's area. Its eps is an estimate, not a
 bound: on 87 of 774 real B-spline faces its area differs from this module's by more than 1e-6,
 by up to 1.1e-3 on rational patches whose weights spread 9:1, and its own result moves to this
-module's as its eps shrinks (``bench/integrals.py``). Its fixed Gauss rule is faster but off by
-up to ~2e-2 on real faces. This module integrates the same quantities from
+module's as its eps shrinks (``bench/speed/integrals.py``). Its fixed Gauss rule is faster
+but off by up to ~2e-2 on real faces. This module integrates the same quantities from
 the same exact geometry in one pass, with NumPy:
 
 * the NURBS surface is evaluated from its poles, weights and knots (point and first

@@ -35,7 +35,7 @@ MANY_SPANS = 60
 # Rational faces whose weights spread more than this (largest over smallest) go there
 # too: OpenCascade's adaptive eps 1e-6 misses their area by up to 1.1e-3 (weights spread
 # 9:1), while every real face it integrates within 1e-6 spreads at most 3.7:1
-# (``bench/integrals.py``).
+# (``bench/speed/integrals.py``).
 WEIGHT_SPREAD = 4.0
 
 

@@ -17,7 +17,7 @@ light / time-of-flight camera leaves at grazing angles and at depth discontinuit
 Speed: the per-pixel work (rays, shading, the sensor model) runs in compiled loops (numba,
 ``cadio.camera.raycast``) that release the GIL. open3d's ``cast_rays`` holds it, so
 ``render_views`` works on a frame's pixels on a worker thread while the next view is cast;
-``bench/capture.py`` measures the whole against bare ``cast_rays`` of the same rays. Only the
+``bench/speed/capture.py`` measures the whole against bare ``cast_rays`` of the same rays. Only the
 rays whose pixels lie in the image outline of the parts' box are cast; the others meet the
 support plane, intersected in closed form (colour, instance and cos exactly as cast, depth
 within float32 rounding), or nothing. Near the plane's border, where the two could disagree,

@@ -21,7 +21,7 @@ decoder-factory protocol, and is MIT-licensed, where the fast one is GPL-3.0 (a 
 dependency of a product shipped as a package and an image) and built for another reader
 (``small-mcap``). Speed does not argue for the fast one on RGB-D: an image's pixels are one byte
 slice in either, and on 30 to 120 views of 640x480 it took longer than ``mcap_ros2`` to decode
-every message (it generates code per schema first; ``bench/recordings.py``).
+every message (it generates code per schema first; ``bench/speed/recordings.py``).
 """
 
 from __future__ import annotations

@@ -11,7 +11,7 @@ relation.
 
 Speed: parts whose boxes, enlarged beyond the loosened tolerances, do not meet need no face
 work at all (most scenes: parts placed apart); the others pay for their candidate faces' exact
-distances and overlaps. ``bench/labels.py`` measures pairs per second.
+distances and overlaps. ``bench/speed/labels.py`` measures pairs per second.
 """
 
 from __future__ import annotations

@@ -9,7 +9,7 @@ The three run interleaved in one process and the best of the repeats counts, so 
 on a shared machine; wall time and process CPU time (all threads) per frame are both reported. Then
 writes the views as MCAP (16UC1 depth, zstd) and reports bytes per view. Runs in about a minute.
 
-Usage: ``.venv/bin/python bench/capture.py [--views 60] [--repeats 5]``
+Usage: ``.venv/bin/python bench/speed/capture.py [--views 60] [--repeats 5]``
 """
 
 from __future__ import annotations
@@ -23,7 +23,7 @@ from pathlib import Path
 import numpy as np
 import open3d as o3d
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # run from anywhere
+sys.path.insert(0, str(Path(__file__).resolve().parents[2]))  # run from anywhere
 
 from cadio.camera.noise import NoiseConfig
 from cadio.camera.raycast import camera_rays, pixel_grid

@@ -11,7 +11,7 @@ the share of the views whose pair lies within the truth's own tolerances.
 Any workspace whose night captured assemblies with their mates will do (a held-out night's).
 
 Usage:
-    .venv/bin/python bench/cylinder_evidence.py --workspace heldout/ws
+    .venv/bin/python bench/studies/cylinder_evidence.py --workspace heldout/ws
 
 Nothing is asserted: it prints the quartiles and the seconds each variant took.
 """

@@ -8,7 +8,7 @@ Prefect's share is flow / direct wall time (goal: at most 1.05). A third run rep
 on the flow's workspace: the unchanged library must only be reported (the cache at work).
 Peak memory is the largest resident set of the run's process and of its CAD worker processes.
 
-Usage: ``.venv/bin/python bench/nightly.py [--library DIR] [--views 8] [--pairs 4]``
+Usage: ``.venv/bin/python bench/speed/nightly.py [--library DIR] [--views 8] [--pairs 4]``
 (default library: the built-in sample library; about 25 minutes on two cores).
 
 Scaling (``--scale 1 3 10 [--categories C ...]``): the library (the chosen categories of it)
@@ -38,7 +38,7 @@ from concurrent.futures import Future, ThreadPoolExecutor
 from pathlib import Path
 from typing import Any
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 sys.path.insert(0, str(ROOT))  # run from anywhere
 
 

@@ -6,7 +6,7 @@ every other file's copy of a held-out geometry). This writes those files as a li
 (path relative to the CSV, category) and prints the nightly command that judges the shipped
 checkpoints where users meet them:
 
-    .venv/bin/python bench/heldout_night.py --corpus train-workspace/datasets/corpus \\
+    .venv/bin/python -m models.training.heldout --corpus train-workspace/datasets/corpus \\
         --shared ../shared/data/step --out heldout/library.csv
     .venv/bin/mateqa nightly --library heldout/library.csv --workspace heldout/ws
 
@@ -24,8 +24,16 @@ from __future__ import annotations
 
 import argparse
 import csv
+import logging
 import os
+import sys
 from pathlib import Path
+
+from cadio.cad.ingest import discover
+from models.training.corpus import corpus_splits
+from models.training.prepare import corpus_fractions
+
+log = logging.getLogger(__name__)
 
 
 def heldout_files(groups_csv: Path, shared: Path) -> list[tuple[Path, str]]:
@@ -43,9 +51,6 @@ def heldout_files(groups_csv: Path, shared: Path) -> list[tuple[Path, str]]:
 def drawn_heldout_files(shared: Path, seed: int = 0) -> list[tuple[Path, str]]:
     """(file, category) of every file under ``shared`` that the corpus's split rule holds out,
     each keyed by its absolute path (no training workspace needed)."""
-    from cadio.cad.ingest import discover
-    from models.training.corpus import corpus_splits
-    from models.training.prepare import corpus_fractions
 
     shared = shared.resolve()
     found = {str(f.path): f for f in discover(shared)}
@@ -54,31 +59,40 @@ def drawn_heldout_files(shared: Path, seed: int = 0) -> list[tuple[Path, str]]:
     return sorted((Path(p), found[p].category) for p, s in split.items() if s == "test")
 
 
-def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+def write_library(files: list[tuple[Path, str]], out: Path) -> dict[str, int]:
+    """The files as a library CSV (path relative to the CSV, category); files per category."""
+    out.parent.mkdir(parents=True, exist_ok=True)
+    with out.open("w", newline="") as fh:
+        writer = csv.writer(fh)
+        writer.writerow(["path", "category"])
+        for path, category in files:
+            writer.writerow([os.path.relpath(path, out.parent.resolve()), category])
+    by_category: dict[str, int] = {}
+    for _, category in files:
+        by_category[category] = by_category.get(category, 0) + 1
+    return by_category
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(prog="python -m models.training.heldout",
+                                     description=(__doc__ or "").splitlines()[0])
     parser.add_argument("--corpus", type=Path, default=Path("train-workspace/datasets/corpus"))
     parser.add_argument("--shared", type=Path, default=Path("../shared/data/step"))
     parser.add_argument("--out", type=Path, default=Path("heldout/library.csv"))
     parser.add_argument("--seed", type=int, default=0, help="the training run's seed")
-    args = parser.parse_args()
+    args = parser.parse_args(argv)
+    logging.basicConfig(level=logging.INFO, format="%(message)s", stream=sys.stdout)
     groups = args.corpus / "groups.csv"
     if groups.exists():
         files = heldout_files(groups, args.shared)
     else:
-        print(f"{groups}: absent; the held-out files are drawn by the corpus's split rule")
+        log.info("%s: absent; the held-out files are drawn by the corpus's split rule", groups)
         files = drawn_heldout_files(args.shared, args.seed)
-    args.out.parent.mkdir(parents=True, exist_ok=True)
-    with args.out.open("w", newline="") as fh:
-        writer = csv.writer(fh)
-        writer.writerow(["path", "category"])
-        for path, category in files:
-            writer.writerow([os.path.relpath(path, args.out.parent.resolve()), category])
-    by_category: dict[str, int] = {}
-    for _, category in files:
-        by_category[category] = by_category.get(category, 0) + 1
-    print(f"{len(files)} held-out files {by_category} -> {args.out}")
-    print(f"mateqa nightly --library {args.out} --workspace {args.out.parent / 'ws'}")
+    by_category = write_library(files, args.out)
+    log.info("%d held-out files %s -> %s", len(files), by_category, args.out)
+    log.info("mateqa nightly --library %s --workspace %s", args.out, args.out.parent / "ws")
+    return 0
 
 
 if __name__ == "__main__":
-    main()
+    sys.exit(main())

@@ -14,10 +14,10 @@ is the mate" (0.5: the gap cannot tell them apart). A mate's faces touch, but th
 shaft in a bore are hidden by the shaft itself.
 
 Usage:
-    .venv/bin/python bench/observed_density.py --workspace heldout/ws [--points 600 3000 0]
+    .venv/bin/python bench/studies/observed_density.py --workspace heldout/ws [--points 600 3000 0]
 
-The workspace is a night's (``bench/heldout_night.py``, then ``mateqa nightly``). Nothing is
-asserted.
+The workspace is a night's (``python -m models.training.heldout``, then ``mateqa
+nightly``). Nothing is asserted.
 """
 
 from __future__ import annotations
@@ -31,7 +31,7 @@ import numpy as np
 import numpy.typing as npt
 import pandas as pd
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+sys.path.insert(0, str(Path(__file__).resolve().parents[2]))
 
 from cadio.capture.examples import frame_supports, part_views
 from cadio.catalog import read_catalog

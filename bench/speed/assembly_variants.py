@@ -11,7 +11,7 @@ promised mate is found; distinct counts different descriptions (drawn parameters
 ``--write N`` also times ``write_assembly_variants`` on N variants with one and two workers,
 and the rerun that finds every file up to date.
 
-Usage: ``.venv/bin/python bench/assembly_variants.py [--draws 4] [--families F ...]
+Usage: ``.venv/bin/python bench/speed/assembly_variants.py [--draws 4] [--families F ...]
 [--workers 2] [--seed 0] [--write 0]``
 """
 
@@ -26,7 +26,7 @@ from collections import defaultdict
 from dataclasses import dataclass
 from pathlib import Path
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # run from anywhere
+sys.path.insert(0, str(Path(__file__).resolve().parents[2]))  # run from anywhere
 
 import build123d as bd
 

@@ -12,7 +12,7 @@ which no input of a few millimetres' resolution (a completed 64^3 grid over a 20
 has 3 mm voxels) can tell from parts that do.
 
 Usage:
-    .venv/bin/python bench/relation_errors.py --workspace heldout/ws [--run RUN_DIR]
+    .venv/bin/python bench/studies/relation_errors.py --workspace heldout/ws [--run RUN_DIR]
         [--relations concentric coincident] [--methods ltn geometric]
 
 Nothing is asserted: it prints the tables.

@@ -8,7 +8,7 @@ per second with ``predict`` (one view), the process's peak resident memory and w
 added to it, and on CUDA torch's peak allocated memory. Synthetic boxes and cylinders stand in
 for parts: speed does not depend on what the grids hold. Runs in a few minutes on 2 cores.
 
-Usage: ``PYTHONPATH=$PWD .venv/bin/python bench/completion.py [--steps 5] [--threads N]
+Usage: ``PYTHONPATH=$PWD .venv/bin/python bench/speed/completion.py [--steps 5] [--threads N]
 [--sizes cpu paper] [--device cpu]``
 """
 
@@ -21,7 +21,7 @@ import sys
 import time
 from pathlib import Path
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # run from anywhere
+sys.path.insert(0, str(Path(__file__).resolve().parents[2]))  # run from anywhere
 
 import torch
 

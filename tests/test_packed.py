@@ -1,16 +1,14 @@
-"""The packed corpus that carries training examples to a GPU machine reads back bit for bit."""
+"""The GPU training route: the packed corpus reads back bit for bit, and a method trains on it."""
 
 from __future__ import annotations
 
-import sys
 from pathlib import Path
 
 import numpy as np
 import pandas as pd
 import pytest
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-from bench.packed_corpus import pack, unpack
+from models.training.packed import pack, unpack
 
 
 def _corpus(root: Path, rng: np.random.Generator) -> list[tuple[np.ndarray, np.ndarray]]:
@@ -45,3 +43,21 @@ def test_unpack_refuses_streams_of_other_grids(tmp_path: Path) -> None:
     pack(tmp_path / "corpus", tmp_path / "packed", workers=1)
     with pytest.raises(ValueError, match="do not hold 3 examples"):
         unpack(tmp_path / "packed", n_in=16)
+
+
+def test_a_method_trains_on_a_pack_and_keeps_its_best_checkpoint(tmp_path: Path) -> None:
+    import torch
+
+    from models.checkpoint import load_checkpoint
+    from models.training.packed import PackedRun, train_packed
+
+    _corpus(tmp_path / "corpus", np.random.default_rng(2))
+    pack(tmp_path / "corpus", tmp_path / "packed", workers=1)
+    torch.manual_seed(0)
+    run = PackedRun("ae", seconds=600, batch=2, eval_every=2, steps=4,
+                    overrides={"width": 4})
+    path = train_packed(tmp_path / "packed", tmp_path / "out", run, device="cpu")
+    ckpt = load_checkpoint(path)
+    assert ckpt["method"] == "ae" and ckpt["data"]["train_parts"] == ["p0", "p2"]
+    epochs = (tmp_path / "out" / "ae.log").read_text().splitlines()
+    assert len(epochs) == 2 and all("val_iou" in e for e in epochs)

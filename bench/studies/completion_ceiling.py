@@ -25,10 +25,10 @@ shipped completion's 64^3 voxels, so only ``geometric`` shows what better clouds
 without retraining.
 
 Usage:
-    .venv/bin/python bench/completion_ceiling.py --workspace heldout/ws [--grids 64 128 256 0]
-        [--normals] [--crossings] [--out completion_ceiling.csv]
+    .venv/bin/python bench/studies/completion_ceiling.py --workspace heldout/ws \
+        [--grids 64 128 256 0] [--normals] [--crossings] [--out completion_ceiling.csv]
 
-The workspace is a night's (``bench/heldout_night.py``, then ``mateqa nightly``), whose
+The workspace is a night's (``python -m models.training.heldout``, then ``mateqa nightly``), whose
 captures, inputs, meshes and features it reads. Nothing is asserted.
 """
 
@@ -43,7 +43,7 @@ import numpy as np
 import numpy.typing as npt
 import pandas as pd
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+sys.path.insert(0, str(Path(__file__).resolve().parents[2]))
 
 from cadio.capture.examples import OBSERVED, read_example
 from cadio.capture.observe import CubeGrid

@@ -9,7 +9,7 @@ come within reach of each other (face mates measured) and those apart (no face w
 prints the label balance of the table: per relation, how many scenes hold it, and per intended
 relation, the share that holds it (plain and near-boundary scenes apart).
 
-Usage: ``PYTHONPATH=$PWD .venv/bin/python bench/labels.py [--library DIR] [--pairs 100]``
+Usage: ``PYTHONPATH=$PWD .venv/bin/python bench/speed/labels.py [--library DIR] [--pairs 100]``
 """
 
 from __future__ import annotations
@@ -23,7 +23,7 @@ from pathlib import Path
 
 import pandas as pd
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # run from anywhere
+sys.path.insert(0, str(Path(__file__).resolve().parents[2]))  # run from anywhere
 
 from cadio.cad.ingest import STEP_SUFFIXES
 from cadio.cad.step import read_step

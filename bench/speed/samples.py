@@ -4,7 +4,7 @@ The first generation builds every part with build123d/bd_warehouse and writes ST
 call finds the stamp and hashes unchanged and returns without writing. Both are timed here
 (they used to be wall-clock assertions in the tests).
 
-Usage: ``.venv/bin/python bench/samples.py``
+Usage: ``.venv/bin/python bench/speed/samples.py``
 """
 
 from __future__ import annotations
@@ -15,7 +15,7 @@ import tempfile
 import time
 from pathlib import Path
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # run from anywhere
+sys.path.insert(0, str(Path(__file__).resolve().parents[2]))  # run from anywhere
 
 from cadio.samples.library import generate_library
 

@@ -12,7 +12,8 @@ sample families apart: ROC AUC, F1 at 0.5 and the best F1 over thresholds (which
 test labels: an upper bound of the evidence, not a method).
 
 Usage:
-    .venv/bin/python bench/evidence_density.py --workspace train-workspace [--points 600 3000]
+    .venv/bin/python bench/studies/evidence_density.py --workspace train-workspace \
+        [--points 600 3000]
 
 Nothing is asserted: it prints the figures and the seconds each density's evidence took.
 """

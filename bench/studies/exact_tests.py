@@ -9,7 +9,7 @@ before ``coaxial_faces`` and over a grid of the concentric test's two knobs. The
 chosen here, on the training splits, never on held-out files.
 
 Usage:
-    .venv/bin/python bench/exact_tests.py --workspace train-workspace
+    .venv/bin/python bench/studies/exact_tests.py --workspace train-workspace
 
 Nothing is asserted. The dataset's ``truth`` evidence must be this code's
 (``evidence_digest`` in its ``stamp.json``).
@@ -25,7 +25,7 @@ from pathlib import Path
 
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+sys.path.insert(0, str(Path(__file__).resolve().parents[2]))
 
 from cadio.evidence.pair_features import PAIR_FEATURES, evidence_digest
 from models.geometric import geometric_symmetric, tests_for

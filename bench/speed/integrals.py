@@ -2,7 +2,7 @@
 
 Command (from the repository root)::
 
-    PYTHONPATH=$PWD .venv/bin/python bench/integrals.py [STEP_DIR]
+    PYTHONPATH=$PWD .venv/bin/python bench/speed/integrals.py [STEP_DIR]
 
 Ingest integrates every solid's volume and centroid and every face's area and centroid
 (``part_integrals`` with OpenCascade's relative eps 1e-6; the ground truth's face mates and
@@ -33,7 +33,7 @@ from pathlib import Path
 
 import numpy as np
 
-REPO = Path(__file__).resolve().parents[1]
+REPO = Path(__file__).resolve().parents[2]
 DEFAULT_DIR = REPO.parent / "shared" / "data" / "step"
 
 

@@ -1,6 +1,6 @@
 """Benchmark of reading recordings: our Foxglove captures against ROS 2 recordings of the views.
 
-Renders a pair scene (``bench/capture.py``'s, the paper's 640x480 camera, noise on) and writes
+Renders a pair scene (``bench/speed/capture.py``'s, the paper's 640x480 camera, noise on) and writes
 the views twice: as our capture (``write_capture``: Foxglove protobuf, 16UC1 depth, instance ids)
 and as a robot's ROS 2 recording (``tests/ros2_recording.py``: CDR, a tf chain, registered and
 raw depth, camera infos, instance ids). Then reads each with ``read_capture`` and, as floors, with
@@ -9,7 +9,7 @@ of the recording's messages by Foxglove's ``mcap_ros2`` (what the reader uses) a
 ``mcap_ros2_support_fast`` (when installed). Best of the repeats; frames per second of wall
 time. Runs in about half a minute.
 
-Usage: ``.venv/bin/python bench/recordings.py [--views 30] [--repeats 3]``
+Usage: ``.venv/bin/python bench/speed/recordings.py [--views 30] [--repeats 3]``
 """
 
 from __future__ import annotations
@@ -23,10 +23,10 @@ from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 sys.path[:0] = [str(ROOT), str(ROOT / "tests")]  # run from anywhere; the tests' ROS 2 writer
 
-from capture import pair_scene  # noqa: E402  (bench/capture.py)
+from capture import pair_scene  # noqa: E402  (bench/speed/capture.py)
 from mcap.reader import NonSeekingReader  # noqa: E402
 from mcap_ros2.decoder import DecoderFactory  # noqa: E402
 from ros2_recording import write_ros2_capture  # noqa: E402

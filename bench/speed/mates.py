@@ -5,7 +5,7 @@ For each assembly: all pairs of parts, pairs passing the enlarged-box filter, pa
 (read, features, prune = boxes + exact contact, face mates, relations, joints), printed as a
 table. The default set (the three largest by solid count) runs in well under two minutes.
 
-Usage: ``.venv/bin/python bench/mates.py [STEP_FILE ...] [--all]``
+Usage: ``.venv/bin/python bench/speed/mates.py [STEP_FILE ...] [--all]``
 """
 
 from __future__ import annotations
@@ -16,7 +16,7 @@ import sys
 import time
 from pathlib import Path
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # run from anywhere
+sys.path.insert(0, str(Path(__file__).resolve().parents[2]))  # run from anywhere
 
 from cadio.truth.mates import read_assembly_mates
 

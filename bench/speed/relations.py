@@ -1,7 +1,7 @@
 """Relation methods on CPU: training and inference pairs/s, and the held-out targets.
 
 Usage:
-    PYTHONPATH=$PWD .venv/bin/python bench/relations.py [--workspace train-workspace]
+    PYTHONPATH=$PWD .venv/bin/python bench/speed/relations.py [--workspace train-workspace]
         [--run RUN_DIR] [--steps 100] [--pairs 512]
 
 Speed: ``ltn`` training steps on the relation dataset's training split (pairs/s counts each

@@ -20,9 +20,9 @@ runner-up), at another angle, missed, claimed where the B-rep has none, or right
 Any workspace with meshes and features will do (a night's, for parts no network trained on).
 
 Usage:
-    .venv/bin/python bench/dominant_evidence.py --workspace train-workspace [--split val]
+    .venv/bin/python bench/studies/dominant_evidence.py --workspace train-workspace [--split val]
         [--input truth] [--pairs 600] [--set neighbours=12 flat=0.05 ...]
-    .venv/bin/python bench/dominant_evidence.py --workspace train-workspace --parts 600
+    .venv/bin/python bench/studies/dominant_evidence.py --workspace train-workspace --parts 600
         [--set neighbours=12,flat=0.05]
 
 Nothing is asserted: it prints the counts.

@@ -2,7 +2,7 @@
 
 Command (from the repository root)::
 
-    PYTHONPATH=$PWD .venv/bin/python bench/ingest.py [STEP_DIR] [--workers 2] [--repeat 1]
+    PYTHONPATH=$PWD .venv/bin/python bench/speed/ingest.py [STEP_DIR] [--workers 2] [--repeat 1]
         [--no-stages]
 
 Printed, all from the same run so that the shared machine's load falls on both sides alike:
@@ -35,7 +35,7 @@ import time
 from collections import defaultdict
 from pathlib import Path
 
-REPO = Path(__file__).resolve().parents[1]
+REPO = Path(__file__).resolve().parents[2]
 DEFAULT_DIR = REPO.parent / "shared" / "data" / "step"
 
 

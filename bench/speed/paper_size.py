@@ -5,7 +5,7 @@ The shipped checkpoints are 32^3 in, 64^3 out (CPU-sized); the paper's size is t
 ``config_for(method, n_in=64, n_out=256)``. This measures what one training step of it costs
 (the critic's updates included for gan_lstm), so a GPU session can size a run before it starts.
 
-    python bench/paper_size.py --batch 8 --views 2 --steps 10
+    python bench/speed/paper_size.py --batch 8 --views 2 --steps 10
 
 Measured on one NVIDIA H200 (2026-11-27; median of 10 steps after two warm-ups, 2 views):
 
@@ -21,8 +21,8 @@ Measured on one NVIDIA H200 (2026-11-27; median of 10 steps after two warm-ups, 
 So the paper's size costs about 7x the time per example of the shipped size (gan_lstm), and
 fits one GPU at batch 32. The data is the harder part: a 256^3 truth grid is 2 MB as bits, so
 the 12k training examples of the shipped checkpoints would be some 24 GB before compression
-(the 64^3 pack of ``bench/packed_corpus.py`` is 9 MB). A paper-size run needs its corpus built
-on the machine that trains it.
+(the 64^3 pack of ``python -m models.training.packed pack`` is 9 MB). A paper-size run
+needs its corpus built on the machine that trains it.
 """
 
 from __future__ import annotations
@@ -35,7 +35,7 @@ from pathlib import Path
 
 import torch
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+sys.path.insert(0, str(Path(__file__).resolve().parents[2]))
 
 from models.data import Batch
 from models.train import Learner, config_for

@@ -6,7 +6,7 @@ first with an empty cache (Prefect migrates the empty database, and the first mi
 kept), then on further new homes that start from a copy of the kept one. Reported: the wall
 time until ``/api/health`` answers and the CPU seconds the server process spent by then.
 
-Usage: ``.venv/bin/python bench/server_start.py [--rounds 3]``
+Usage: ``.venv/bin/python bench/speed/server_start.py [--rounds 3]``
 """
 
 from __future__ import annotations
@@ -21,7 +21,7 @@ from pathlib import Path
 
 import psutil
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # run from anywhere
+sys.path.insert(0, str(Path(__file__).resolve().parents[2]))  # run from anywhere
 
 from flows.server import start_server, stop_server, template_database
 
