@@ -36,24 +36,26 @@ def progress(description: str, total: int | None) -> Iterator[Callable[[str], No
 
 def cmd_ingest(args: argparse.Namespace) -> int:
     from cadio.cad.ingest import discover, ingest
-    from flows.settings import Settings, ingest_config
+    from flows.settings import ingest_config, runtime_settings
     from reports.render import build_ingest_report
 
-    settings = Settings(workers=args.workers, file_timeout_s=args.timeout,
-                        file_memory_mb=args.memory_mb, max_file_mb=args.max_file_mb)
-    cfg = ingest_config(settings, args.voxel_sizes, args.tolerances,
-                        default_workers=os.cpu_count() or 1)
+    config = args.config
+    library, workspace = Path(config.library.path), Path(config.runtime.workspace)
+    # in the command's own process the workers are the command's: 0 means one per core
+    cfg = ingest_config(runtime_settings(config.runtime), config.library.voxel_sizes,
+                        config.tolerances, default_workers=os.cpu_count() or 1)
     try:
-        total = len(discover(args.library))
-        with progress("ingest", total) as advance:
-            catalog = ingest(args.library, args.workspace, cfg, on_file=advance)
+        categories = config.library.categories
+        found = [f for f in discover(library) if not categories or f.category in categories]
+        with progress("ingest", len(found)) as advance:
+            catalog = ingest(library, workspace, cfg, on_file=advance,
+                             categories=categories)
     except InputFileError as exc:
         print(f"mateqa ingest: {exc}", file=sys.stderr)
         return 2
     print(build_ingest_report(catalog).markdown())
-    print(f"catalog: {Path(args.workspace) / 'catalog.parquet'}")
+    print(f"catalog: {workspace / 'catalog.parquet'}")
     return 0
-
 
 
 def cmd_mates(args: argparse.Namespace) -> int:
@@ -121,27 +123,31 @@ def cmd_export(args: argparse.Namespace) -> int:
     from collections import Counter
 
     from cadio.export.job import export_assemblies, model_digests, run_jobs, write_index
-    from cadio.sandbox import Limits
     from cadio.workspace import Workspace
+    from flows.settings import runtime_settings
     from models.evaluate import SHIPPED
     from models.relate import SHIPPED_RELATIONS
+    from reports.methods import product
     from reports.tables import printable
 
-    run_dir = Workspace(args.workspace).run_dir(args.run)
-    models = model_digests({"relations": args.relation_models or SHIPPED_RELATIONS,
-                            "completion": args.completion_models or SHIPPED})
+    config = args.config
+    workspace, out = Path(config.runtime.workspace), config.out and Path(config.out)
+    run_dir = Workspace(workspace).run_dir(config.run)
+    models = model_digests({"relations": Path(config.models.relations or SHIPPED_RELATIONS),
+                            "completion": Path(config.models.completion or SHIPPED)})
     try:
-        jobs = run_jobs(args.workspace, run_dir, models, args.out)
+        jobs = run_jobs(workspace, run_dir, models, out, answers=product())
     except InputFileError as exc:
         print(f"mateqa export: {exc}", file=sys.stderr)
         return 2
-    workers = args.workers or os.cpu_count() or 1
+    # in the command's own process the workers are the command's: 0 means one per core
+    limits = runtime_settings(config.runtime).limits(default_workers=os.cpu_count() or 1)
     with progress("export", len(jobs)) as advance:
         summaries = []
-        for summary in export_assemblies(jobs, Limits(workers=workers)):
+        for summary in export_assemblies(jobs, limits):
             summaries.append(summary)
             advance(summary.assembly)
-    index = write_index(args.out or run_dir.resolve() / "exports", summaries)
+    index = write_index(out or run_dir.resolve() / "exports", summaries)
     for s in sorted(summaries, key=lambda s: s.assembly):
         print(f"{printable(s.assembly)}: {s.status}"  # names from input: one line each
               + (f" ({printable(s.reason)})" if s.reason else "")

@@ -1,14 +1,20 @@
-"""The configuration of a night: one typed object, grouped the way a QA team reads it.
+"""The configuration of each flow: one typed object per flow, grouped the way a QA team reads it.
 
 ``NightConfig`` is the nightly flow's one parameter, what ``run_stages`` reads, what the CLI's
-options map onto (``flows.cli``) and what the deployment form shows: ``library`` (what is
-checked), ``capture`` (how it is seen), ``models`` (the checkpoints, the model version),
-``thresholds`` (what a pass is), ``runtime`` (where and with how much of the machine) and the
-run's ``tolerances``. Every field carries a description and its allowed range (the JSON
-schema's ``minimum``/``maximum``, repeated in the description for the form and ``--help``),
-and unknown keys are refused, so a deployment parameter that does not fit fails before any
-work with a message naming the field. What a schema cannot know (the library has files, the
-categories exist, the checkpoints load) is checked by ``flows.preflight``.
+options are made from (``flows.cli_options``) and what the deployment form shows: ``library`` (what
+is checked), ``capture`` (how it is seen), ``models`` (the checkpoints, the model version),
+``thresholds`` (what a pass is), ``runtime`` (where and with how much of the machine) and the run's
+``tolerances``. Every field carries a description and its allowed range (the JSON schema's
+``minimum``/``maximum``, repeated in the description for the form and ``--help``), and unknown keys
+are refused, so a deployment parameter that does not fit fails before any work with a message naming
+the field. What a schema cannot know (the library has files, the categories exist, the checkpoints
+load) is checked by ``flows.preflight``.
+
+The single-stage flows take the groups they use, in the same shape: ``IngestRun`` (the
+``ingest`` flow and ``mateqa ingest``), ``CaptureRun`` (``capture``), ``ExportRun``
+(``export`` and ``mateqa export``); training's is ``models.training.config.TrainConfig``. A
+default lives once, in its field: the stages' own configs take the value from here
+(``ScanConfig.views_per_scene`` has no default of its own).
 """
 
 from __future__ import annotations
@@ -16,7 +22,7 @@ from __future__ import annotations
 import math
 from dataclasses import fields
 from functools import cache
-from typing import Annotated, Any
+from typing import Annotated, Any, TypeVar
 
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator
 
@@ -88,6 +94,8 @@ class CaptureOptions(_Group):
     recordings: str | None = Field(
         default=None, description="folder of MCAP recordings to read instead of rendering "
         "the scenes (real logs); null: render")
+    # The paper renders 125 views per object; a night over hundreds of scenes takes a handful
+    # of them per scene, spread over the circle.
     views_per_scene: Views = Field(
         default=8, description="views rendered per scene, spread over the paper's 125-view "
         "circle")
@@ -142,6 +150,18 @@ class RuntimeOptions(_Group):
         "null: MATEQA_DASK_ADDRESS; empty: this machine")
 
 
+def _finite_tolerances(tol: Tolerances) -> Tolerances:
+    bad = [f"{f.name}={getattr(tol, f.name)!r}" for f in fields(tol)
+           if not math.isfinite(getattr(tol, f.name)) or getattr(tol, f.name) < 0]
+    if bad:
+        raise ValueError(f"tolerances must be finite and >= 0: {', '.join(bad)}")
+    return tol
+
+
+_TOLERANCES_DOC = ("every geometric tolerance of the run, finite and >= 0 (cadio/tolerances.py "
+                   "gives each one's reason; written to tolerances.json)")
+
+
 class NightConfig(_Group):
     """Everything a night is run with (the nightly flow's one parameter)."""
 
@@ -154,18 +174,49 @@ class NightConfig(_Group):
                                          description=ThresholdOptions.__doc__)
     runtime: RuntimeOptions = Field(default=RuntimeOptions(),
                                     description=RuntimeOptions.__doc__)
-    tolerances: Tolerances = Field(
-        default=DEFAULT_TOLERANCES, description="every geometric tolerance of the run, finite "
-        "and >= 0 (cadio/tolerances.py gives each one's reason; written to tolerances.json)")
+    tolerances: Tolerances = Field(default=DEFAULT_TOLERANCES, description=_TOLERANCES_DOC)
 
-    @field_validator("tolerances")
-    @classmethod
-    def _finite(cls, tol: Tolerances) -> Tolerances:
-        bad = [f"{f.name}={getattr(tol, f.name)!r}" for f in fields(tol)
-               if not math.isfinite(getattr(tol, f.name)) or getattr(tol, f.name) < 0]
-        if bad:
-            raise ValueError(f"tolerances must be finite and >= 0: {', '.join(bad)}")
-        return tol
+    _finite = field_validator("tolerances")(_finite_tolerances)
+
+
+class _StageRun(_Group):
+    """The runtime and the tolerances of a single-stage flow (its groups come first)."""
+
+    runtime: RuntimeOptions = Field(default=RuntimeOptions(),
+                                    description=RuntimeOptions.__doc__)
+    tolerances: Tolerances = Field(default=DEFAULT_TOLERANCES, description=_TOLERANCES_DOC)
+
+    _finite = field_validator("tolerances")(_finite_tolerances)
+
+
+class IngestRun(_StageRun):
+    """Everything the ``ingest`` flow (and ``mateqa ingest``) runs with: the library read into
+    the workspace's catalog, and its assemblies' mates."""
+
+    library: LibraryOptions = Field(default=LibraryOptions(),
+                                    description=LibraryOptions.__doc__)
+
+
+class CaptureRun(_StageRun):
+    """Everything the ``capture`` flow runs with: an ingested workspace's scenes, assemblies
+    and parts captured (or its recordings read)."""
+
+    capture: CaptureOptions = Field(default=CaptureOptions(),
+                                    description=CaptureOptions.__doc__)
+
+
+class ExportRun(_Group):
+    """Everything the ``export`` flow (and ``mateqa export``) runs with: a finished run's
+    predicted mates written back into CAD files."""
+
+    run: Name = Field(default="latest", description="the run whose predictions to export: a "
+                      "run id of the workspace, or latest")
+    out: str | None = Field(default=None, description="folder for the exports; null: the "
+                            "run's exports/")
+    models: ModelOptions = Field(default=ModelOptions(), description="the checkpoints the run "
+                                 "used, named in every export (their digests)")
+    runtime: RuntimeOptions = Field(default=RuntimeOptions(),
+                                    description=RuntimeOptions.__doc__)
 
 
 class ConfigError(ValueError):
@@ -181,17 +232,17 @@ class ConfigError(ValueError):
 
 
 @cache
-def _schema() -> dict[str, Any]:
-    return NightConfig.model_json_schema()
+def _schema(kind: type[BaseModel]) -> dict[str, Any]:
+    return kind.model_json_schema()
 
 
-def field_schema(path: str) -> dict[str, Any]:
-    """The JSON schema of one field of ``NightConfig`` (dotted path), refs resolved.
+def field_schema(path: str, kind: type[BaseModel] = NightConfig) -> dict[str, Any]:
+    """The JSON schema of one field of a flow's configuration (dotted path), refs resolved.
 
     Raises:
         KeyError: no such field.
     """
-    schema = _schema()
+    schema = _schema(kind)
     node: dict[str, Any] = schema
     for part in path.split("."):
         if "$ref" in node:
@@ -200,13 +251,14 @@ def field_schema(path: str) -> dict[str, Any]:
     return node
 
 
-def config_problems(exc: ValidationError) -> list[tuple[str, str]]:
+def config_problems(exc: ValidationError, kind: type[BaseModel] = NightConfig
+                    ) -> list[tuple[str, str]]:
     """(field, reason with the allowed range and the value given) of each validation error."""
     problems = []
     for err in exc.errors():
         loc = ".".join(str(p) for p in err["loc"] if not isinstance(p, int))
         try:
-            allowed = range_text(field_schema(loc))
+            allowed = range_text(field_schema(loc, kind))
         except KeyError:  # an unknown key: no schema of its own
             allowed = ""
         reason = f"must be {allowed}" if err["type"] in _RANGE_ERRORS and allowed else err["msg"]
@@ -216,16 +268,29 @@ def config_problems(exc: ValidationError) -> list[tuple[str, str]]:
     return problems
 
 
+Config = TypeVar("Config", bound=BaseModel)
+
+
 def night_config(values: dict[str, Any]) -> NightConfig:
-    """The configuration of nested ``values`` (groups of fields, as the deployment takes them).
+    """The night's configuration of nested ``values`` (groups of fields, as the deployment
+    takes them).
+
+    Raises:
+        ConfigError: a field out of range, of the wrong type, or unknown; each named.
+    """
+    return validated(NightConfig, values)
+
+
+def validated(kind: type[Config], values: dict[str, Any]) -> Config:
+    """A flow's configuration of nested ``values``.
 
     Raises:
         ConfigError: a field out of range, of the wrong type, or unknown; each named.
     """
     try:
-        return NightConfig.model_validate(values)
+        return kind.model_validate(values)
     except ValidationError as exc:
-        raise ConfigError(config_problems(exc)) from None
+        raise ConfigError(config_problems(exc, kind)) from None
 
 
 DEFAULT_NIGHT = NightConfig()

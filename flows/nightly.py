@@ -32,9 +32,9 @@ from cadio.export.job import model_digests
 from cadio.truth.scene_config import night_scene_config
 from cadio.truth.scenes import read_scenes
 from cadio.workspace import Workspace, write_json
-from flows.config import DEFAULT_NIGHT, ConfigError, NightConfig, RuntimeOptions
+from flows.config import DEFAULT_NIGHT, ConfigError, NightConfig
 from flows.preflight import check_night
-from flows.settings import Settings, ingest_config, load_settings
+from flows.settings import ingest_config, load_settings, runtime_settings
 from flows.stopping import stop_on_signal
 from flows.tasks import (
     Run,
@@ -229,16 +229,6 @@ def _dask_runner(address: str) -> Any:
     from prefect_dask import DaskTaskRunner
 
     return DaskTaskRunner(address=address)
-
-
-def runtime_settings(runtime: RuntimeOptions) -> Settings:
-    """The environment's settings with the night's runtime options on top."""
-    env = load_settings()
-    return env.model_copy(update={
-        "workers": env.workers if runtime.workers is None else runtime.workers,
-        "file_timeout_s": runtime.file_timeout_s or env.file_timeout_s,
-        "file_memory_mb": runtime.file_memory_mb or env.file_memory_mb,
-        "max_file_mb": runtime.max_file_mb or env.max_file_mb})
 
 
 @flow(name="nightly-stages", task_runner=ThreadPoolTaskRunner(max_workers=2))  # type: ignore[arg-type]

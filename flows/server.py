@@ -306,7 +306,7 @@ def stop_port(port: int, home: Path | None = None) -> int | None:
     stop_pid(proc.pid)
     if home is not None and _marked_pid(home) == proc.pid:
         (home / PID_FILE).unlink(missing_ok=True)
-    return proc.pid
+    return int(proc.pid)
 
 
 def stop_pid(pid: int, timeout_s: float = 20.0) -> None:

@@ -10,7 +10,7 @@ environment are held to the same limits.
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Annotated
+from typing import TYPE_CHECKING, Annotated
 
 from pydantic import Field, ValidationError
 from pydantic_settings import BaseSettings, SettingsConfigDict
@@ -18,6 +18,9 @@ from pydantic_settings import BaseSettings, SettingsConfigDict
 from cadio.cad.ingest import IngestConfig
 from cadio.sandbox import Limits
 from cadio.tolerances import DEFAULT_TOLERANCES, Tolerances
+
+if TYPE_CHECKING:
+    from flows.config import RuntimeOptions
 
 # CAD worker processes (0: the caller's default, see ``Settings.workers``).
 Workers = Annotated[int, Field(ge=0, le=256)]
@@ -74,6 +77,17 @@ def load_settings() -> Settings:
         problems = [f"MATEQA_{'_'.join(map(str, e['loc'])).upper()}={e['input']!r}: {e['msg']}"
                     for e in exc.errors()]
         raise SettingsError("; ".join(problems)) from None
+
+
+def runtime_settings(runtime: RuntimeOptions) -> Settings:
+    """The environment's settings with a run's runtime options on top (an option not given
+    keeps the environment's)."""
+    env = load_settings()
+    return env.model_copy(update={
+        "workers": env.workers if runtime.workers is None else runtime.workers,
+        "file_timeout_s": runtime.file_timeout_s or env.file_timeout_s,
+        "file_memory_mb": runtime.file_memory_mb or env.file_memory_mb,
+        "max_file_mb": runtime.max_file_mb or env.max_file_mb})
 
 
 def ingest_config(settings: Settings, voxel_sizes: list[int] | None = None,

@@ -18,15 +18,16 @@ from prefect.task_runners import ThreadPoolTaskRunner
 from cadio.capture.scan import ScanConfig
 from cadio.catalog import read_catalog
 from cadio.export.job import model_digests
-from cadio.tolerances import DEFAULT_TOLERANCES, Tolerances
+from cadio.tolerances import DEFAULT_TOLERANCES
 from cadio.truth.scene_config import night_scene_config
 from cadio.workspace import Workspace
-from flows.config import ConfigError, Count, Views, VoxelSide
+from flows.config import CaptureRun, ConfigError, ExportRun, IngestRun
 from flows.preflight import check_finished_run
-from flows.settings import ingest_config, load_settings
+from flows.settings import ingest_config, runtime_settings
 from flows.stopping import stop_on_signal
 from flows.tasks import (
     Run,
+    capture_stage,
     export_stage,
     generate_library_task,
     ingest_stage,
@@ -40,33 +41,27 @@ from models.evaluate import SHIPPED
 from models.relate import SHIPPED_RELATIONS
 from reports.render import build_ingest_report, write_ingest_report
 
+DEFAULT_INGEST, DEFAULT_CAPTURE, DEFAULT_EXPORT = IngestRun(), CaptureRun(), ExportRun()
+
 
 @flow(name="ingest", task_runner=ThreadPoolTaskRunner(max_workers=2))  # type: ignore[arg-type]
-def ingest(library: str | None = None, workspace: str = "workspace",
-           categories: list[str] | None = None,
-           tolerances: Tolerances = DEFAULT_TOLERANCES,
-           voxel_sizes: list[VoxelSide] | None = None,
-           batch_size: Count = 12) -> dict[str, Any]:
+def ingest(config: IngestRun = DEFAULT_INGEST) -> dict[str, Any]:
     """Read the library's STEP files into the workspace catalog and extract the mates of its
     assemblies; ``ingest.md`` goes into a run folder.
 
     Args:
-        library: folder of STEP files (categories are its sub-folders) or a CSV listing them
-            (columns path, category); None = the built-in samples.
-        workspace: the workspace folder.
-        categories: only these categories of the library (None: all).
-        tolerances: every geometric tolerance (written beside the results).
-        voxel_sizes: occupancy grid sizes to write (default 32 and 64).
-        batch_size: files per ingest task.
+        config: the library, the runtime and the tolerances (``flows.config.IngestRun``; a
+            library path of null is the built-in samples).
 
     Returns:
         The ingest totals, the number of assemblies and failed ones, and the run folder.
     """
     with stop_on_signal():
-        cfg = ingest_config(load_settings(), voxel_sizes, tolerances)
-        run = start_run(workspace, tolerances)
-        lib = library or generate_library_task(run.workspace)
-        catalog = ingest_stage(lib, run, cfg, batch_size, categories)
+        lib_cfg, tolerances = config.library, config.tolerances
+        cfg = ingest_config(runtime_settings(config.runtime), lib_cfg.voxel_sizes, tolerances)
+        run = start_run(config.runtime.workspace, tolerances)
+        lib = lib_cfg.path or generate_library_task(run.workspace)
+        catalog = ingest_stage(lib, run, cfg, lib_cfg.batch_size, lib_cfg.categories)
         mates = mates_stage(catalog, run, tolerances, cfg.limits)
         report = build_ingest_report(read_catalog(Path(catalog)))
         write_ingest_report(Path(run.run_dir), report)
@@ -78,70 +73,66 @@ def ingest(library: str | None = None, workspace: str = "workspace",
 
 
 @flow(name="capture", task_runner=ThreadPoolTaskRunner(max_workers=2))  # type: ignore[arg-type]
-def capture(workspace: str = "workspace", tolerances: Tolerances = DEFAULT_TOLERANCES,
-            pairs_per_relation: Count = 4, views_per_scene: Views = 8, noise: bool = False,
-            seed: int = 0) -> dict[str, Any]:
+def capture(config: CaptureRun = DEFAULT_CAPTURE) -> dict[str, Any]:
     """Generate the scenes of an ingested workspace and capture them, its assemblies and,
-    alone, every part neither shows (each part's learning examples where it is scored).
+    alone, every part neither shows (each part's learning examples where it is scored); or,
+    with ``capture.recordings``, read those recordings instead.
 
     Args:
-        workspace: a workspace the ``ingest`` flow (or the nightly) filled.
-        tolerances: every geometric tolerance (labels of the scenes).
-        pairs_per_relation: scenes per relation.
-        views_per_scene: rendered views per scene.
-        noise: switch the depth sensor noise model on.
-        seed: seed of the scene generator.
+        config: how the parts are seen, the runtime and the tolerances
+            (``flows.config.CaptureRun``).
 
     Returns:
         Counts of scenes, captures, failed captures and frames.
     """
     with stop_on_signal():
-        run = start_run(workspace, tolerances)
+        cap, tolerances = config.capture, config.tolerances
+        run = start_run(config.runtime.workspace, tolerances)
         ws = Workspace(Path(run.workspace))
         if not ws.catalog.exists():
             raise FileNotFoundError(f"{ws.catalog}: no catalog; run the ingest flow first")
-        scene_cfg = night_scene_config(seed, pairs_per_relation, tolerances)
-        scenes = scenes_task(str(ws.catalog), run.workspace, scene_cfg)
-        scan_cfg = ScanConfig(views_per_scene=views_per_scene, noise=noise, tolerances=tolerances)
-        mates = mates_stage(str(ws.catalog), run, tolerances,  # cached: the ingest's own results
-                            ingest_config(load_settings(), None, tolerances).limits)
-        captured = render_stage(str(ws.catalog), scenes, mates, run, scan_cfg)
+        scenes = scenes_task(str(ws.catalog), run.workspace,
+                             night_scene_config(cap.seed, cap.pairs_per_relation, tolerances))
+        scan_cfg = ScanConfig(views_per_scene=cap.views_per_scene, noise=cap.noise,
+                              tolerances=tolerances)
+        limits = ingest_config(runtime_settings(config.runtime), None, tolerances).limits
+        if cap.recordings:
+            captured = capture_stage(scenes, run, scan_cfg, cap.recordings)
+        else:
+            mates = mates_stage(str(ws.catalog), run, tolerances, limits)  # cached: ingest's
+            captured = render_stage(str(ws.catalog), scenes, mates, run, scan_cfg)
         return {"scenes": scenes.scenes, "captures": len(captured),
                 "failed": sum(bool(c.error) for c in captured),
                 "frames": sum(c.frames for c in captured)}
 
 
-
 @flow(name="export", task_runner=ThreadPoolTaskRunner(max_workers=2))  # type: ignore[arg-type]
-def export(workspace: str = "workspace", run: str = "latest", out: str | None = None,
-           relation_models: str | None = None,
-           completion_models: str | None = None) -> dict[str, Any]:
+def export(config: ExportRun = DEFAULT_EXPORT) -> dict[str, Any]:
     """Export the predicted mates of a finished run: per assembly an XBF document with XDE
     notes, a sidecar JSON and a CadQuery constraint script (the nightly's last stage, again).
 
     Args:
-        workspace: the workspace of the run.
-        run: the run id, or "latest".
-        out: folder for the exports (default: the run's ``exports/``).
-        relation_models, completion_models: the checkpoints the run used (default: the
-            shipped ones), named in the exports.
+        config: the run, where its exports go, the checkpoints it used (named in the exports)
+            and the runtime (``flows.config.ExportRun``).
 
     Returns:
         The path of ``index.csv`` and the number of assemblies per status.
     """
     with stop_on_signal():
+        workspace = config.runtime.workspace
         problems: list[tuple[str, str]] = []
-        check_finished_run(workspace, run, problems)
+        check_finished_run(workspace, config.run, problems)
         if problems:
             raise ConfigError(problems)
         ws = Workspace(Path(workspace).resolve())
-        run_dir = ws.run_dir(run).resolve()
+        run_dir = ws.run_dir(config.run).resolve()
         source = Run(run_id=run_dir.name, workspace=str(ws.root), run_dir=str(run_dir),
                      epoch=workspace_epoch(ws))
-        models = model_digests({"relations": Path(relation_models or SHIPPED_RELATIONS),
-                                "completion": Path(completion_models or SHIPPED)})
-        limits = ingest_config(load_settings(), None, DEFAULT_TOLERANCES).limits
-        index, summaries = export_stage(source, models, limits, out)
+        models = model_digests({"relations": Path(config.models.relations or SHIPPED_RELATIONS),
+                                "completion": Path(config.models.completion or SHIPPED)})
+        limits = ingest_config(runtime_settings(config.runtime), None,
+                               DEFAULT_TOLERANCES).limits
+        index, summaries = export_stage(source, models, limits, config.out)
         status: dict[str, int] = {}
         for s in summaries:
             status[s.status] = status.get(s.status, 0) + 1

@@ -1,12 +1,12 @@
 """The tasks of mateqa's flows (one call each into the packages) and the stages that fan them
 out in coarse batches (SQLite-backed servers struggle with thousands of tiny task runs).
 
-Caching: every task that does real work is keyed on the content of what it reads (file
-hashes, the rows it works on, its configuration) plus the workspace's epoch, and persists its
-result. A second night over an unchanged library reuses every ingest, mates, capture,
-completion and relation batch and only writes the reports. A task killed halfway writes no
-cache record, and every file it writes is renamed into place only when complete, so a rerun
-after a kill redoes exactly the unfinished batches and never reads a half-written file.
+Caching: every task that does real work is keyed on the content of what it reads (file hashes,
+the rows it works on, its configuration, the registered methods' code) plus the workspace's
+epoch, and persists its result. A second night over an unchanged library reuses every ingest,
+mates, capture, completion and relation batch and only writes the reports. A task killed halfway
+writes no cache record, and every file it writes is renamed into place only when complete, so a
+rerun after a kill redoes exactly the unfinished batches and never reads a half-written file.
 
 Retries: only transient failures are retried (the operating system ran out of something, a
 connection dropped); a bad input never raises out of a task, it becomes a row of the report.
@@ -65,8 +65,12 @@ from cadio.truth.assemblies import (
 from cadio.truth.scene_config import SceneConfig
 from cadio.truth.scenes import build_scenes, read_scenes
 from cadio.workspace import Workspace
+from models.completions import COMPLETIONS
 from models.evaluate import Scores, complete_parts, part_inputs
 from models.relate import RelateBatch, relate_batch
+from models.relation_inputs import INPUTS
+from models.relation_methods import RELATION_METHODS
+from reports.methods import product
 
 # Bump when a stage's code changes what it writes, so cached batches are redone.
 CAPTURE_VERSION = "capture-2"
@@ -393,7 +397,8 @@ def complete_stage(captured: list[CaptureSummary], run: Run, models_dir: str) ->
     futures = []
     for b in batches(folders, 20):
         key = content_digest([*_files_in(b), *_models(models_dir)], folders=b, labels=labels,
-                             epoch=run.epoch, version=COMPLETION_VERSION)
+                             epoch=run.epoch, version=COMPLETION_VERSION,
+                             methods=COMPLETIONS.digest())
         futures.append(complete_task.submit([str(f) for f in b], models_dir, run.workspace, key))
     return [f.result() for f in futures]
 
@@ -413,7 +418,8 @@ def relate_stage(captured: list[CaptureSummary], run: Run, relations_models: str
                  if p.stem.startswith(ASSEMBLY_PREFIX)]
         files = [*b, *inputs, *mates, *_models(relations_models), *_models(completion_models)]
         name = content_digest(files, labels=labels, epoch=run.epoch, version=RELATE_VERSION,
-                              evidence=evidence_digest())
+                              evidence=evidence_digest(), methods=RELATION_METHODS.digest(),
+                              inputs=INPUTS.digest())
         out = ws.root / "relations" / f"{name[:32]}.parquet"
         present = out.is_file() and out.with_name(f"{out.stem}-joints.parquet").is_file()
         futures.append(_refreshed(relate_task, present).submit(
@@ -429,7 +435,8 @@ def export_stage(run: Run, models: dict[str, str], limits: Limits, out: str | No
     exported under its ``exports/<assembly>/`` (or ``out``), four assemblies per task; the path
     of ``index.csv`` and the summaries."""
     run_dir = Path(source_run or run.run_dir)
-    jobs = run_jobs(Path(run.workspace), run_dir, models, Path(out) if out else None)
+    jobs = run_jobs(Path(run.workspace), run_dir, models, Path(out) if out else None,
+                    answers=product())
     futures = [export_task.submit(b, limits) for b in batches(jobs, 4)]
     summaries = [s for f in futures for s in f.result()]
     return str(write_index(Path(out) if out else run_dir / "exports", summaries)), summaries

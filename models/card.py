@@ -35,6 +35,14 @@ def checkpoint_table(folder: Path) -> pd.DataFrame:
     return pd.DataFrame(rows)
 
 
+def methods_table() -> pd.DataFrame:
+    """The registered completion methods (``models.completions``): name, role, learned, what."""
+    from models.completions import COMPLETIONS
+
+    return pd.DataFrame([{"method": m.name, "role": m.role.value, "learned": m.learned,
+                          "what": m.summary} for m in COMPLETIONS.entries()])
+
+
 def model_card(folder: Path, data: pd.DataFrame, categories: pd.DataFrame,
                command: str, notes: Sequence[str] = (),
                config: Mapping[str, Any] | None = None) -> str:
@@ -48,11 +56,10 @@ def model_card(folder: Path, data: pd.DataFrame, categories: pd.DataFrame,
         config: the training knobs beyond each checkpoint's own config (steps, threads).
     """
     lines = ["# Completion checkpoints", "",
-             "Shape completion from single RGB-D views (and sequences of views): `gan_lstm` "
-             "(3D conv encoder-decoder with skips, a 3D conv-LSTM over the views, conditional "
-             "WGAN-GP critic), and the learned baselines `ae` (the same generator without LSTM "
-             "and critic) and `r2n2` (3D-R2N2 on depth views). One checkpoint per method and "
-             "protocol; the nightly loads them with `torch.load(weights_only=True)`.", "",
+             "Shape completion from single RGB-D views (and sequences of views), one checkpoint "
+             "per learned method and protocol; the nightly loads them with "
+             "`torch.load(weights_only=True)` and scores them beside the methods without "
+             "learning.", "", markdown_table(methods_table()), "",
              "## Checkpoints", "", markdown_table(checkpoint_table(folder)), "",
              "## Data", "", "Parts are split by part (never by view); the nightly's own sample "
              "parts are never trained on.", "", markdown_table(data), ""]

@@ -82,9 +82,13 @@ def config_from_dict(method: str, config: Mapping[str, Any]) -> Config:
     Raises:
         ValueError: unknown fields, bad values, or a config of another method.
     """
+    from models.completions import COMPLETIONS, ours
+
+    # a method the registry lacks is an ablation of ours (``gan``, ``lstm``): ours' config
+    spec = COMPLETIONS.get(method) if method in COMPLETIONS else ours()
     try:
-        cfg: Config = (R2N2Config if method == "r2n2" else CompletionConfig)(**config)
-    except TypeError as exc:
+        cfg: Config = spec.make_config(**config)
+    except ValueError as exc:
         raise ValueError(f"config does not fit method {method!r}: {exc}") from exc
     if cfg.method != method:
         raise ValueError(f"config describes method {cfg.method!r}, not {method!r}")

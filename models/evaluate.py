@@ -1,13 +1,13 @@
 """Completing parts with every method and scoring them against the truth, in one harness.
 
-The five methods of the completion report see the same examples (same parts, same views,
-same grid): ``visible`` and ``carve`` come with each example (no learning), ``ae``,
-``gan_lstm`` and ``r2n2`` are the checkpoints of a folder (one per method and protocol, the
-protocol read from each checkpoint's ``data``). ``ae`` has no LSTM: it sees the union of a
-sequence's views. Every prediction is scored by ``reports.completion`` (one row per part,
-method, protocol, number of views and first view), and ``gan_lstm``'s completion is registered
-onto the example's observed points by ICP (``cadio.capture.register``): its residual says how
-well the completed shape explains the scan, in the part's millimetres.
+Every registered completion method (``models.completions``) sees the same examples (same
+parts, same views, same grid): the methods without learning complete from what each example
+carries, the learned ones from the checkpoints of a folder (one per method and protocol, the
+protocol read from each checkpoint's ``data``). Every prediction is scored by
+``reports.completion`` (one row per part, method, protocol, number of views and first view),
+and the shipped method's completion is registered onto the example's observed points by ICP
+(``cadio.capture.register``): its residual says how well the completed shape explains the
+scan, in the part's millimetres.
 """
 
 from __future__ import annotations
@@ -27,11 +27,11 @@ import torch
 
 from cadio.capture.coverage import capture_context
 from cadio.capture.examples import Example, read_example
-from cadio.capture.observe import union_states
 from cadio.capture.register import register
 from cadio.catalog import read_catalog
 from cadio.workspace import Workspace, atomic_path
 from models.checkpoint import load_checkpoint, model_from_checkpoint
+from models.completions import COMPLETIONS, ours
 from models.train import Model, predict
 from reports.completion import CompletionCase, parts_frame, write_completion
 from reports.coverage import part_coverage, write_part_coverage
@@ -43,8 +43,6 @@ log = logging.getLogger(__name__)
 # The checkpoints shipped with the package (see their MODEL_CARD.md): the nightly needs no
 # training.
 SHIPPED = Path(__file__).resolve().parent / "checkpoints" / "completion"
-LEARNED = ("gan_lstm", "ae", "r2n2")
-FIXED = ("visible", "carve")
 THRESHOLD = 0.5  # probability above which a voxel is solid (as validation IoU is measured)
 
 
@@ -83,24 +81,18 @@ def load_models(folder: Path = SHIPPED, device: str = "cpu") -> CompletionModels
 
 
 def complete(models: CompletionModels, example: Example) -> dict[str, npt.NDArray[np.bool_]]:
-    """Every method's solid for one example (methods without a checkpoint are left out)."""
-    out = {"visible": example.visible, "carve": example.carve}
-    for method in LEARNED:
-        model = models.models.get((method, example.protocol))
-        if model is None:
+    """Every registered method's solid for one example (``models.completions``); a learned
+    method without a checkpoint for the example's protocol is left out."""
+    out = {}
+    for method in COMPLETIONS.entries():
+        if method.solid is not None:
+            out[method.name] = method.solid(example)
             continue
-        views = _model_input(method, model, example)
-        out[method] = predict(model, [views], batch_size=1)[0] > THRESHOLD
+        model = models.models.get((method.name, example.protocol))
+        if model is not None and method.model_input is not None:
+            views = method.model_input(example)
+            out[method.name] = predict(model, [views], batch_size=1)[0] > THRESHOLD
     return out
-
-
-def _model_input(method: str, model: Model, example: Example) -> npt.NDArray[Any]:
-    if model.input_key == "depth":
-        return example.depth
-    if method == "ae":  # no LSTM: the union of the views is its one input
-        union: npt.NDArray[np.bool_] = union_states(example.inputs)[None]
-        return union
-    return example.inputs
 
 
 @dataclass(frozen=True)
@@ -177,8 +169,8 @@ def score_files(paths: Iterable[Path], models: CompletionModels,
         pid = str(example.meta["part_id"])
         preds = complete(models, example)
         parts += score_example(example, preds, split_of(pid), category_of(pid))
-        if "gan_lstm" in preds and example.target is not None:
-            row = register_completion(example, preds["gan_lstm"], example.target.shape[0])
+        if ours().name in preds and example.target is not None:
+            row = register_completion(example, preds[ours().name], example.target.shape[0])
             registration.append(asdict(row))
         if on_file is not None:
             on_file(str(path))

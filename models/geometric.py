@@ -33,7 +33,7 @@ ordered: the swapped pair reads them negated (``swap_evidence``, ``ORDERED_COLUM
 ``network_evidence`` gives every column of ``EVIDENCE``; a network reads the columns its config
 names (``RelationConfig.evidence``; checkpoints from before the names read the first
 ``pair_features`` columns). A network of ``completed`` reads the observed points of the same
-view and their evidence, beside the completion's evidence (``OBSERVED_BY``,
+view and their evidence, beside the completion's evidence (``RelationInput.observed_by``,
 ``with_observed``: ``ALL_EVIDENCE``).
 """
 
@@ -49,9 +49,10 @@ import numpy.typing as npt
 from cadio.evidence.pair_features import PAIR_FEATURES, encode_features, pair_features_many
 from cadio.tolerances import DEFAULT_TOLERANCES, Tolerances
 from cadio.truth.relations import directional_truth
+from models.relation_inputs import INPUTS
 
-__all__ = ["ALL_EVIDENCE", "ANSWERS_READ_BY", "ANSWER_GAINS", "CONE_SOFTNESS_DEG",
-           "DIRECTION_GAIN", "EVIDENCE", "EXACT_INPUTS", "GEOMETRIC_ANSWERS", "OBSERVED_BY",
+__all__ = ["ALL_EVIDENCE", "ANSWER_GAINS", "CONE_SOFTNESS_DEG",
+           "DIRECTION_GAIN", "EVIDENCE", "GEOMETRIC_ANSWERS",
            "OBSERVED_PREFIX", "OBSERVER_VIEW_AXIS", "ORDERED_COLUMNS", "PAIR_CONES",
            "PAIR_DIRECTION", "GeometricTests", "cone_codes", "evidence_gains", "evidence_names",
            "geometric_decisions", "geometric_symmetric", "network_evidence", "pair_direction",
@@ -62,10 +63,9 @@ OBSERVER_VIEW_AXIS = (0.0, 1.0, 0.0)
 # The names of the tests' answers in a network's evidence, after ``PAIR_FEATURES``.
 GEOMETRIC_ANSWERS = ("geometric_parallel", "geometric_perpendicular", "geometric_concentric",
                      "geometric_coincident")
-# The inputs whose networks are trained to read the answers: where the evidence is exact. On
-# ``completed`` the answers of fits to voxel surfaces added nothing (held-out mean F1 0.619
+# The networks of the exact inputs (``RelationInput.exact``) are trained to read the answers.
+# On ``completed`` the answers of fits to voxel surfaces added nothing (held-out mean F1 0.619
 # with them, 0.621 without), so those networks read the evidence alone.
-ANSWERS_READ_BY = ("truth",)
 # Their gains where they read them (``RelationConfig.evidence_gains``). The coincident answer
 # reads at 10: at 1 the ``truth`` ltn called a stacked pair 0.42 mm apart coincident on 8 of 8
 # held-out views (clear-pair coincident 98.7%); at 10, 100% and 99.9% (seeds 0 and 1). The
@@ -81,13 +81,13 @@ PAIR_CONES = ("cone_right", "cone_behind", "cone_up")
 CONE_SOFTNESS_DEG = 2.0  # a cone code moves across its edge over about this many degrees
 # Every column ``network_evidence`` gives, in order.
 EVIDENCE = (*PAIR_FEATURES, *GEOMETRIC_ANSWERS, *PAIR_DIRECTION, *PAIR_CONES)
-# The inputs whose networks read the observed points (``partial``) of the same view and their
-# evidence, beside the input's own evidence (``with_observed``): a network reading any
-# observed column reads the observed points, not its input's (``reads_observed``). A
-# completion gives the hidden side, but as voxel centres where the camera saw fine points: on
-# its own points and evidence ltn found perpendicular mates of the held-out assemblies at F1
-# 0.09-0.11 (two seeds), reading both 0.36 (validation mean F1 0.780 -> 0.795; relation card).
-OBSERVED_BY = {"completed": "partial"}
+# An input's networks may read the observed points (``partial``) of the same view and their
+# evidence, beside the input's own evidence (``RelationInput.observed_by``, ``with_observed``):
+# a network reading any observed column reads the observed points, not its input's
+# (``reads_observed``). A completion gives the hidden side, but as voxel centres where the
+# camera saw fine points: on its own points and evidence ltn found perpendicular mates of the
+# held-out assemblies at F1 0.09-0.11 (two seeds), reading both 0.36 (validation mean F1
+# 0.780 -> 0.795; relation card).
 OBSERVED_PREFIX = "observed_"
 # Every column a network may read: the input's own evidence, then the observed points'.
 ALL_EVIDENCE = (*EVIDENCE, *(OBSERVED_PREFIX + n for n in EVIDENCE))
@@ -98,10 +98,12 @@ ORDERED_COLUMNS = [ALL_EVIDENCE.index(p + n) for p in ("", OBSERVED_PREFIX)
 
 def evidence_names(input_name: str) -> list[str]:
     """The evidence a network of one input is trained to read (``ALL_EVIDENCE`` names): its
-    own, then the observed points' where it reads them (``OBSERVED_BY``)."""
-    answers = GEOMETRIC_ANSWERS if input_name in ANSWERS_READ_BY else ()
+    own (the tests' answers where the input is exact), then the observed points' where it
+    reads them (``RelationInput.observed_by``)."""
+    spec = INPUTS.get(input_name)
+    answers = GEOMETRIC_ANSWERS if spec.exact else ()
     own = [*PAIR_FEATURES, *answers, *PAIR_DIRECTION, *PAIR_CONES]
-    observed = OBSERVED_BY.get(input_name)
+    observed = spec.observed_by
     return own + ([OBSERVED_PREFIX + n for n in evidence_names(observed)] if observed else [])
 
 
@@ -114,7 +116,7 @@ def reads_observed(names: Sequence[str]) -> bool:
 def with_observed(evidence: npt.NDArray[np.floating],
                   observed: npt.NDArray[np.floating]) -> npt.NDArray[np.float32]:
     """(N, len(``ALL_EVIDENCE``)): an input's ``network_evidence`` and, after it, that of the
-    observed points of the same views (``OBSERVED_BY``).
+    observed points of the same views (``RelationInput.observed_by``).
 
     Raises:
         ValueError: either is not (N, len(``EVIDENCE``)) for one N.
@@ -128,8 +130,8 @@ def with_observed(evidence: npt.NDArray[np.floating],
 
 def evidence_gains(input_name: str) -> tuple[tuple[str, float], ...]:
     """The gains of a network of one input's evidence columns (``ANSWER_GAINS`` where it
-    reads the answers)."""
-    return ANSWER_GAINS if input_name in ANSWERS_READ_BY else ()
+    reads the answers: an exact input)."""
+    return ANSWER_GAINS if INPUTS.get(input_name).exact else ()
 
 
 @dataclass(frozen=True)
@@ -165,14 +167,10 @@ class GeometricTests:
     face_gap_mm: float = 0.5  # a face gap passes within the CAD's 1 mm plus this
 
 
-# The inputs whose evidence is measured on the CAD's own surfaces (``tests_for``).
-EXACT_INPUTS = ("truth",)
-
-
 def tests_for(input_name: str) -> GeometricTests:
     """The tests for one input's evidence: exact planes and cylinders where the input is the
-    CAD."""
-    exact = input_name in EXACT_INPUTS
+    CAD's own surface (``RelationInput.exact``)."""
+    exact = INPUTS.get(input_name).exact
     return GeometricTests(exact_planes=exact, coaxial_faces=exact)
 
 

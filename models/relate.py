@@ -1,15 +1,13 @@
 """Relations of captured pairs by every method on every input, in one harness.
 
 The relation stage of the nightly flow and the held-out evaluation of ``mateqa train
-relations`` both come here. For each capture, the completion network's shape of every part in
-every view is computed (``completed_clouds``: the shipped ``gan_lstm`` under the observed
-protocol, one view at a time), the pair views are assembled with their per-view truth
-(``cadio.evidence.pairs``), and each method decides the ten relations on each input:
-
-- ``ltn`` and ``mlp``: the relation networks (one checkpoint per method and input), which see
-  only the points in the observer's frame; a pair and its swap are decided together;
-- ``geometric``: fixed tests on the pair's evidence from fitted planes and axes
-  (``cadio.evidence.pair_features``), each the CAD definition widened by what points resolve.
+relations`` both come here. For each capture, the pair views are assembled with their per-view
+truth (``cadio.evidence.pairs``) in every registered input (``models.relation_inputs``: each
+input's builder makes its clouds, the ``completed`` one from the night's completion network),
+and every registered method (``models.relation_methods``) decides the ten relations on each
+input: the networks (one checkpoint per method and input, which see only the points in the
+observer's frame; a pair and its swap are decided together), and the methods without learning
+(fixed tests on the pair's evidence, ``cadio.evidence.pair_features``).
 
 One row per pair view x input x method x relation (``reports.relations.PAIR_COLUMNS``).
 """
@@ -17,54 +15,45 @@ One row per pair view x input x method x relation (``reports.relations.PAIR_COLU
 from __future__ import annotations
 
 import logging
-import re
-from collections.abc import Callable, Iterable, Mapping, Sequence
-from dataclasses import dataclass
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import numpy as np
 import numpy.typing as npt
 import pandas as pd
 
-from cadio.capture.examples import OBSERVED, read_example
+from cadio.capture.examples import OBSERVED
 from cadio.capture.scan import ASSEMBLY_PREFIX
 from cadio.errors import CaptureError
-from cadio.evidence.pairs import DEFAULT_PAIRS, INPUTS, PairConfig, PairView, capture_pairs
-from cadio.records import FloatArray, Relation
+from cadio.evidence.pairs import DEFAULT_PAIRS, PairConfig, PairView, capture_pairs
+from cadio.records import Relation
 from cadio.workspace import Workspace, atomic_path
+from models.completions import ours as completion_ours
 from models.errors import CheckpointError
 from models.geometric import (
     ALL_EVIDENCE,
-    OBSERVED_BY,
     GeometricTests,
-    geometric_decisions,
     network_evidence,
     reads_observed,
     tests_for,
     with_observed,
 )
 from models.relation_decision import Decision, violations
+from models.relation_inputs import INPUTS, InputContext, builders
+from models.relation_methods import RELATION_METHODS, RelationMethod, decide_fixed
 from models.relations import RelationNet
 from models.relations_train import (
     RelationData,
     load_relation_model,
     predict_relations,
 )
-from models.train import Model, predict
-from reports.metrics import surface_points
-
-if TYPE_CHECKING:
-    from cadio.capture.observe import CubeGrid
 
 log = logging.getLogger(__name__)
 
 SHIPPED_RELATIONS = Path(__file__).resolve().parent / "checkpoints" / "relations"
-LEARNED = ("ltn", "mlp")
-METHODS = (*LEARNED, "geometric")
 RELATIONS = tuple(r.value for r in Relation)
-THRESHOLD = 0.5  # a voxel of the completion is solid above this probability
-_SINGLE = re.compile(rf"^{OBSERVED}-(\d+)\.npz$")
 
 
 @dataclass(frozen=True)
@@ -124,87 +113,69 @@ def _stale_evidence(ckpt: Mapping[str, Any]) -> str:
             "retrain it (mateqa train relations)")
 
 
-Surface = Callable[[npt.NDArray[np.float32], "CubeGrid"], FloatArray]
+Observed = tuple[npt.NDArray[np.float32], npt.NDArray[np.float32]]
+Decided = tuple[npt.NDArray[np.bool_], npt.NDArray[np.float64], npt.NDArray[np.bool_], list[str]]
 
 
-def voxel_surface(probs: npt.NDArray[np.float32], grid: CubeGrid) -> FloatArray:
-    """The centres of the surface voxels of the solid predicted (probabilities over ``grid``,
-    (n, n, n)), world metres: how the night reads a completion."""
-    n = probs.shape[-1]
-    return surface_points(probs > THRESHOLD, grid.voxel_m(n), grid.grid_to_world(n))
+@dataclass(frozen=True)
+class PairBatch:
+    """One input's pair views as the methods read them.
+
+    points: (N, 2, k, 3) observer-frame points; mm_per_unit: (N,). keys: per row a key of each
+    part's cloud (a cloud met again is measured once). features: the pairs' raw evidence
+    (``pair_features_many``; None: measured on ``points``). centres: (N, 2, 3) the parts'
+    centres where the input knows the solids (None: the points' means). tests: the input's
+    geometric tests (``models.geometric.tests_for``), decided by the methods without learning
+    and read by the networks. observed: the same views' observed points (N, 2, k, 3) and
+    their ``network_evidence``, which a network of an input that reads them
+    (``RelationInput.observed_by``) reads in place of ``points`` and beside its own evidence.
+    """
+
+    points: npt.NDArray[np.float32]
+    mm_per_unit: npt.NDArray[Any]
+    keys: Sequence[tuple[Any, Any]] | None = None
+    features: npt.NDArray[np.float32] | None = None
+    centres: npt.NDArray[np.floating] | None = None
+    tests: GeometricTests = field(default_factory=GeometricTests)
+    observed: Observed | None = None
+
+    def evidence(self) -> npt.NDArray[np.float32]:
+        """The raw evidence (measured here where the batch carries none)."""
+        from cadio.evidence.pair_features import pair_features_many
+
+        if self.features is not None:
+            return self.features
+        keys = list(self.keys) if self.keys else None
+        return pair_features_many(self.points, self.mm_per_unit, keys)
 
 
-def completed_clouds(folder: Path, model: Model, surface: Surface = voxel_surface
-                     ) -> dict[int, FloatArray]:
-    """The completion of each single observed view of one part: view -> (m, 3) world metres
-    (``surface`` of the probabilities predicted in the view's observed grid; the scan's points
-    where nothing is predicted)."""
-    files = sorted((int(m.group(1)), p) for p in Path(folder).glob(f"{OBSERVED}-*.npz")
-                   if (m := _SINGLE.match(p.name)))
-    if not files:
-        return {}
-    examples = [read_example(p) for _, p in files]
-    probs = predict(model, [e.inputs for e in examples], batch_size=16)
-    out = {}
-    for (view, _), example, p in zip(files, examples, probs, strict=True):
-        pts = surface(p, example.grid) if (p > THRESHOLD).any() else \
-            example.points  # nothing predicted: the scan is all there is
-        out[view] = np.asarray(pts, dtype=np.float64)
-    return out
+def decide(batch: PairBatch, method: RelationMethod | str,
+           model: tuple[RelationNet, Decision] | None) -> Decided | None:
+    """One method's (decided, confidence, violation), each (N, 10), and joint (N,) on a batch
+    of pair views; None for a network without its checkpoint, or for one that reads the
+    observed points where the batch carries none.
 
-
-def capture_completions(capture: str, part_ids: Iterable[str], ws: Workspace,
-                        model: Model | None, surface: Surface = voxel_surface
-                        ) -> dict[tuple[str, int], FloatArray]:
-    """(part id, view) -> completed points for the parts of one capture (none without model)."""
-    if model is None:
-        return {}
-    return {(pid, view): pts for pid in part_ids
-            for view, pts in completed_clouds(ws.inputs(capture, pid), model, surface).items()}
-
-
-def decide(points: npt.NDArray[np.float32], mm_per_unit: npt.NDArray[Any], method: str,
-           model: tuple[RelationNet, Decision] | None,
-           keys: Sequence[tuple[Any, Any]] | None = None,
-           features: npt.NDArray[np.float32] | None = None,
-           centres: npt.NDArray[np.floating] | None = None,
-           tests: GeometricTests | None = None,
-           observed: tuple[npt.NDArray[np.float32], npt.NDArray[np.float32]] | None = None
-           ) -> tuple[npt.NDArray[np.bool_], npt.NDArray[np.float64],
-                      npt.NDArray[np.bool_], list[str]] | None:
-    """One method's (decided, confidence, violation), each (N, 10), and joint (N,) on
-    observer-frame pairs (N, 2, k, 3); None for a learned method without its checkpoint.
-    ``features``: the pairs' raw evidence (``pair_features_many``), computed here when None.
-    ``centres``: (N, 2, 3) the parts' centres in the frame of ``points`` where the input knows
-    the solids (``truth``); None: the points' means. ``tests``: the input's geometric tests
-    (``models.geometric.tests_for``; None: the fitted points'), decided by ``geometric`` and
-    read by the networks. ``observed``: the same views' observed points (N, 2, k, 3) and
-    their ``network_evidence``, which a network of an input in ``OBSERVED_BY`` reads in
-    place of ``points`` and beside its own evidence (None for such a network without them,
-    as without its checkpoint).
-
-    The joint is the network's joint head's answer; ``geometric``, and a network trained
-    without a joint head, read it from their concentric and coincident answers
+    The joint is the network's joint head's answer; a method without learning, and a network
+    trained without a joint head, read it from their concentric and coincident answers
     (``cadio.truth.joints.predicted_joint``)."""
-    from cadio.evidence.pair_features import pair_features_many
-
-    if features is None:
-        features = pair_features_many(points, mm_per_unit, list(keys) if keys else None)
-    tests = tests or GeometricTests()
-    if method == "geometric":
-        decided = geometric_decisions(points, mm_per_unit, features, keys, tests, centres)
+    spec = RELATION_METHODS.get(method) if isinstance(method, str) else method
+    features = batch.evidence()
+    if not spec.learned:
+        decided = decide_fixed(spec, batch.points, batch.mm_per_unit, features, batch.keys,
+                               batch.tests, batch.centres)
         # the tests are symmetric and the cones converse: nothing to violate; a hard
         # geometric decision carries no calibrated probability.
         return (decided, np.full(decided.shape, np.nan), np.zeros(decided.shape, dtype=bool),
                 joints_of(decided))
-    if model is None or (observed is None and reads_observed(model[0].cfg.evidence)):
+    if model is None or (batch.observed is None and reads_observed(model[0].cfg.evidence)):
         return None
     net, decision = model
-    evidence = network_evidence(features, points, centres, tests)
-    if observed is not None and reads_observed(net.cfg.evidence):
-        points, evidence = observed[0], with_observed(evidence, observed[1])
+    points = batch.points
+    evidence = network_evidence(features, points, batch.centres, batch.tests)
+    if batch.observed is not None and reads_observed(net.cfg.evidence):
+        points, evidence = batch.observed[0], with_observed(evidence, batch.observed[1])
     data = RelationData(points, np.zeros((len(points), len(RELATIONS)), dtype=bool),
-                        np.asarray(mm_per_unit, dtype=np.float64), evidence)
+                        np.asarray(batch.mm_per_unit, dtype=np.float64), evidence)
     pred = predict_relations(net, data, decision=decision)
     return (pred.decided, pred.confidence, violations(pred.raw_ab, pred.raw_ba),
             pred.joint() or joints_of(pred.decided))
@@ -220,40 +191,44 @@ def joints_of(decided: npt.NDArray[np.bool_]) -> list[str]:
 
 
 def relate_views(views: Sequence[PairView], models: RelationModels,
-                 methods: Sequence[str] = METHODS) -> list[dict[str, Any]]:
-    """``relations_pairs`` rows of pair views: every method on every input they carry (the
-    networks of an input in ``OBSERVED_BY`` where the views carry the observed points too)."""
+                 methods: Sequence[str] | None = None) -> list[dict[str, Any]]:
+    """``relations_pairs`` rows of pair views: every method (default: every registered one)
+    on every input they carry (the networks of an input that reads another's observed points,
+    ``RelationInput.observed_by``, where the views carry those too)."""
     from cadio.evidence.pair_features import pair_features_many
 
+    chosen = [RELATION_METHODS.get(m) for m in methods or RELATION_METHODS.names()]
     rows: list[dict[str, Any]] = []
-    # observed input -> id(view) -> the view's points and network evidence of that input
+    # input -> id(view) -> the view's points and network evidence of that input
     seen: dict[str, dict[int, tuple[npt.NDArray[np.float32], npt.NDArray[np.float32]]]] = {}
-    for name in INPUTS:
+    observers = {i.observed_by for i in INPUTS.entries() if i.observed_by}
+    for spec in INPUTS.entries():
+        name = spec.name
         having = [v for v in views if name in v.points]
         if not having:
             continue
         points = np.stack([v.observer_points(name) for v in having])
         mm = np.array([1.0 / v.scale_m_per_mm for v in having])
         keys = [((v.scene, v.part_a, v.view), (v.scene, v.part_b, v.view)) for v in having]
-        # the evidence is measured on each view's evidence clouds (CAD samples: one per part)
-        cloud_keys = [((v.scene, v.part_a), (v.scene, v.part_b)) if name == "truth" else k
-                      for v, k in zip(having, keys, strict=True)]
+        # exact evidence is measured on each part's CAD samples, the same in every view
+        cloud_keys = [((name, v.scene, v.part_a), (name, v.scene, v.part_b)) if spec.exact
+                      else k for v, k in zip(having, keys, strict=True)]
         features = pair_features_many([v.evidence_clouds(name) for v in having], mm,
                                       cloud_keys)
         centres = np.stack([v.observer_centres(name) for v in having])
-        if name in OBSERVED_BY.values():  # kept for the networks of the inputs that read it
+        if name in observers:  # kept for the networks of the inputs that read it
             own = network_evidence(features, points, centres, tests_for(name))
             seen[name] = {id(v): (p, e) for v, p, e in zip(having, points, own, strict=True)}
-        reads = seen.get(OBSERVED_BY.get(name, ""), {})
+        reads = seen.get(spec.observed_by or "", {})
         observed = None
         if all(id(v) in reads for v in having):
             observed = (np.stack([reads[id(v)][0] for v in having]),
                         np.stack([reads[id(v)][1] for v in having]))
-        for method in methods:
-            decided = decide(points, mm, method, models.models.get((method, name)), keys,
-                             features, centres, tests_for(name), observed)
+        batch = PairBatch(points, mm, keys, features, centres, tests_for(name), observed)
+        for method in chosen:
+            decided = decide(batch, method, models.models.get((method.name, spec.checkpoints)))
             if decided is not None:
-                rows += _rows(having, name, method, *decided)
+                rows += _rows(having, name, method.name, *decided)
     return rows
 
 
@@ -269,28 +244,20 @@ def _rows(views: Sequence[PairView], name: str, method: str, decided: npt.NDArra
 
 
 def relate_captures(captures: Sequence[Path], ws: Workspace, categories: Mapping[str, str],
-                    models: RelationModels, completion: Model | None,
+                    models: RelationModels, ctx: InputContext,
                     cfg: PairConfig = DEFAULT_PAIRS) -> tuple[list[dict[str, Any]], list[str]]:
-    """Rows of every capture's pair views, and one line per capture that failed (the others
-    go on)."""
+    """Rows of every capture's pair views in every registered input, and one line per capture
+    that failed (the others go on)."""
     rows: list[dict[str, Any]] = []
     failed = []
     for path in captures:
         try:
-            views = capture_pairs(path, ws, categories, cfg, completions_of(path, ws, completion))
+            views = capture_pairs(path, ws, categories, cfg, builders(path, ws, ctx))
         except (OSError, ValueError, KeyError, CaptureError) as exc:
             failed.append(f"{path.name}: {type(exc).__name__}: {exc}")
             continue
         rows += relate_views(views, models)
     return rows, failed
-
-
-def completions_of(path: Path, ws: Workspace, completion: Model | None,
-                   surface: Surface = voxel_surface) -> dict[tuple[str, int], FloatArray]:
-    """(part id, view) -> completed points of every part with inputs under a capture."""
-    folder = ws.root / "inputs" / path.stem
-    parts = [p.name for p in folder.iterdir() if p.is_dir()] if folder.is_dir() else []
-    return capture_completions(path.stem, parts, ws, completion, surface)
 
 
 @dataclass(frozen=True)
@@ -320,8 +287,9 @@ def relate_batch(captures: Sequence[Path], ws: Workspace, relations_dir: Path,
                           strict=True))
     models = load_relation_models(relations_dir)
     completions = load_models(completion_dir)
-    completion = completions.models.get(("gan_lstm", OBSERVED))
-    rows, failed = relate_captures(captures, ws, categories, models, completion, cfg)
+    completion = completions.models.get((completion_ours().name, OBSERVED))
+    rows, failed = relate_captures(captures, ws, categories, models,
+                                   InputContext(completion=completion), cfg)
     failed = [*models.errors, *failed]
     seen = models.trained_on() | completions.trained_on()  # a part a network learned from
     held = [r for r in rows if r["part_a"] not in seen and r["part_b"] not in seen]

@@ -41,10 +41,11 @@ from cadio.capture.observe import observer_rotation
 from cadio.capture.pointcloud import sample_points
 from cadio.evidence.cad_samples import placed_cad_samples
 from cadio.evidence.pair_features import pair_features_many
-from cadio.evidence.pairs import INPUTS, evidence_cloud, pair_category
+from cadio.evidence.pairs import PairConfig, evidence_cloud, pair_category
 from cadio.truth.corpus_labels import ShotLabels
 from cadio.workspace import atomic_write, features_of_mesh, read_mesh
-from models.geometric import OBSERVED_BY, network_evidence, tests_for, with_observed
+from models.geometric import network_evidence, tests_for, with_observed
+from models.relation_inputs import INPUTS, trained
 from models.relations import JOINTS
 from models.relations_train import RelationData, nearest_of_pairs
 from models.train import Model, predict
@@ -78,10 +79,11 @@ class RelationSplit:
 
     def data(self, name: str, rows: npt.NDArray[np.bool_] | None = None) -> RelationData:
         """One input's pairs as its networks read them, of ``rows`` (default all): the points
-        (the observed ones for an input in ``OBSERVED_BY``) and ``evidence``."""
+        (the observed ones for an input that reads them, ``RelationInput.observed_by``) and
+        ``evidence``."""
         keep = np.ones(len(self.labels), dtype=bool) if rows is None else rows
         mm = 1.0 / self.meta["scale_m_per_mm"].to_numpy(dtype=np.float64)
-        points = OBSERVED_BY.get(name, name)
+        points = INPUTS.get(name).observed_by or name
         return RelationData(self.inputs[points][keep], self.labels[keep], mm[keep],
                             self.evidence(name)[keep], self.near[points][keep],
                             self.joints()[keep])
@@ -94,9 +96,9 @@ class RelationSplit:
 
     def evidence(self, name: str) -> npt.NDArray[np.float32]:
         """What a network of one input reads: its ``network_evidence``, with the observed
-        points' after it where it reads them (``OBSERVED_BY``, ``with_observed``)."""
+        points' after it where it reads them (``RelationInput.observed_by``, ``with_observed``)."""
         own = self.network_evidence(name)
-        observed = OBSERVED_BY.get(name)
+        observed = INPUTS.get(name).observed_by
         return own if observed is None else with_observed(own, self.network_evidence(observed))
 
     def joints(self) -> npt.NDArray[np.int64]:
@@ -125,8 +127,7 @@ class _Row:
 
 def build_relation_dataset(corpus_dir: Path, shots: Sequence[Shot],
                            labels: Mapping[str, ShotLabels], index: pd.DataFrame,
-                           completion: Model | None, out_dir: Path, n_points: int = 600,
-                           min_observed: int = 30, evidence_points: int = 600,
+                           completion: Model | None, out_dir: Path, cfg: PairConfig,
                            progress: Callable[[str], None] | None = None) -> dict[str, int]:
     """Write ``<split>.npz`` of every split of the shots' labelled pair views; rows per split.
 
@@ -137,8 +138,9 @@ def build_relation_dataset(corpus_dir: Path, shots: Sequence[Shot],
         index: the corpus's example index (the single views the completion network sees).
         completion: the completion network (``gan_lstm``, observed protocol); without it a pair
             view has no ``completed`` input and is left out.
-        min_observed: a part seen by fewer points in a view gives no pair view there.
-        evidence_points: points per part of the ``truth`` and ``completed`` pair evidence.
+        cfg: the nightly's pair inputs (``PairConfig``: points per part, the fewest observed
+            points a part must show in a view, points of the ``truth`` and ``completed`` pair
+            evidence).
     """
     singles = _single_views(index)
     by_split: dict[str, list[_Row]] = {}
@@ -147,7 +149,7 @@ def build_relation_dataset(corpus_dir: Path, shots: Sequence[Shot],
             continue
         try:
             rows = _shot_rows(corpus_dir, shot, labels[shot.shot_id], singles, completion,
-                              n_points, min_observed, evidence_points)
+                              cfg)
         except (OSError, ValueError, KeyError) as exc:
             log.warning("shot %s: %s", shot.shot_id, exc)
             continue
@@ -171,7 +173,7 @@ def _single_views(index: pd.DataFrame) -> dict[tuple[str, int, int], str]:
 
 def _shot_rows(corpus_dir: Path, shot: Shot, truth: ShotLabels,
                singles: Mapping[tuple[str, int, int], str], completion: Model | None,
-               n_points: int, min_observed: int, evidence_points: int) -> list[_Row]:
+               cfg: PairConfig) -> list[_Row]:
     parts = {p.instance: p for p in shot.parts}
     with np.load(corpus_dir / "views" / f"{shot.shot_id}.npz") as z:
         seen = {(int(i), int(v)): k for k, (i, v) in enumerate(zip(z["instance"], z["view"],
@@ -189,19 +191,19 @@ def _shot_rows(corpus_dir: Path, shot: Shot, truth: ShotLabels,
             continue
         for v, view in enumerate(truth.views.tolist()):
             ka, kb = seen.get((a, view)), seen.get((b, view))
-            if ka is None or kb is None or min(observed[ka], observed[kb]) < min_observed:
+            if ka is None or kb is None or min(observed[ka], observed[kb]) < cfg.min_observed:
                 continue
             points = {"truth": np.stack([cad[a], cad[b]]),
                       "partial": np.stack([partial[ka], partial[kb]])}
             done_a, done_b = (_completed(corpus_dir, shot.shot_id, k, view, singles,
-                                         completion, completed, n_points, evidence_points)
+                                         completion, completed, cfg)
                               for k in (a, b))
             if done_a is None or done_b is None:
                 continue
             points["completed"] = np.stack([done_a[0], done_b[0]])
             for k in (a, b):
                 if k not in dense_cad:
-                    dense_cad[k] = placed_samples(shot, k, evidence_points, scale)
+                    dense_cad[k] = placed_samples(shot, k, cfg.evidence_points, scale)
             evidence = {"truth": (dense_cad[a][0], dense_cad[b][0]),
                         "completed": (done_a[1], done_b[1])}
             rows.append(_Row(shot, view, a, b, per_view[v], bool(near[v].any()), joint, scale,
@@ -228,10 +230,11 @@ def _completed(corpus_dir: Path, shot: str, instance: int, view: int,
                singles: Mapping[tuple[str, int, int], str], model: Model | None,
                cache: dict[tuple[int, int], tuple[npt.NDArray[np.float32],
                                                   npt.NDArray[np.float32]]],
-               n_points: int, evidence_points: int
+               cfg: PairConfig
                ) -> tuple[npt.NDArray[np.float32], npt.NDArray[np.float32]] | None:
-    """The completion of one instance from one view: ``n_points`` of its solid's surface
-    voxels' centres (world metres) and up to ``evidence_points`` of them for the pair evidence;
+    """The completion of one instance from one view: ``cfg.n_points`` of its solid's surface
+    voxels' centres (world metres) and up to ``cfg.evidence_points`` of them for the pair
+    evidence;
     the observed points when the solid is empty."""
     if (instance, view) in cache:
         return cache[(instance, view)]
@@ -243,8 +246,9 @@ def _completed(corpus_dir: Path, shot: str, instance: int, view: int,
     n = solid.shape[-1]
     pts = surface_points(solid, example.grid.voxel_m(n), example.grid.grid_to_world(n)) \
         if solid.any() else example.points
-    out = (np.asarray(sample_points(np.asarray(pts), n_points, method="random"), np.float32),
-           np.asarray(evidence_cloud(np.asarray(pts), evidence_points), np.float32))
+    out = (np.asarray(sample_points(np.asarray(pts), cfg.n_points, method="random"),
+                      np.float32),
+           np.asarray(evidence_cloud(np.asarray(pts), cfg.evidence_points), np.float32))
     cache[(instance, view)] = out
     return out
 
@@ -256,13 +260,13 @@ def write_split(path: Path, rows: Sequence[_Row]) -> None:
     arrays: dict[str, Any] = {}
     mm = np.array([1.0 / r.scale for r in rows])
     keys = [((r.shot.shot_id, r.a, r.view), (r.shot.shot_id, r.b, r.view)) for r in rows]
-    for name in INPUTS:
+    for name in trained():
         pts = np.stack([r.points[name] @ observer_rotation(r.w2c) for r in rows]
                        ).astype(np.float32)
         arrays[f"points_{name}"] = pts
         clouds = [r.evidence.get(name, tuple(r.points[name])) for r in rows]
         # CAD samples do not change with the view: each instance's cloud is analysed once
-        cloud_keys = [((name, ka[0], ka[1]), (name, kb[0], kb[1])) if name == "truth"
+        cloud_keys = [((name, ka[0], ka[1]), (name, kb[0], kb[1])) if INPUTS.get(name).exact
                       else ((name, *ka), (name, *kb)) for ka, kb in keys]
         arrays[f"features_{name}"] = pair_features_many(clouds, mm, cloud_keys)
         arrays[f"near_{name}"] = nearest_of_pairs(pts, mm)
@@ -286,9 +290,9 @@ def write_split(path: Path, rows: Sequence[_Row]) -> None:
 def read_split(path: Path) -> RelationSplit:
     """A split written by ``write_split``."""
     with np.load(path) as z:
-        inputs = {n: z[f"points_{n}"].astype(np.float32) for n in INPUTS}
-        features = {n: z[f"features_{n}"].astype(np.float32) for n in INPUTS}
-        near = {n: z[f"near_{n}"].astype(np.float32) for n in INPUTS}
+        inputs = {n: z[f"points_{n}"].astype(np.float32) for n in trained()}
+        features = {n: z[f"features_{n}"].astype(np.float32) for n in trained()}
+        near = {n: z[f"near_{n}"].astype(np.float32) for n in trained()}
         meta = pd.DataFrame({col: z[col] for col in META})
         if "centres_truth" not in z:
             raise ValueError(f"{path}: a relation dataset from before the parts' centres: "

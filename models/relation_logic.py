@@ -11,6 +11,7 @@ from __future__ import annotations
 import torch
 from torch import Tensor
 
+from models.relation_methods import uses_axioms
 from models.relations import (
     CONVERSE_INDEX,
     DIRECTIONAL_INDEX,
@@ -103,7 +104,7 @@ def knowledge_base(t_ab: Tensor, t_ba: Tensor, labels: Tensor, cfg: RelationConf
             if bool(mask.any()):  # an empty class has no axiom in this batch
                 facts.append(forall(holds[mask], p))
     rules = []
-    if cfg.method == "ltn":
+    if uses_axioms(cfg.method):
         t, s = torch.cat([t_ab, t_ba]), torch.cat([t_ba, t_ab])  # (2B, 10): x and swap x
         for r in DIRECTIONAL_INDEX:
             rules.append(forall(implies(t[:, r], s[:, CONVERSE_INDEX[r]]), p))
@@ -139,7 +140,7 @@ def joint_knowledge_base(joint_probs: Tensor, joints: Tensor, t_ab: Tensor,
     axioms = [forall(joint_probs[joints == c, c], p) for c in range(len(JOINTS))
               if bool((joints == c).any())]
     n_facts = len(axioms)
-    if cfg.method == "ltn":
+    if uses_axioms(cfg.method):
         rel = t_ab.detach() if cfg.joint_detach else t_ab
         for c, name in enumerate(JOINTS):
             for r, positive in JOINT_IMPLIES[name]:

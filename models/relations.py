@@ -53,7 +53,6 @@ OPPOSITES = ((0, 1), (2, 3), (4, 5))  # left/right, above/below, front/behind: n
 EXCLUSIVE = (*OPPOSITES, (PARALLEL, PERPENDICULAR))  # pairs of one pair's relations, at most one
 N_DESCRIPTORS = 24  # per part: centroid 3, principal directions' d d^T 3 x 6, extents 3
 N_CONTACT = 2  # per point: nearness of the other part at 1 mm and at 10 mm
-METHODS = ("ltn", "mlp")
 # The joint head's classes: the CAD's kinematic joints of the training corpus's pairs
 # (``cadio.truth.joints``; fastened and "other" never occur there), "none" without one.
 JOINTS = ("none", "planar", "revolute", "cylindrical", "slider")
@@ -72,7 +71,8 @@ JOINT_IMPLIES = {"revolute": ((CONCENTRIC, True), (COINCIDENT, True)),
 class RelationConfig:
     """The network, its logic and its training; ``method`` names the variant."""
 
-    method: str = "ltn"  # "ltn": facts and rules; "mlp": the same network on the facts only
+    # a network of ``models.relation_methods``: "ltn" (facts and rules), "mlp" (facts only)
+    method: str = "ltn"
     n_points: int = 600  # points per part the data layer delivers (inference takes any count)
     # Points per part per training step (a random subset, its nearness to the other part
     # measured against that part's every point beforehand): the per-point MLP over 2 x 600
@@ -149,8 +149,10 @@ class RelationConfig:
             if unknown or len(self.evidence) != self.pair_features:
                 raise ValueError(f"evidence must name pair_features ({self.pair_features}) "
                                  f"columns of ALL_EVIDENCE; unknown {unknown}")
-        if self.method not in METHODS:
-            raise ValueError(f"method must be one of {METHODS}, got {self.method!r}")
+        from models.relation_methods import learned
+
+        if self.method not in learned():
+            raise ValueError(f"method must be one of {learned()}, got {self.method!r}")
         if min(self.widths, default=0) < 1 or min(self.embed, self.ntn_k, self.n_points) < 1:
             raise ValueError("widths, embed, ntn_k and n_points must be positive")
         if self.pair_features < 0 or self.feature_width < 1 or self.jitter_mm < 0:

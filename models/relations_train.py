@@ -52,9 +52,9 @@ from models.relation_decision import (
     violations,
 )
 from models.relation_logic import joint_knowledge_base, knowledge_base
+from models.relation_methods import learned
 from models.relations import (
     JOINTS,
-    METHODS,
     RELATIONS,
     RelationConfig,
     RelationNet,
@@ -370,8 +370,8 @@ def relation_model_from_checkpoint(ckpt: Mapping[str, Any], method: str | None =
     where = str(ckpt.get("created", "<checkpoint>"))
     if ckpt.get("format") != FORMAT:
         raise CheckpointError(where, f"not a {FORMAT} checkpoint")
-    if ckpt.get("method") not in METHODS or (method and ckpt["method"] != method):
-        want = repr(method) if method else " or ".join(map(repr, METHODS))
+    if ckpt.get("method") not in learned() or (method and ckpt["method"] != method):
+        want = repr(method) if method else " or ".join(map(repr, learned()))
         raise CheckpointError(where, f"method {ckpt.get('method')!r} is not {want}")
     missing = [k for k in (*KEYS, *RELATION_KEYS) if k not in ckpt]
     if missing:
@@ -484,7 +484,8 @@ def train_relations(cfg: RelationConfig, train: RelationData, val: RelationData 
     return RelationResult(model, ckpt, decision, history, losses)
 
 
-def _step(model: RelationNet, opt: torch.optim.Optimizer, cfg: RelationConfig,
+# One optimiser step on the six tensors of a batch, as they come from the sampler.
+def _step(model: RelationNet, opt: torch.optim.Optimizer, cfg: RelationConfig,  # noqa: PLR0913
           points: torch.Tensor, mm: torch.Tensor, features: torch.Tensor,
           labels: torch.Tensor, near: torch.Tensor, joints: torch.Tensor) -> dict[str, float]:
     """One Adam step on 1 - sat: the losses and satisfactions."""

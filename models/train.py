@@ -23,7 +23,7 @@ import numpy as np
 import torch
 from torch import Tensor, nn
 
-from models.baselines import R2N2, R2N2Config
+from models.baselines import R2N2
 from models.checkpoint import (
     Checkpoint,
     Config,
@@ -47,31 +47,26 @@ from models.errors import CheckpointError
 
 logger = logging.getLogger(__name__)
 
-METHODS = ("gan_lstm", "ae", "r2n2")
 Model = Generator | R2N2
 Data = CompletionDataset | Sequence[Example]
 
 
 def config_for(method: str, **overrides: Any) -> Config:
-    """The default config of a method, with field overrides.
-
-    ``ae`` is the paper's generator without LSTM and GAN: it sees the union of a sequence's
-    views, in training as in scoring.
+    """The default config of a learned completion method (``models.completions``), with field
+    overrides.
 
     Raises:
-        ValueError: unknown method or field.
+        ValueError: unknown method, a method without learning, or an unknown field.
     """
-    presets: dict[str, Callable[[], Config]] = {
-        "gan_lstm": CompletionConfig,
-        "ae": lambda: CompletionConfig(lstm=False, gan=False),
-        "r2n2": R2N2Config,
-    }
-    if method not in presets:
-        raise ValueError(f"unknown method {method!r}; expected one of {METHODS}")
+    from cadio.registry import UnknownEntry
+    from models.completions import COMPLETIONS
+
     try:
-        return replace(presets[method](), **overrides)
-    except TypeError as exc:
-        raise ValueError(f"bad field for {method}: {exc}") from exc
+        spec = COMPLETIONS.get(method)
+    except UnknownEntry as exc:
+        raise ValueError(str(exc)) from None
+    cfg: Config = spec.make_config(**overrides)
+    return cfg
 
 
 @dataclass(frozen=True)
@@ -305,7 +300,8 @@ def _dataset(data: Data | None, cfg: Config) -> CompletionDataset | None:
     return data
 
 
-def train_completion(cfg: Config, train_data: Data, val_data: Data | None,
+# Past the config and the data, each argument is an optional keyword of one run.
+def train_completion(cfg: Config, train_data: Data, val_data: Data | None,  # noqa: PLR0913
                      device: torch.device | str = "cpu",
                      steps: int = 1000, progress: Callable[[TrainEvent], None] | None = None,
                      resume: Mapping[str, Any] | Path | str | None = None,
@@ -344,14 +340,7 @@ def train_completion(cfg: Config, train_data: Data, val_data: Data | None,
         raise ValueError("resume continues a run and init starts one: give one of them")
     start = None if init is None else dict(
         load_checkpoint(init) if isinstance(init, Path | str) else init)
-    info = {"train": len(train), "val": len(val or ()), **(data_info or {})}
-    if start is not None:
-        info["init"] = {"method": start.get("method"), "step": start.get("step"),
-                        "created": start.get("created")}
-        # The weights learned from the init's parts too: a held-out figure must leave them out.
-        before = start.get("data", {}).get("train_parts", [])
-        if before or "train_parts" in info:
-            info["train_parts"] = sorted({*before, *info.get("train_parts", [])})
+    info = _data_info(train, val, data_info, start)
     with seeded(cfg.seed):
         run = _Run(Learner(cfg, torch.device(device)), train, val, info)
         if resume is not None:
@@ -371,6 +360,22 @@ def train_completion(cfg: Config, train_data: Data, val_data: Data | None,
     best = run.best or make_checkpoint(run.learner.model, last["step"], {}, info)
     model = model_from_checkpoint(best).to(device)
     return TrainResult(model, best, last, run.history, run.losses)
+
+
+def _data_info(train: CompletionDataset, val: CompletionDataset | None,
+               data_info: Mapping[str, Any] | None, start: Mapping[str, Any] | None
+               ) -> dict[str, Any]:
+    """The checkpoints' ``data``: split sizes, the caller's ``data_info`` and, for a fine-tune,
+    its init checkpoint and the parts that one learned from."""
+    info = {"train": len(train), "val": len(val or ()), **(data_info or {})}
+    if start is not None:
+        info["init"] = {"method": start.get("method"), "step": start.get("step"),
+                        "created": start.get("created")}
+        # The weights learned from the init's parts too: a held-out figure must leave them out.
+        before = start.get("data", {}).get("train_parts", [])
+        if before or "train_parts" in info:
+            info["train_parts"] = sorted({*before, *info.get("train_parts", [])})
+    return info
 
 
 @torch.no_grad()

@@ -42,6 +42,7 @@ import pandas as pd
 from cadio.errors import InputFileError
 from cadio.records import Category
 from cadio.workspace import atomic_path, atomic_write
+from reports.methods import completion_order
 from reports.metrics import METRICS, BoolGrid, part_metrics
 from reports.tables import markdown_table
 
@@ -58,8 +59,6 @@ CONTEXT_COLUMNS = ("category", "context", "method", "protocol", "n_parts", *MEAN
 CONTEXTS = ("alone", "pair", "assembly")
 
 PROTOCOLS = ("observed", "oracle-box")
-OURS = "gan_lstm"
-BASELINES = ("visible", "carve", "ae", "r2n2")
 ALL = "all"
 HELD_OUT = "test"
 SPLITS = ("train", "val", "test")  # cadio.truth.scenes.SPLITS, not imported: the truth room
@@ -204,7 +203,7 @@ def _sort_key(column: pd.Series) -> pd.Series:
     if column.name == "category":
         return column.map(lambda c: f"1{c}" if c == ALL else f"0{c}")
     if column.name == "method":
-        rank = {m: i for i, m in enumerate((OURS, *BASELINES))}
+        rank = {m: i for i, m in enumerate(completion_order())}
         return column.map(lambda m: f"{rank.get(m, len(rank))}{m}")
     return column
 

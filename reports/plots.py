@@ -11,6 +11,7 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
+from reports.methods import product
 from reports.relations import RELATIONS
 from reports.trends import ALL
 
@@ -91,8 +92,9 @@ def iou_lines(fig: Any, table: pd.DataFrame, xlabel: str) -> bool:
 
 
 def relation_accuracy(fig: Any, alls: pd.DataFrame) -> bool:
-    """Accuracy of ltn per relation, one bar per input (``relations_summary``, category all)."""
-    rows = alls[alls["method"] == "ltn"]
+    """Accuracy of the product's relation method per relation, one bar per input
+    (``relations_summary``, category all)."""
+    rows = alls[alls["method"] == product()[1]]
     if rows.empty:
         return False
     wide = rows.pivot_table(index="relation", columns="input", values="accuracy")
@@ -102,8 +104,9 @@ def relation_accuracy(fig: Any, alls: pd.DataFrame) -> bool:
 
 
 def confusion(fig: Any, pairs: pd.DataFrame) -> bool:
-    """One confusion matrix per relation of ltn on completed points."""
-    rows = pairs[(pairs["method"] == "ltn") & (pairs["input"] == "completed")] \
+    """One confusion matrix per relation of the product's answers (ltn on completed points)."""
+    given, method = product()
+    rows = pairs[(pairs["method"] == method) & (pairs["input"] == given)] \
         if len(pairs) else pairs
     if rows.empty:
         return False

@@ -28,6 +28,7 @@ import pandas as pd
 from cadio.truth.joints import predicted_joint
 from cadio.workspace import atomic_path, atomic_write
 from reports.intervals import f1_interval, joint_interval
+from reports.methods import product
 from reports.tables import markdown_table
 
 PAIR_COLUMNS = ("scene", "view", "part_a", "part_b", "category", "input", "method", "relation",
@@ -40,8 +41,6 @@ ASSEMBLY_COLUMNS = ("assembly", "relation", "n_cad", "n_pred", "precision", "rec
 JOINT_COLUMNS = ("assembly", "view", "part_a", "part_b", "cad_joint", "predicted_joint", "agree")
 RELATIONS = ("left", "right", "above", "below", "front", "behind", "parallel", "perpendicular",
              "concentric", "coincident")
-# The product's answer, which the assembly table and the exported notes use.
-PRODUCT = ("completed", "ltn")
 # Table III of the paper: its accuracies (%) and those it quotes for RANSEM and CPN.
 PAPER_TABLE_III = {
     "left": (99.7, 86.8, 79.0), "right": (99.5, 88.9, 79.0), "above": (99.6, None, 82.0),
@@ -88,11 +87,11 @@ def summary_frame(pairs: pd.DataFrame) -> pd.DataFrame:
     return pd.DataFrame(rows, columns=list(SUMMARY_COLUMNS))
 
 
-def assembly_frame(pairs: pd.DataFrame, product: tuple[str, str] = PRODUCT) -> pd.DataFrame:
+def assembly_frame(pairs: pd.DataFrame, answers: tuple[str, str] | None = None) -> pd.DataFrame:
     """``assembly_mates`` rows: per assembly scene (and "all") and relation, the CAD's count
     (n_cad), the product method's (n_pred), their precision, recall and F1, and F1's 95%
     interval over the distinct pairs the views show (``f1_interval``)."""
-    inp, method = product
+    inp, method = answers or product()
     mine = pairs[(pairs["input"] == inp) & (pairs["method"] == method)]
     rows = []
     for assembly, group in [("all", mine), *mine.groupby("scene", sort=True)]:
@@ -121,12 +120,12 @@ def assembly_f1_table(pairs: pd.DataFrame) -> pd.DataFrame:
 
 
 def joint_frame(pairs: pd.DataFrame, joints: pd.DataFrame,
-                product: tuple[str, str] = PRODUCT) -> pd.DataFrame:
+                answers: tuple[str, str] | None = None) -> pd.DataFrame:
     """Joint-type agreement: for every view of an assembly pair whose CAD mates make a joint
     (``joints``: scene, part_a, part_b, kinematic), the product's joint (its joint head's
     answer; where a row has none, the joint its concentric and coincident answers imply)
     beside the CAD's kinematic joint (``JOINT_COLUMNS``)."""
-    said = product_joints(pairs, product)
+    said = product_joints(pairs, answers)
     if said.empty or joints.empty:
         return pd.DataFrame(columns=list(JOINT_COLUMNS))
     both = pd.concat([joints, joints.rename(columns={"part_a": "part_b", "part_b": "part_a"})])
@@ -139,10 +138,10 @@ def joint_frame(pairs: pd.DataFrame, joints: pd.DataFrame,
     return out[list(JOINT_COLUMNS)]
 
 
-def product_joints(pairs: pd.DataFrame, product: tuple[str, str] = PRODUCT) -> pd.DataFrame:
+def product_joints(pairs: pd.DataFrame, answers: tuple[str, str] | None = None) -> pd.DataFrame:
     """The product's joint per pair view (scene, view, part_a, part_b, predicted_joint): its
     rows' ``joint``, or where they carry none, the one its concentric and coincident imply."""
-    inp, method = product
+    inp, method = answers or product()
     mine = pairs[(pairs["input"] == inp) & (pairs["method"] == method)
                  & pairs["relation"].isin(["concentric", "coincident"])]
     view = ["scene", "view", "part_a", "part_b"]
@@ -162,10 +161,10 @@ def product_joints(pairs: pd.DataFrame, product: tuple[str, str] = PRODUCT) -> p
 
 
 def false_joints(pairs: pd.DataFrame, joints: pd.DataFrame,
-                 product: tuple[str, str] = PRODUCT) -> tuple[int, int]:
+                 answers: tuple[str, str] | None = None) -> tuple[int, int]:
     """(views of assembly pairs without a CAD joint, those the product gives a joint): the
     joint agreement's other side (it is scored on the jointed pairs only)."""
-    said = product_joints(pairs, product)
+    said = product_joints(pairs, answers)
     said = said[said["scene"].astype(str).str.startswith("assembly-")]
     jointed = set()
     for r in joints.itertuples():
@@ -252,7 +251,8 @@ def relations_markdown(summary: pd.DataFrame, near: pd.DataFrame, assemblies: pd
     out += ["## Near-boundary pairs: accuracy (%)", ""]
     out += [_markdown(accuracy_table(near).drop(columns=["paper", "RANSEM", "CPN"]))
             if len(near) else "no near-boundary pair", ""]
-    out += [f"## Against the CAD mates of the assemblies ({PRODUCT[1]} on {PRODUCT[0]} inputs)",
+    given, method = product()
+    out += [f"## Against the CAD mates of the assemblies ({method} on {given} inputs)",
             ""]
     out += [markdown_table(assemblies.round(3)) if len(assemblies) else "no assembly captured"]
     if len(assemblies):
@@ -265,7 +265,7 @@ def relations_markdown(summary: pd.DataFrame, near: pd.DataFrame, assemblies: pd
         agree = joints.groupby(["assembly", "cad_joint"]).agg(
             n=("agree", "size"), agreement=("agree", "mean")).reset_index()
         low, high, pairs = joint_interval(joints)
-        out += ["", f"## Joint types: the CAD's beside {PRODUCT[1]}'s on {PRODUCT[0]} inputs",
+        out += ["", f"## Joint types: the CAD's beside {method}'s on {given} inputs",
                 "", markdown_table(agree.round(3)), "",
                 f"Joint agreement {joints['agree'].mean():.3f} over {len(joints)} views of "
                 f"{pairs} distinct pairs; 95% interval {low:.3f} to {high:.3f}, resampling the "

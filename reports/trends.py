@@ -22,14 +22,13 @@ import pandas as pd
 from cadio.errors import InputFileError
 from cadio.inputs import read_text
 from cadio.workspace import atomic_write
+from reports.methods import completion_ours, product
 
 DEFAULT_THRESHOLDS = Path(__file__).with_name("thresholds.toml")
 CATEGORIES_COLUMNS = ("category", "metric", "value", "previous", "threshold", "status",
                       "direction", "max_drop", "mean_last_n", "n")
 STATUSES = ("pass", "fail", "regressed", "no-threshold", "no-data", "too-few")
 ALL = "all"
-OURS = ("gan_lstm", "observed")  # the completion method and protocol the checks follow
-RELATED = ("completed", "ltn")  # the relation input and method the checks follow
 
 
 @dataclass(frozen=True)
@@ -146,7 +145,8 @@ def _completion(metric: str) -> Callable[[Path], pd.DataFrame]:
         table = _read_csv(run / "completion_categories.csv")
         if table.empty:
             return table
-        rows = table[(table["method"] == OURS[0]) & (table["protocol"] == OURS[1])]
+        method, protocol = completion_ours()
+        rows = table[(table["method"] == method) & (table["protocol"] == protocol)]
         return rows.rename(columns={metric: "value", "n_parts": "n"})[["category", "value", "n"]]
     return read
 
@@ -155,7 +155,8 @@ def _relation_accuracy(run: Path) -> pd.DataFrame:
     table = _read_csv(run / "relations_summary.csv")
     if table.empty:
         return table
-    rows = table[(table["input"] == RELATED[0]) & (table["method"] == RELATED[1])]
+    given, method = product()
+    rows = table[(table["input"] == given) & (table["method"] == method)]
     return rows.groupby("category", as_index=False).agg(value=("accuracy", "mean"),
                                                         n=("n", "max"))
 

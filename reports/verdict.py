@@ -185,7 +185,7 @@ def assembly_intervals(run_dir: Path) -> str:
     scored no assembly. A figure over a few dozen pairs moves by tenths from night to night
     without anything changing: this says by how much."""
     from reports.intervals import joint_interval, mates_f1_interval
-    from reports.relations import PRODUCT
+    from reports.methods import product
 
     run_dir = Path(run_dir)
     said = []
@@ -193,7 +193,8 @@ def assembly_intervals(run_dir: Path) -> str:
     if pairs_path.is_file():
         pairs = pd.read_parquet(pairs_path, columns=["scene", "part_a", "part_b", "input",
                                                      "method", "relation", "truth", "predicted"])
-        mine = pairs[(pairs["input"] == PRODUCT[0]) & (pairs["method"] == PRODUCT[1])
+        given, method = product()
+        mine = pairs[(pairs["input"] == given) & (pairs["method"] == method)
                      & pairs["scene"].astype(str).str.startswith("assembly-")]
         low, high, n = mates_f1_interval(mine)
         if n:

@@ -53,15 +53,15 @@ def test_ingest_of_a_missing_folder_fails_the_run(tmp_path: Path) -> None:
 
 def test_train_writes_into_its_workspace_and_ship_is_the_explicit_step(
         tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
-    from cadio.workspace import Workspace
-    from flows.cli_train import train_out
+    from flows.cli_options import config_of
     from models.checkpoint import load_checkpoint, ship_checkpoints
     from models.evaluate import SHIPPED
+    from models.training.run import out_dir
 
     ws = tmp_path / "train-ws"
     for stage in ("completion", "relations"):
         args = _parser().parse_args(["train", stage, "--workspace", str(ws)])
-        assert train_out(args, Workspace(ws)) == (ws / "checkpoints" / stage).resolve()
+        assert out_dir(config_of(args), stage) == (ws / "checkpoints" / stage).resolve()
     # Nothing trained there yet: shipping refuses, naming the folder, and ships nothing.
     assert main(["ship", "completion", "--workspace", str(ws)]) == 2
     assert f"{ws.resolve() / 'checkpoints' / 'completion'}: no checkpoint" in \

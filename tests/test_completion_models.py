@@ -25,12 +25,13 @@ from models.completion import (
     gradient_penalty,
     union_views,
 )
+from models.completions import learned
 from models.data import CompletionDataset, Example, read_shard, training_batch, write_shard
 from models.errors import CheckpointError, ShardError
 from models.synthetic import box, cylinder, example, synthetic_examples
 from models.train import TrainEvent, config_for, predict, train_completion
 
-METHODS = ("gan_lstm", "ae", "r2n2")
+METHODS = learned()  # every learned completion method of the registry
 SMALL = {"n_in": 16, "n_out": 32, "width": 4, "batch_size": 2, "eval_every": 2}
 
 
@@ -178,7 +179,7 @@ def test_configs_reject_impossible_grids() -> None:
         CompletionConfig(n_in=32, n_out=48)
     with pytest.raises(ValueError, match="n_in"):
         CompletionConfig(n_in=24)
-    with pytest.raises(ValueError, match="unknown method"):
+    with pytest.raises(ValueError, match="unknown completion method"):
         config_for("voxnet")
 
 

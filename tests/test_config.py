@@ -1,5 +1,6 @@
-"""The night's one configuration: every field described with its range, the flow's one
-parameter, the CLI's options mapped onto it, and a bad value named by its field."""
+"""The flows' configurations: every field described with its range, each flow's one
+parameter, the CLI's options made from them (and their defaults the fields'), and a bad value
+named by its field."""
 
 from __future__ import annotations
 
@@ -11,7 +12,7 @@ import pytest
 
 from cadio.tolerances import DEFAULT_TOLERANCES
 from flows.cli import _parser
-from flows.cli_options import OPTION_FIELDS
+from flows.cli_options import COMMANDS, dest, leaf_fields
 from flows.config import (
     DEFAULT_NIGHT,
     ConfigError,
@@ -75,11 +76,73 @@ def test_a_config_round_trips_through_json_as_a_deployment_passes_it() -> None:
     assert again == config and again.tolerances.contact_mm == 0.2
 
 
-def test_every_field_is_an_option_of_nightly() -> None:
-    nightly = next(a for a in _parser()._subparsers._group_actions  # type: ignore[union-attr]
-                   if isinstance(a, argparse._SubParsersAction)).choices["nightly"]
-    dests = {a.dest for a in nightly._actions}
-    mapped = {OPTION_FIELDS[d] for d in dests if d in OPTION_FIELDS}
-    assert mapped == set(_leaves())
-    for field in OPTION_FIELDS.values():
-        field_schema(field)  # each maps onto a real field
+def _subparser(command: str) -> argparse.ArgumentParser:
+    sub = next(a for a in _parser()._subparsers._group_actions  # type: ignore[union-attr]
+               if isinstance(a, argparse._SubParsersAction))
+    parser: argparse.ArgumentParser = sub.choices[command]
+    return parser
+
+
+# The least each command needs on its command line (positionals).
+REQUIRED = {"nightly": [], "ingest": ["lib"], "export": [], "train": ["completion"]}
+
+
+@pytest.mark.parametrize("command", sorted(COMMANDS))
+def test_every_field_of_a_command_s_config_is_one_of_its_options(command: str) -> None:
+    spec = COMMANDS[command]
+    dests = {a.dest: a for a in _subparser(command)._actions}
+    for path, info in leaf_fields(spec.kind()):
+        if path in spec.skip:
+            assert dest(path) not in dests, path
+            continue
+        action = dests[dest(path)]
+        assert (info.description or "").split(";")[0] in (action.help or ""), path
+        if info.default is not None and not isinstance(info.default, bool) and \
+                not action.option_strings == []:
+            assert "(default: " in (action.help or ""), path
+
+
+@pytest.mark.parametrize("command", sorted(COMMANDS))
+def test_no_option_given_leaves_every_field_at_its_config_s_default(command: str) -> None:
+    from flows.cli_options import config_of, tolerances_of
+
+    args = _parser().parse_args([command, *REQUIRED[command]])
+    args.tolerances = tolerances_of(args)
+    config = config_of(args)
+    kind = COMMANDS[command].kind()
+    given = {"nightly": {}, "ingest": {"library": {"path": "lib"}}, "export": {},
+             "train": {"stages": ["completion"]}}[command]
+    assert config == kind.model_validate(given)
+
+
+def test_an_option_sets_its_field_and_a_bad_one_names_it() -> None:
+    from flows.cli_options import config_of, tolerances_of
+
+    args = _parser().parse_args(["nightly", "--views-per-scene", "3", "--captures", "/rec",
+                                 "--no-fail-on-threshold", "--noise", "--timeout", "60"])
+    args.tolerances = tolerances_of(args)
+    night = config_of(args)
+    assert (night.capture.views_per_scene, night.capture.recordings, night.capture.noise,
+            night.thresholds.fail_on_threshold, night.runtime.file_timeout_s) == (
+        3, "/rec", True, False, 60.0)
+    args = _parser().parse_args(["nightly", "--views-per-scene", "300"])
+    args.tolerances = tolerances_of(args)
+    with pytest.raises(ValueError, match=r"--views-per-scene \(capture.views_per_scene\): "
+                                         r"must be 1 to 125, got 300"):
+        config_of(args)
+    args = _parser().parse_args(["train", "relations", "--steps", "300", "--inputs", "truth"])
+    args.tolerances = tolerances_of(args)
+    train = config_of(args)
+    assert (train.stages, train.relation_steps, train.completion_steps,
+            train.relation_inputs) == (["relations"], 300, 2000, ["truth"])
+
+
+def test_every_flow_takes_its_one_config() -> None:
+    from flows.stages import capture, export, ingest
+    from flows.train import train
+
+    for flow, kind in ((ingest, "IngestRun"), (capture, "CaptureRun"), (export, "ExportRun"),
+                       (train, "TrainConfig")):
+        params = inspect.signature(flow.fn).parameters
+        assert list(params) == ["config"], flow.name
+        assert type(params["config"].default).__name__ == kind

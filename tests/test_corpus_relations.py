@@ -14,6 +14,7 @@ from cadio.cad.step import write_step
 from cadio.capture.examples import ExampleConfig
 from cadio.catalog import read_catalog
 from cadio.evidence.pair_features import N_PAIR_FEATURES, PAIR_FEATURES, pair_features_many
+from cadio.evidence.pairs import PairConfig
 from cadio.records import Relation
 from cadio.sandbox import Limits
 from cadio.truth.corpus_labels import label_shot
@@ -90,7 +91,7 @@ def test_the_dataset_holds_every_input_of_every_labelled_pair_view(corpus, tmp_p
     torch.manual_seed(0)
     model = build_model(config_for("ae", n_in=16, n_out=32, width=4))  # untrained: any shape
     rows = build_relation_dataset(out, shots, labels, read_index(out / "index.parquet"),
-                                  model, tmp_path, evidence_points=1500)
+                                  model, tmp_path, PairConfig(evidence_points=1500))
     assert rows["train"] > 0
     split = read_split(tmp_path / "train.npz")
     for name in ("truth", "partial", "completed"):
@@ -141,6 +142,7 @@ def test_the_train_flow_trains_and_reports_the_relation_networks(corpus, tmp_pat
     from flows.train import evaluate_relations_task, relation_dataset_task, train_relation_task
     from models.checkpoint import make_checkpoint, save_checkpoint
     from models.relations_train import load_relation_model
+    from models.training.config import TrainConfig
     from models.training.relations import relations_dir
 
     ws, _ = corpus
@@ -149,29 +151,31 @@ def test_the_train_flow_trains_and_reports_the_relation_networks(corpus, tmp_pat
     completion = tmp_path / "completion"
     save_checkpoint(make_checkpoint(model, 1, {}, {"protocol": "observed"}),
                     completion / "completion-gan_lstm-observed.pt")
-    rows = relation_dataset_task.fn(str(ws.root), str(completion), 2)
+    out = tmp_path / "relations"
+    cfg = TrainConfig(workspace=str(ws.root), completion_out=str(completion),
+                      relation_out=str(out), relation_steps=3, workers=2)
+    rows = relation_dataset_task.fn(cfg)
     assert rows["train"] > 0
     folder = relations_dir(ws)
     split_positives = read_split(folder / "train.npz").labels.sum()
     for split in ("val", "test"):  # the fixture's one assembly is all training
         (folder / f"{split}.npz").write_bytes((folder / "train.npz").read_bytes())
-    out = tmp_path / "relations"
-    trained = train_relation_task.fn(str(ws.root), "ltn", "completed", 3, str(out))
-    _, _, ckpt = load_relation_model(Path(trained["path"]))
+    trained = train_relation_task.fn(cfg, "ltn", "completed")
+    _, _, ckpt = load_relation_model(Path(trained.path))
     assert ckpt["method"] == "ltn" and ckpt["data"]["input"] == "completed"
-    card = Path(evaluate_relations_task.fn(str(ws.root), str(out), str(tmp_path / "run"),
-                                           "train", {"steps": 3}))
-    assert "ltn" in card.read_text() and (tmp_path / "run" / "relations.md").exists()
+    done = evaluate_relations_task.fn(cfg, "train")
+    card, run = Path(done.card), Path(done.run_dir)
+    assert "ltn" in card.read_text() and (run / "relations.md").exists()
     # the network has a joint head, scored on the split's jointed pairs
     assert ckpt["config"]["joints"] is True and "val_joint" in card.read_text()
-    joints = pd.read_csv(tmp_path / "run" / "assembly_joints.csv")
+    joints = pd.read_csv(run / "assembly_joints.csv")
     assert {"cylindrical", "planar"} <= set(joints["cad_joint"])
     assert set(joints["predicted_joint"]) <= {"none", "planar", "revolute", "cylindrical",
                                               "slider"}
-    assert "distinct pairs; 95% interval" in (tmp_path / "run" / "relations.md").read_text()
+    assert "distinct pairs; 95% interval" in (run / "relations.md").read_text()
     # a rerun with the same labels and completion network reuses the dataset
     stamp = (folder / "stamp.json").stat().st_mtime_ns
-    assert relation_dataset_task.fn(str(ws.root), str(completion), 2) == {
+    assert relation_dataset_task.fn(cfg) == {
         "test": rows["train"], "train": rows["train"], "val": rows["train"]}
     assert (folder / "stamp.json").stat().st_mtime_ns == stamp
     # a shot labelled anew under its id (a family redrawn) rebuilds it
@@ -180,7 +184,7 @@ def test_the_train_flow_trains_and_reports_the_relation_networks(corpus, tmp_pat
     with np.load(path) as z:
         old = {k: z[k] for k in z.files}
     np.savez(path, **{**old, "truth": ~old["truth"]})
-    relation_dataset_task.fn(str(ws.root), str(completion), 2)
+    relation_dataset_task.fn(cfg)
     assert (folder / "stamp.json").stat().st_mtime_ns != stamp
     assert read_split(folder / "train.npz").labels.sum() != split_positives
 

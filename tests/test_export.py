@@ -37,6 +37,7 @@ from cadio.export.predictions import (
 from cadio.export.script import mass_properties, write_script
 from cadio.export.sidecar import read_sidecar, schema, sidecar
 from cadio.truth.mates import COLUMNS as MATES_COLUMNS
+from reports.methods import product
 
 # ----------------------------------------------------------------- pooling (plain pandas)
 
@@ -252,7 +253,8 @@ def test_every_cad_mate_as_a_constraint_pulls_perturbed_parts_back(cad_assembly:
 
 def test_a_file_that_changed_since_the_run_is_exported_as_failed(local_night: Path,
                                                                 tmp_path: Path) -> None:
-    jobs = run_jobs(local_night.parents[1], local_night, {}, tmp_path / "out")
+    jobs = run_jobs(local_night.parents[1], local_night, {}, tmp_path / "out",
+                    answers=product())
     good = jobs[0]
     broken = tmp_path / "broken.step"
     broken.write_bytes(Path(good.step).read_bytes()[:2000])  # truncated since the run
@@ -285,7 +287,7 @@ def test_mateqa_export_writes_what_the_nightly_wrote(local_night: Path, tmp_path
 def test_notes_need_the_parts_of_the_run(local_night: Path, tmp_path: Path,
                                          shared_step_dir: Path) -> None:
     """An XBF is never written for a file whose solids are not the run's parts."""
-    job = run_jobs(local_night.parents[1], local_night, {}, tmp_path)[0]
+    job = run_jobs(local_night.parents[1], local_night, {}, tmp_path, answers=product())[0]
     record = read_inputs(job)
     other = shared_step_dir / "assemblies" / "occt_as1_motor.step"
     with pytest.raises(StepReadError, match="is not the part"):

@@ -174,3 +174,43 @@ def test_a_night_whose_recordings_are_all_unusable_fails_naming_them(
     shutil.copy(ours.path, recordings / "of-this-library.mcap")
     stages = nightly(config).stages
     assert (stages.captures, stages.captures_failed, stages.input_parts) == (2, 1, 1)
+
+
+def test_a_method_registered_in_one_module_reaches_the_night_s_tables(
+        harness: object, tmp_path: Path, box_step: Path, pin_step: Path) -> None:
+    """A completion method and a relation method, each registered as its own module would
+    register it, show in the night's completion and relation tables with no other edit."""
+    import numpy as np
+
+    from cadio.registry import Role
+    from flows.config import night_config
+    from flows.nightly import nightly
+    from models.completions import COMPLETIONS, CompletionMethod
+    from models.relation_methods import RELATION_METHODS, RelationMethod
+
+    fill = CompletionMethod("fill", "every voxel of the grid solid", Role.BASELINE, 9,
+                            __name__, solid=lambda example: np.ones_like(example.visible))
+    never = RelationMethod("never", "no relation ever holds", Role.BASELINE, 9, __name__,
+                           decide=lambda points, *rest: np.zeros((len(points), 10), bool))
+    lib = tmp_path / "lib" / "fasteners"
+    lib.mkdir(parents=True)
+    shutil.copy(box_step, lib / "box.step")
+    shutil.copy(pin_step, lib / "pin.step")
+    config = night_config({"library": {"path": str(lib.parent), "voxel_sizes": [16]},
+                           "runtime": {"workspace": str(tmp_path / "ws")},
+                           "capture": {"views_per_scene": 1, "pairs_per_relation": 1},
+                           "thresholds": {"fail_on_threshold": False}})
+    with COMPLETIONS.registered(fill), RELATION_METHODS.registered(never):
+        run = Path(nightly(config).run_dir)
+    parts = read_completion_parts(run)
+    filled = parts[parts["method"] == "fill"]
+    assert len(filled) == len(parts[parts["method"] == "visible"]) > 0
+    categories = pd.read_csv(run / "completion_categories.csv")
+    assert "fill" in set(categories["method"])
+    assert list(dict.fromkeys(categories["method"]))[-1] == "fill"  # after the registered ones
+    pairs = pd.read_parquet(run / "relations_pairs.parquet")
+    assert (~pairs[pairs["method"] == "never"]["predicted"]).all()
+    assert set(pairs["input"][pairs["method"] == "never"]) == {"truth", "partial", "completed"}
+    summary = pd.read_csv(run / "relations_summary.csv")
+    assert "never" in set(summary["method"])
+    assert "fill" not in COMPLETIONS and "never" not in RELATION_METHODS

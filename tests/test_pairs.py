@@ -27,6 +27,17 @@ from cadio.truth.assemblies import assembly_jobs, mates_job
 from cadio.truth.scene_config import SceneConfig
 from cadio.truth.scenes import generate_scenes, read_scene_parts
 from cadio.workspace import Workspace, read_mesh
+from models.relation_inputs.completed import completion_builder
+from models.relation_inputs.partial import observed_clouds
+from models.relation_inputs.truth import truth_clouds
+
+# The inputs every capture has (the CAD's samples and the observed points); ``completed``
+# beside them where a test hands completions in.
+STOCK = {"truth": truth_clouds, "partial": observed_clouds}
+
+
+def _with_completions(done: dict) -> dict:
+    return {**STOCK, "completed": completion_builder(done)}
 
 # Two views on opposite sides of the circle (0 and 62 of 125: 178.6 degrees apart).
 CFG = ScanConfig(views_per_scene=2, n_in=16, n_out=16, lengths=(), protocols=("observed",))
@@ -75,7 +86,7 @@ def test_a_pair_seen_from_opposite_sides_swaps_left_and_right(ws: Workspace) -> 
     captured = capture_scenes(_side_by_side(ws), read_catalog(ws.catalog), ws, CFG)
     assert captured[0].error == ""
     scan_inputs(Path(captured[0].path), ws, CFG)
-    views = capture_pairs(Path(captured[0].path), ws, {}, PairConfig())
+    views = capture_pairs(Path(captured[0].path), ws, {}, PairConfig(), STOCK)
     assert [v.view for v in views] == [0, 1]  # numbered in capture order
     front, back = views
     assert front.labels[LEFT] and not front.labels[RIGHT]
@@ -102,7 +113,7 @@ def test_a_part_beside_itself_is_two_instances(ws: Workspace) -> None:
     scenes.at[first, "pose_b"] = pose_b.ravel().tolist()
     captured = capture_scenes(scenes, read_catalog(ws.catalog), ws, CFG)
     assert scan_inputs(Path(captured[0].path), ws, CFG).parts == 2
-    views = capture_pairs(Path(captured[0].path), ws, {}, PairConfig())
+    views = capture_pairs(Path(captured[0].path), ws, {}, PairConfig(), STOCK)
     assert [v.view for v in views] == [0, 1]
     front, back = views
     assert front.part_a == front.part_b == block
@@ -118,7 +129,7 @@ def test_a_part_beside_itself_is_two_instances(ws: Workspace) -> None:
 def test_pair_inputs_are_the_observed_points_and_the_cad_surface(ws: Workspace) -> None:
     captured = capture_scenes(_side_by_side(ws), read_catalog(ws.catalog), ws, CFG)
     scan_inputs(Path(captured[0].path), ws, CFG)
-    view = capture_pairs(Path(captured[0].path), ws, {}, PairConfig())[0]
+    view = capture_pairs(Path(captured[0].path), ws, {}, PairConfig(), STOCK)[0]
     partial, truth = view.points["partial"], view.points["truth"]
     # a single view sees one side of a part: its points span less depth than the surface's
     depth = np.ptp(view.observer_points("partial")[0, :, 1])
@@ -143,7 +154,8 @@ def test_the_pair_evidence_reads_denser_clouds_than_the_network(ws: Workspace) -
     rng = np.random.default_rng(0)
     done = {(str(p["instance_id"]), v): rng.random((5000, 3)) * 0.05
             for p in read_scene_meta(path)["parts"] for v in range(CFG.views_per_scene)}
-    view = capture_pairs(path, ws, {}, PairConfig(evidence_points=2000), done)[0]
+    view = capture_pairs(path, ws, {}, PairConfig(evidence_points=2000),
+                         _with_completions(done))[0]
     a, b = view.evidence_clouds("truth")
     assert view.points["truth"].shape == (2, 600, 3) and len(a) == len(b) == 2000
     # the same surface placed the same way: the network's 600 samples lie on the 2,000, which
@@ -158,7 +170,8 @@ def test_the_pair_evidence_reads_denser_clouds_than_the_network(ws: Workspace) -
     normals = rng.normal(size=(5000, 3))
     with_normals = {k: np.hstack([pts, normals / np.linalg.norm(normals, axis=1, keepdims=True)])
                     for k, pts in done.items()}
-    both = capture_pairs(path, ws, {}, PairConfig(evidence_points=2000), with_normals)[0]
+    both = capture_pairs(path, ws, {}, PairConfig(evidence_points=2000),
+                         _with_completions(with_normals))[0]
     assert np.array_equal(both.points["completed"], view.points["completed"])
     six, _ = both.evidence_clouds("completed")
     assert six.shape == (2000, 6) and np.array_equal(six[:, :3], done_a)
@@ -193,7 +206,7 @@ def test_an_assembly_capture_labels_its_mated_pairs_in_every_view(ws: Workspace)
     captured = capture_assembly(job.assembly, job.category, list(job.part_ids.values()), ws,
                                 CFG)
     assert captured.error == "" and captured.input_parts == 2
-    views = capture_pairs(Path(captured.path), ws, {}, PairConfig())
+    views = capture_pairs(Path(captured.path), ws, {}, PairConfig(), STOCK)
     assert len(views) == 2
     names = dict(zip(mates["part_a"], mates["name_a"], strict=False))
     above = list(Relation).index(Relation.ABOVE)
@@ -216,4 +229,4 @@ def test_a_capture_without_inputs_gives_no_pair(ws: Workspace, tmp_path: Path) -
     other = Workspace(tmp_path)  # the capture's inputs were never derived there
     for sub in ("features", "meshes"):
         (tmp_path / sub).symlink_to(ws.root / sub)
-    assert capture_pairs(Path(captured[0].path), other, {}, PairConfig()) == []
+    assert capture_pairs(Path(captured[0].path), other, {}, PairConfig(), STOCK) == []

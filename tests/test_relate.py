@@ -19,7 +19,8 @@ from cadio.truth.scene_config import SceneConfig
 from cadio.truth.scenes import generate_scenes, read_scene_parts
 from cadio.workspace import Workspace
 from models.evaluate import SHIPPED
-from models.relate import METHODS, SHIPPED_RELATIONS, relate_batch
+from models.relate import SHIPPED_RELATIONS, relate_batch
+from models.relation_methods import RELATION_METHODS
 from models.relations import RelationConfig
 from models.relations_train import save_relation_checkpoint, train_relations
 from models.synthetic import relation_pairs
@@ -71,7 +72,7 @@ def test_every_method_decides_every_input_of_every_pair_view(ws: Workspace,
     assert batch.failed == () and batch.captures == 2
     rows = pd.read_parquet(batch.path)
     assert tuple(rows.columns[:len(PAIR_COLUMNS)]) == PAIR_COLUMNS
-    assert set(rows["method"]) == set(METHODS)
+    assert set(rows["method"]) == set(RELATION_METHODS.names())
     assert set(rows["input"]) == {"truth", "partial", "completed"}
     per_view = rows.groupby(["scene", "view", "input", "method"]).size()
     assert (per_view == 10).all() and batch.pair_views == 4  # 2 scenes x 2 views
@@ -176,7 +177,7 @@ def test_the_completed_input_is_the_same_where_the_parts_are_not_scored(
     relation stage completes exactly what it completes from the full examples."""
     from cadio.capture.scan import scan_inputs
     from models.evaluate import load_models
-    from models.relate import completions_of
+    from models.relation_inputs.completed import completions_of
 
     light = Workspace(tmp_path / "ws")
     shutil.copytree(ws.root, light.root)

@@ -462,7 +462,7 @@ def test_deciding_a_completed_pair_hands_its_network_the_observed_points() -> No
     completion's points; without the observed points that network has no answer."""
     from cadio.evidence.pair_features import pair_features_many
     from models.geometric import evidence_names, network_evidence, tests_for, with_observed
-    from models.relate import decide
+    from models.relate import PairBatch, decide
     from models.relation_decision import Decision
 
     names = tuple(evidence_names("completed"))
@@ -473,17 +473,15 @@ def test_deciding_a_completed_pair_hands_its_network_the_observed_points() -> No
     raw, raw_seen = pair_features_many(completed, mm), pair_features_many(seen, mm)
     own = network_evidence(raw, completed, None, tests_for("completed"))
     observed = network_evidence(raw_seen, seen, None, tests_for("partial"))
-    got = decide(completed, mm, "ltn", (net, Decision.default()), None, raw, None,
-                 tests_for("completed"), (seen, observed))
+    both = PairBatch(completed, mm, None, raw, None, tests_for("completed"), (seen, observed))
+    alone = PairBatch(completed, mm, None, raw, None, tests_for("completed"))
+    got = decide(both, "ltn", (net, Decision.default()))
     want = predict_relations(net, RelationData(seen, np.zeros((3, 10), bool), mm,
                                                with_observed(own, observed)))
     assert got is not None
     np.testing.assert_array_equal(got[0], want.decided)
     np.testing.assert_allclose(got[1], want.confidence)
-    assert decide(completed, mm, "ltn", (net, Decision.default()), None, raw, None,
-                  tests_for("completed")) is None
-    geometric = decide(completed, mm, "geometric", None, None, raw, None,
-                       tests_for("completed"), (seen, observed))
-    alone = decide(completed, mm, "geometric", None, None, raw, None, tests_for("completed"))
-    assert geometric is not None and alone is not None
-    np.testing.assert_array_equal(geometric[0], alone[0])
+    assert decide(alone, "ltn", (net, Decision.default())) is None
+    geometric, by_itself = decide(both, "geometric", None), decide(alone, "geometric", None)
+    assert geometric is not None and by_itself is not None
+    np.testing.assert_array_equal(geometric[0], by_itself[0])

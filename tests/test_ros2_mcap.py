@@ -448,7 +448,7 @@ def test_the_nightly_capture_stage_reads_ros2_recordings(tmp_path: Path,
     _realsense_bag(folder / "real.mcap", frames, colour)
     _topics_only(folder / "bad.mcap", frames[:1], {"/camera/depth/image_raw": (
         "sensor_msgs/msg/Image", lambda ns, f: image(ns, "x", f.colour, "rgb8"))})
-    cfg = ScanConfig(n_in=32, n_out=32, lengths=(2,))
+    cfg = ScanConfig(views_per_scene=8, n_in=32, n_out=32, lengths=(2,))
     got = {s.scene_id: s for s in read_captures(folder, ws, cfg)}
     assert set(got) == {"sim", "real", "bad"}
     assert "/camera/depth/image_raw" in got["bad"].error and "16UC1" in got["bad"].error

@@ -16,17 +16,16 @@ from cadio.records import Relation
 from cadio.tolerances import DEFAULT_TOLERANCES as TOL
 from cadio.truth.placement import exact_gap, interfere
 from cadio.truth.relations import relation_table
+from cadio.truth.scene_config import SceneConfig, night_scene_config
 from cadio.truth.scenes import (
     CLEARANCE,
     CONTACT,
     SPLITS,
-    SceneConfig,
     ScenePart,
     assign_splits,
     generate_scenes,
     is_eligible,
     label_pair,
-    night_scene_config,
     read_scenes,
     scene_part,
     scene_poses,

@@ -1,14 +1,14 @@
 """What a perfect completion would give the relation stage: the ``completed`` input's ceiling.
 
 The ``completed`` input reads each part's completion as the centres of its surface voxels
-(``models.relate.completed_clouds``), the evidence fitting planes and cylinders to them with
-local PCA's normals. This asks how far that route can go, whatever the network: in the captures
-of the held-out assemblies of a night's workspace, it swaps each part's completion for the
-CAD's own surface (dense CAD samples of the part as placed, ``placed_cad_samples``) snapped to
-the centres of an N^3 grid over the view's observed cube (the cube the completion predicts in,
-``read_example(...).grid``): a completion that is right at every voxel, at resolution N. N = 0
-keeps the samples where they are (no grid at all). Beside them, ``network``: the shipped
-``gan_lstm``'s own completion, as a night reads it.
+(``models.relation_inputs.completed.completed_clouds``), the evidence fitting planes and cylinders
+to them with local PCA's normals. This asks how far that route can go, whatever the network: in the
+captures of the held-out assemblies of a night's workspace, it swaps each part's completion for the
+CAD's own surface (dense CAD samples of the part as placed, ``placed_cad_samples``) snapped to the
+centres of an N^3 grid over the view's observed cube (the cube the completion predicts in,
+``read_example(...).grid``): a completion that is right at every voxel, at resolution N. N = 0 keeps
+the samples where they are (no grid at all). Beside them, ``network``: the shipped ``gan_lstm``'s
+own completion, as a night reads it.
 
 ``--crossings``: beside ``network``, the same completion read at sub-voxel precision: the
 points where its probabilities cross the decision threshold along the grid's edges
@@ -54,14 +54,10 @@ from cadio.recordings.mcap_io import read_scene_meta
 from cadio.records import FloatArray
 from cadio.workspace import Workspace, read_features, read_mesh
 from models.evaluate import SHIPPED, load_models
-from models.geometric import OBSERVED_BY
-from models.relate import (
-    SHIPPED_RELATIONS,
-    THRESHOLD,
-    completions_of,
-    load_relation_models,
-    relate_views,
-)
+from models.relate import SHIPPED_RELATIONS, load_relation_models, relate_views
+from models.relation_inputs import INPUTS
+from models.relation_inputs.completed import THRESHOLD, completion_builder, completions_of
+from models.relation_inputs.partial import observed_clouds
 from reports.relations import assembly_f1_table
 
 SAMPLES = 20_000  # CAD samples per part before snapping: several per voxel at 256^3
@@ -144,14 +140,15 @@ def crossings(probs: FloatArray, grid_to_world: FloatArray, threshold: float = T
 
 
 def crossing_surface(probs: npt.NDArray[np.float32], grid: CubeGrid) -> FloatArray:
-    """A completion's ``crossings`` over its observed grid (a ``models.relate.Surface``)."""
+    """A completion's ``crossings`` over its observed grid (a
+    ``models.relation_inputs.completed.Surface``)."""
     return crossings(probs.astype(np.float64), grid.grid_to_world(probs.shape[-1]))
 
 
 def completed_only(views: list[PairView]) -> list[PairView]:
     """The views with their ``completed`` input and the observed points its networks read
-    beside it (``models.geometric.OBSERVED_BY``); the rows of ``completed`` are measured."""
-    keep = {"completed", OBSERVED_BY["completed"]}
+    beside it (``RelationInput.observed_by``); the rows of ``completed`` are measured."""
+    keep = {"completed", INPUTS.get("completed").observed_by}
     return [replace(v, points={k: p for k, p in v.points.items() if k in keep},
                     evidence={k: e for k, e in v.evidence.items() if k in keep},
                     centres={}) for v in views if "completed" in v.points]
@@ -183,7 +180,8 @@ def main() -> None:
             done = (completions_of(capture, ws, completion) if grid == "network"
                     else completions_of(capture, ws, completion, crossing_surface)
                     if grid == "crossings" else perfect(capture, ws, int(grid), args.normals))
-            views += capture_pairs(capture, ws, categories, DEFAULT_PAIRS, done)
+            views += capture_pairs(capture, ws, categories, DEFAULT_PAIRS, {
+                "partial": observed_clouds, "completed": completion_builder(done)})
         kept = completed_only(views)
         rows = pd.DataFrame(relate_views(kept, relations))
         table = assembly_f1_table(rows[rows["input"] == "completed"])

@@ -31,9 +31,13 @@ from cadio.evidence.pair_features import PAIR_FEATURES, pair_features, part_clou
 from cadio.evidence.pairs import DEFAULT_PAIRS, capture_pairs
 from cadio.workspace import Workspace
 from models.relate import RELATIONS
+from models.relation_inputs.partial import observed_clouds
+from models.relation_inputs.truth import truth_clouds
 
 CONCENTRIC = RELATIONS.index("concentric")
 ANGLE, OFFSET = PAIR_FEATURES.index("cyl_angle_deg"), PAIR_FEATURES.index("cyl_offset_mm")
+
+STOCK = {"truth": truth_clouds, "partial": observed_clouds}  # the inputs read here
 
 
 def main() -> None:
@@ -46,7 +50,7 @@ def main() -> None:
                           strict=True))
     clouds = []
     for path in sorted((ws.root / "captures").glob("assembly-*.mcap")):
-        for view in capture_pairs(path, ws, categories, DEFAULT_PAIRS, None):
+        for view in capture_pairs(path, ws, categories, DEFAULT_PAIRS, STOCK):
             if "truth" in view.points and view.labels[CONCENTRIC]:
                 a, b = view.evidence_clouds("truth")
                 mm = 1.0 / view.scale_m_per_mm

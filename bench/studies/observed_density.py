@@ -40,9 +40,13 @@ from cadio.evidence.pairs import DEFAULT_PAIRS, capture_pairs, evidence_cloud
 from cadio.recordings.mcap_io import read_capture, read_scene_meta
 from cadio.records import FloatArray
 from cadio.workspace import Workspace
+from models.relation_inputs.partial import observed_clouds
+from models.relation_inputs.truth import truth_clouds
 
 MATES = {8: "concentric", 9: "coincident"}
 TOUCH_MM = 1.0  # the mates' faces are within this of each other
+
+STOCK = {"truth": truth_clouds, "partial": observed_clouds}  # the inputs read here
 
 
 def observed_clouds(capture: Path) -> dict[tuple[str, int], FloatArray]:
@@ -69,7 +73,7 @@ def observed_gaps(ws: Workspace, points: list[int]
     column = PAIR_FEATURES.index("gap_mm")
     for capture in sorted((ws.root / "captures").glob("assembly-*.mcap")):
         clouds = observed_clouds(capture)
-        views = capture_pairs(capture, ws, categories, DEFAULT_PAIRS)
+        views = capture_pairs(capture, ws, categories, DEFAULT_PAIRS, STOCK)
         mm = np.array([1.0 / v.scale_m_per_mm for v in views])
         keys = [((v.part_a, v.view), (v.part_b, v.view)) for v in views]
         for n in points:

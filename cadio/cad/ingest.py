@@ -21,7 +21,7 @@ import logging
 import os
 import stat
 import time
-from collections.abc import Callable, Iterable, Sequence
+from collections.abc import Callable, Collection, Iterable, Sequence
 from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 from typing import TYPE_CHECKING, TypeVar
@@ -190,11 +190,13 @@ def file_sha256(path: Path, max_bytes: int | None = None) -> str:
 
 
 def ingest(root: Path, workspace: Path, cfg: IngestConfig | None = None,
-           on_file: Callable[[str], None] | None = None) -> pd.DataFrame:
+           on_file: Callable[[str], None] | None = None,
+           categories: Collection[str] | None = None) -> pd.DataFrame:
     """Ingest every STEP file under ``root`` into ``workspace`` and write its catalog.
 
     Args:
         on_file: called with each file's path once it is done (for progress bars).
+        categories: only the files of these categories (None: every one).
 
     Returns:
         The catalog (also written to ``workspace/catalog.parquet``).
@@ -205,7 +207,8 @@ def ingest(root: Path, workspace: Path, cfg: IngestConfig | None = None,
     cfg = cfg or IngestConfig()
     ws = Workspace(Path(workspace))
     previous = read_catalog(ws.catalog)
-    rows = ingest_files(discover(root), ws.root, cfg, previous, on_file)
+    found = [f for f in discover(root) if categories is None or f.category in categories]
+    rows = ingest_files(found, ws.root, cfg, previous, on_file)
     frame = to_frame(rows)
     write_catalog(ws.catalog, frame)
     return frame

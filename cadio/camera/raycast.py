@@ -123,9 +123,10 @@ def fill_rays_in_box(x: Any, y: Any, rot_cw: Any, eye: Any, box: Any, rays: Any,
 OUTLINE_MARGIN_PX = 2.0
 
 
+# One pass over the pixel rows with the box's slab tests unrolled: a compiled loop's branches.
 @_jit
-def box_outline(x: Any, y: Any, rot_cw: Any, eye: Any, box: Any, margin: Any, lo: Any,
-                 hi: Any) -> bool:
+def box_outline(x: Any, y: Any, rot_cw: Any, eye: Any, box: Any, margin: Any,  # noqa: C901
+                lo: Any, hi: Any) -> bool:
     """Per pixel row, the column range [lo, hi] (normalised x) whose rays may meet ``box``.
 
     The box's corners are projected into the image; a ray meets the box only where its pixel
@@ -169,9 +170,11 @@ def box_outline(x: Any, y: Any, rot_cw: Any, eye: Any, box: Any, margin: Any, lo
     return True
 
 
+# The compiled kernels take flat arrays, as numba's nopython mode does not take records.
 @_jit
-def fill_rays_in_outline(x: Any, y: Any, rot_cw: Any, eye: Any, width: int, lo: Any, hi: Any,
-                          table: Any, rays: Any, cast: Any, table_t: Any) -> int:
+def fill_rays_in_outline(x: Any, y: Any, rot_cw: Any, eye: Any, width: int,  # noqa: PLR0913
+                         lo: Any, hi: Any, table: Any, rays: Any, cast: Any,
+                         table_t: Any) -> int:
     """``fill_rays_in_box`` for the rays within the rows' ranges of ``box_outline``; of the
     others, with a support plane ``table`` (see ``StagedScene.table_m``; None: nothing
     outside the outline), those that meet it are ``ON_TABLE`` at depth ``table_t[p]``, those
@@ -296,8 +299,8 @@ def light(ambient: float) -> npt.NDArray[np.float32]:
 
 
 @_jit
-def shade_and_measure(hit: Any, px: Any, rot_cw: Any, tables: Any, light: Any, out: Any,
-                       model: Any, rng: Any, measured: Any) -> None:
+def shade_and_measure(hit: Any, px: Any, rot_cw: Any, tables: Any,  # noqa: PLR0913
+                      light: Any, out: Any, model: Any, rng: Any, measured: Any) -> None:
     """``shade_pixels``, then the sensor model on its depth into ``measured`` (h, w): one call
     without the GIL, so all of a frame's pixel work overlaps the next view's ray cast."""
     shade_pixels(hit, px, rot_cw, tables, light, out)

@@ -37,6 +37,7 @@ import numpy as np
 import numpy.typing as npt
 import open3d as o3d
 
+from cadio.camera import CIRCLE_VIEWS
 from cadio.camera.noise import NoiseConfig, sensor_model, sensor_rng
 from cadio.camera.raycast import (
     LEVELS,
@@ -81,7 +82,7 @@ class PlacedPart:
 class CaptureConfig:
     """Camera path, sensor and scene staging. Angles in degrees, lengths in metres."""
 
-    n_views: int = 125
+    n_views: int = CIRCLE_VIEWS
     step_deg: float = 2.88  # paper: 125 views 2.88 degrees apart cover 360 degrees
     start_deg: float = 0.0  # azimuth 0: camera on -Y looking along +Y (DESIGN's observer)
     elevation_deg: float = 25.0  # slightly above the scene, as a camera over a workbench

@@ -60,9 +60,10 @@ log = logging.getLogger(__name__)
 class ScanConfig:
     """Knobs of the capture stage."""
 
-    # The paper renders 125 views per object; a nightly run over hundreds of scenes takes a
-    # handful per scene (views are spread over the full circle, see ``view_indices``).
-    views_per_scene: int = 8
+    # Views rendered per scene, spread over the full circle (``view_indices``). No default
+    # here: a night's comes from its configuration (``capture.views_per_scene``), one
+    # capture's from its command.
+    views_per_scene: int
     capture: CaptureConfig = field(default_factory=CaptureConfig)
     noise: bool = False
     # Completion examples of each part: every view on its own, and sequences of these lengths

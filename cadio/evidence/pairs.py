@@ -1,17 +1,16 @@
 """Pairs of parts seen by one camera: the relation stage's inputs and their truth.
 
 A capture (a scene of two parts, or a whole assembly) shows its parts in several views. Each
-view of each pair is one ``PairView``: the two parts' points in three inputs, and the ten
-relations of the pair *as that camera's observer sees them*. The directional relations follow
+view of each pair is one ``PairView``: the two parts' points in every relation input, and the
+ten relations of the pair *as that camera's observer sees them*. The directional relations follow
 the observer (DESIGN.md: the camera's forward axis on the ground is "behind"), so the same pair
 seen from the other side swaps left and right; the symmetric ones do not change.
 
-Inputs, each (2, k, 3) float32 world metres:
-- ``truth``: points sampled on the CAD surfaces of the parts, placed as in the scene;
-- ``partial``: the segmented observed points of that view (``points.npz`` of the capture's
-  learning inputs, written by ``cadio.capture.scan``);
-- ``completed``: the completion network's shape of that view under the observed protocol
-  (computed by ``models``, handed in as a mapping).
+The inputs are the relation inputs' own (``models.relation_inputs``, a module each): each
+gives an ``InputBuilder`` that makes its clouds from what a view of a pair offers
+(``ViewSources``: the two parts placed as in the capture with their CAD samples, their
+observed points in the view), (2, k, 3) float32 world metres, with the denser clouds its
+pair evidence is measured on and the parts' centres where it knows them.
 
 The truth labels come from ``cadio.truth.relations.relate`` on the B-rep features of the parts
 placed in the CAD frame, with the camera's view axis, and the pair's face mates as the truth
@@ -22,7 +21,7 @@ the observer's frame), never the poses or the features.
 
 from __future__ import annotations
 
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -47,7 +46,6 @@ from cadio.truth.relations import (
 )
 from cadio.workspace import Workspace, read_features, read_mesh
 
-INPUTS = ("truth", "partial", "completed")
 Cloud = npt.NDArray[np.float32]
 
 
@@ -166,9 +164,7 @@ def pair_category(a: str, b: str) -> str:
 
 
 def capture_pairs(capture: Path, ws: Workspace, categories: Mapping[str, str],
-                  cfg: PairConfig = DEFAULT_PAIRS,
-                  completed: Mapping[tuple[str, int], FloatArray] | None = None
-                  ) -> list[PairView]:
+                  cfg: PairConfig, builders: Mapping[str, InputBuilder]) -> list[PairView]:
     """Every view of every labelled pair of a capture.
 
     Parts are told apart by their instance in the capture, not their part id: a scene may show
@@ -179,11 +175,8 @@ def capture_pairs(capture: Path, ws: Workspace, categories: Mapping[str, str],
             (``labels.pair`` of a scene, ``labels.pairs`` of an assembly, by part id).
         ws: the workspace holding the parts' features, meshes and the capture's inputs.
         categories: part id -> category.
-        completed: (instance id as text, view) -> (m, 3) world metres, the completion of that
-            view (the keys of ``ws.inputs(capture, instance)``); or (m, 6), each point's
-            outward unit normal after it (a completion that gives normals): the network's
-            points take the positions, the pair evidence reads the normals as it reads the
-            CAD samples' exact ones.
+        builders: input name -> the input's clouds of a view of a pair (an input whose
+            builder gives none for a view is absent from that view).
 
     Raises:
         CaptureError: the capture has no scene description, or its pairs no face-mate truth.
@@ -199,16 +192,16 @@ def capture_pairs(capture: Path, ws: Workspace, categories: Mapping[str, str],
     seen = {k: read_part_points(folders[k], str(placed[k]["part_id"]))
             for k in needed if folders[k].exists()}
     scale = float(meta["scale_m_per_mm"])
-    parts = {k: _Placed(str(placed[k]["part_id"]), placed[k], ws, scale, cfg.n_points,
+    parts = {k: PlacedPart(str(placed[k]["part_id"]), placed[k], ws, scale, cfg.n_points,
                         cfg.evidence_points) for k in seen}
     out = []
     for a, b in pairs:
         if a in parts and b in parts:
             pa, pb = parts[a].part_id, parts[b].part_id
-            out += _pair_views(capture.stem, parts[a], parts[b], seen[a], seen[b],
-                               pair_category(categories.get(pa, "?"), categories.get(pb, "?")),
-                               contacts.get((pa, pb), NO_CONTACT), scale, cfg,
-                               _of_instances(completed or {}, a, b))
+            pair = _Pair(capture.stem, (a, b), parts[a], parts[b], seen[a], seen[b],
+                         pair_category(categories.get(pa, "?"), categories.get(pb, "?")),
+                         contacts.get((pa, pb), NO_CONTACT), scale)
+            out += _pair_views(pair, cfg, builders)
     return out
 
 
@@ -250,13 +243,6 @@ def _instance_pairs(meta: dict[str, Any]) -> list[tuple[int, int]]:
     return out
 
 
-def _of_instances(completed: Mapping[tuple[str, int], FloatArray], a: int, b: int
-                  ) -> dict[tuple[int, int], FloatArray]:
-    """(0 or 1 for part a or b, view) -> completion, from the completions by instance."""
-    return {(k, view): pts for (key, view), pts in completed.items()
-            for k, instance in enumerate((a, b)) if key == str(instance)}
-
-
 def _labelled_pairs(meta: dict[str, Any]) -> list[tuple[str, str]]:
     labels = meta.get("labels") or {}
     if "pairs" in labels:
@@ -267,9 +253,10 @@ def _labelled_pairs(meta: dict[str, Any]) -> list[tuple[str, str]]:
     return []
 
 
-class _Placed:
-    """A part instance of the capture: its features in the CAD frame (mm), k truth samples and
-    ``dense`` of them for the pair evidence (world metres)."""
+class PlacedPart:
+    """A part instance as the capture placed it: its features placed (mm), ``truth``: k
+    samples of its CAD surface and ``dense``: the pair evidence's samples with their faces'
+    exact normals, (m, 6), and ``centre``: its solid's centroid, all world metres."""
 
     def __init__(self, part_id: str, meta: dict[str, Any], ws: Workspace, scale: float,
                  k: int, dense: int) -> None:
@@ -284,32 +271,80 @@ class _Placed:
         self.centre = np.asarray(self.features.centroid * scale, dtype=np.float64)
 
 
-def _pair_views(scene: str, a: _Placed, b: _Placed, seen_a: CapturedPart, seen_b: CapturedPart,
-                category: str, contact: PairContact, scale: float, cfg: PairConfig,
-                completed: Mapping[tuple[int, int], FloatArray]) -> list[PairView]:
-    """The views of one pair; ``completed``: (0 for a, 1 for b, view) -> completion."""
-    index_b = {int(v): i for i, v in enumerate(seen_b.views)}
+@dataclass(frozen=True)
+class _Pair:
+    """A labelled pair of a capture: its instances, placed parts, observed points and truth."""
+
+    scene: str
+    instances: tuple[int, int]
+    a: PlacedPart
+    b: PlacedPart
+    seen_a: CapturedPart
+    seen_b: CapturedPart
+    category: str
+    contact: PairContact
+    scale: float
+
+
+@dataclass(frozen=True)
+class ViewSources:
+    """What one view of a pair offers the relation inputs.
+
+    instances: the two parts' instance ids in the capture. placed: the two parts as placed,
+    with their CAD samples (``PlacedPart``). observed: (2, k, 3) float32 world metres, their
+    observed points in this view. view: the view's index.
+    """
+
+    capture: str
+    view: int
+    instances: tuple[int, int]
+    placed: tuple[PlacedPart, PlacedPart]
+    observed: Cloud
+    cfg: PairConfig
+
+
+@dataclass(frozen=True)
+class InputClouds:
+    """One input's clouds of a view of a pair: points (2, k, 3) float32 world metres; the
+    denser clouds its evidence is measured on (None: its points); the parts' centres (2, 3)
+    world metres where the input knows the solids (None: the points' means)."""
+
+    points: Cloud
+    evidence: tuple[Cloud, Cloud] | None = None
+    centres: FloatArray | None = None
+
+
+InputBuilder = Callable[[ViewSources], InputClouds | None]
+
+
+def _pair_views(pair: _Pair, cfg: PairConfig, builders: Mapping[str, InputBuilder]
+                ) -> list[PairView]:
+    """The views of one pair, each with every input its builder gives there."""
+    index_b = {int(v): i for i, v in enumerate(pair.seen_b.views)}
     out = []
-    for i, view in enumerate(seen_a.views.tolist()):
+    for i, view in enumerate(pair.seen_a.views.tolist()):
         j = index_b.get(view)
-        if j is None or min(seen_a.observed[i], seen_b.observed[j]) < cfg.min_observed:
+        if j is None or min(pair.seen_a.observed[i], pair.seen_b.observed[j]) < cfg.min_observed:
             continue
-        w2c = seen_a.world_to_camera[i]
-        rr = relate(a.features, b.features, w2c[2, :3], cfg.tolerances, contact, cfg.margins)
-        points = {"truth": np.stack([a.truth, b.truth]),
-                  "partial": np.stack([seen_a.points[i], seen_b.points[j]])}
-        evidence = {"truth": (a.dense, b.dense)}
-        done_a, done_b = (completed.get((k, view)) for k in (0, 1))
-        if done_a is not None and done_b is not None:
-            points["completed"] = np.stack([_k_points(done_a[:, :3], cfg.n_points),
-                                            _k_points(done_b[:, :3], cfg.n_points)])
-            evidence["completed"] = (
-                np.asarray(evidence_cloud(done_a, cfg.evidence_points), dtype=np.float32),
-                np.asarray(evidence_cloud(done_b, cfg.evidence_points), dtype=np.float32))
-        out.append(PairView(scene, view, seen_a.part_id, seen_b.part_id, category,
-                            np.array(rr.truth, dtype=bool), rr.near_boundary(), w2c, scale,
-                            points, np.array(rr.near, dtype=bool), evidence,
-                            {"truth": np.stack([a.centre, b.centre])}))
+        w2c = pair.seen_a.world_to_camera[i]
+        rr = relate(pair.a.features, pair.b.features, w2c[2, :3], cfg.tolerances, pair.contact,
+                    cfg.margins)
+        sources = ViewSources(pair.scene, view, pair.instances, (pair.a, pair.b),
+                              np.stack([pair.seen_a.points[i], pair.seen_b.points[j]]), cfg)
+        points, evidence, centres = {}, {}, {}
+        for name, build in builders.items():
+            clouds = build(sources)
+            if clouds is None:
+                continue
+            points[name] = clouds.points
+            if clouds.evidence is not None:
+                evidence[name] = clouds.evidence
+            if clouds.centres is not None:
+                centres[name] = clouds.centres
+        out.append(PairView(pair.scene, view, pair.seen_a.part_id, pair.seen_b.part_id,
+                            pair.category, np.array(rr.truth, dtype=bool), rr.near_boundary(),
+                            w2c, pair.scale, points, np.array(rr.near, dtype=bool), evidence,
+                            centres))
     return out
 
 
@@ -322,7 +357,8 @@ def evidence_cloud(points: FloatArray, k: int) -> FloatArray:
     return pts[np.sort(np.random.default_rng(0).choice(len(pts), k, replace=False))]
 
 
-def _k_points(points: FloatArray, k: int) -> Cloud:
+def k_points(points: FloatArray, k: int) -> Cloud:
+    """k of a cloud's points (seeded; repeats where it has fewer), float32."""
     return np.asarray(sample_points(points, k, method="random"), dtype=np.float32)
 
 

@@ -37,8 +37,6 @@ from cadio.tolerances import DEFAULT_TOLERANCES, Tolerances, read_tolerances
 from cadio.truth.mates import COLUMNS as MATES_COLUMNS
 from cadio.workspace import Workspace, atomic_write
 
-# The product's rows of the relation report (reports.relations.PRODUCT): input, method.
-PRODUCT = ("completed", "ltn")
 SCENE_PREFIX = "assembly-"
 
 
@@ -48,7 +46,8 @@ class ExportJob:
 
     step: its STEP file; catalog: the run's ``catalog.parquet``; mates: its CAD mates table
     ("" when the mates stage failed for it); predictions: the run's ``relations_pairs``
-    parquet ("" when there is none); out: the folder for its three files.
+    parquet ("" when there is none); out: the folder for its three files; answers: the
+    (input, method) of the predictions it exports (the product's, ``reports.methods.product``).
     """
 
     assembly: str
@@ -61,6 +60,7 @@ class ExportJob:
     out: str
     run_id: str
     timestamp: str
+    answers: tuple[str, str]
     models: Mapping[str, str] = field(default_factory=dict)
     tolerances: Tolerances = DEFAULT_TOLERANCES
     reason: str = ""
@@ -73,34 +73,48 @@ def file_names(assembly: str) -> dict[str, str]:
             "script": f"{assembly}_assembly.py"}
 
 
-def export_jobs(catalog: pd.DataFrame, catalog_path: Path, mates_dir: Path,
-                predictions: Path | None, out: Path, run_id: str, timestamp: str,
-                models: Mapping[str, str], tol: Tolerances = DEFAULT_TOLERANCES
-                ) -> list[ExportJob]:
+@dataclass(frozen=True)
+class RunFiles:
+    """What the export jobs of one run share: its catalog, the mates folder, its predictions
+    (None: none), the exports folder, its id and time, its models, tolerances and answers."""
+
+    catalog: Path
+    mates: Path
+    predictions: Path | None
+    out: Path
+    run_id: str
+    timestamp: str
+    models: Mapping[str, str]
+    tolerances: Tolerances
+    answers: tuple[str, str]
+
+
+def export_jobs(catalog: pd.DataFrame, run: RunFiles) -> list[ExportJob]:
     """A job per assembly (catalog file with several ok solids), by source path."""
     ok = catalog[(catalog["status"] == "ok") & (catalog["n_solids"] > 1)]
     jobs = []
     for source, rows in ok.groupby("source", sort=True):
         name = Path(str(source)).stem
-        mates = mates_dir / f"{name}.parquet"
-        capture = mates_dir.parent / "captures" / f"{SCENE_PREFIX}{name}.mcap"
+        mates = run.mates / f"{name}.parquet"
+        capture = run.mates.parent / "captures" / f"{SCENE_PREFIX}{name}.mcap"
+        predictions = run.predictions
         jobs.append(ExportJob(
             assembly=name, category=str(rows["category"].iloc[0]), step=str(source),
-            sha256=str(rows["source_sha256"].iloc[0]), catalog=str(catalog_path),
+            sha256=str(rows["source_sha256"].iloc[0]), catalog=str(run.catalog),
             mates=str(mates) if mates.is_file() else "",
             predictions=str(predictions) if predictions and predictions.is_file() else "",
-            out=str(out / name), run_id=run_id, timestamp=timestamp, models=dict(models),
-            tolerances=tol,
+            out=str(run.out / name), run_id=run.run_id, timestamp=run.timestamp,
+            answers=run.answers, models=dict(run.models), tolerances=run.tolerances,
             reason="" if mates.is_file() else "no CAD mates (the mates stage failed for it)",
             captured=capture.is_file()))
     return jobs
 
 
 def run_jobs(workspace: Path, run_dir: Path, models: Mapping[str, str],
-             out: Path | None = None) -> list[ExportJob]:
+             out: Path | None = None, *, answers: tuple[str, str]) -> list[ExportJob]:
     """The export jobs of one finished run of a workspace: its catalog and mates, the run's
     ``relations_pairs.parquet`` and ``tolerances.json``; files under ``<run>/exports/`` (or
-    ``out``).
+    ``out``); the predictions of ``answers`` (input, method).
 
     Raises:
         ExportError: the workspace has no catalog or the run folder does not exist.
@@ -118,9 +132,9 @@ def run_jobs(workspace: Path, run_dir: Path, models: Mapping[str, str],
         stamp = datetime.strptime(run_id, "%Y%m%dT%H%M%S%fZ").replace(tzinfo=UTC).isoformat()
     except ValueError:  # a run folder named by hand: its time of last change
         stamp = datetime.fromtimestamp(run_dir.stat().st_mtime, UTC).isoformat()
-    return export_jobs(read_catalog(ws.catalog), ws.catalog, ws.root / "mates",
-                       run_dir / "relations_pairs.parquet", out or run_dir / "exports", run_id,
-                       stamp, models, tol)
+    return export_jobs(read_catalog(ws.catalog), RunFiles(
+        ws.catalog, ws.root / "mates", run_dir / "relations_pairs.parquet",
+        out or run_dir / "exports", run_id, stamp, models, tol, answers))
 
 
 def model_digests(folders: Mapping[str, Path]) -> dict[str, str]:
@@ -134,7 +148,7 @@ def _predictions(job: ExportJob) -> pd.DataFrame:
     if not job.predictions:
         return pd.DataFrame(columns=["scene", "view", "part_a", "part_b", "relation", "truth",
                                      "predicted", "confidence"])
-    inp, method = PRODUCT
+    inp, method = job.answers
     return pd.read_parquet(job.predictions, filters=[
         ("scene", "==", f"{SCENE_PREFIX}{job.assembly}"), ("input", "==", inp),
         ("method", "==", method)])

@@ -1,7 +1,7 @@
 """What the export writes for one assembly: its parts as the STEP names them, and per pair the
 predicted relations and joint beside the CAD's, each with a status. Plain pandas, no CAD.
 
-The product's answers (``PRODUCT`` of the relation report: the LTN on completed inputs) come as
+The product's answers (``reports.methods.product``: the LTN on completed inputs) come as
 ``relations_pairs`` rows, one per view of a pair and relation. The views of a pair are pooled:
 each view's calibrated confidence gives the probability that the relation holds (the
 confidence of a "yes", one minus that of a "no"); their mean is the pair's probability, the

@@ -188,9 +188,10 @@ def bolt_length(grip: float, m: Metric, thin: bool) -> float:
     return float(int(grip + nut_height(m, thin) + 0.25 * m.d + 2.0) + 1)
 
 
-def fastened(name: str, m: Metric, top: bd.Location, grip: float, *, socket: bool, thin: bool,
-             head_washer: bool, nut_washer: bool, top_part: str, bottom_part: str
-             ) -> tuple[list[PartSpec], list[Mate]]:
+# A design's choices, each a keyword: the call reads as the joint's description.
+def fastened(name: str, m: Metric, top: bd.Location, grip: float, *,  # noqa: PLR0913
+             socket: bool, thin: bool, head_washer: bool, nut_washer: bool, top_part: str,
+             bottom_part: str) -> tuple[list[PartSpec], list[Mate]]:
     """A bolt down through a stack of ``grip`` mm whose top face is at ``top`` (local z = 0,
     the axis local Z), with optional washers under the head and the nut, and its nut.
 

@@ -170,21 +170,8 @@ def generate_scenes(parts: Sequence[ScenePart], cfg: SceneConfig,
     one_pool = sum(f > 0 for f in cfg.split_fractions().values()) == 1
     for s, split in enumerate(SPLITS):
         members = [by_id[pid] for pid in sorted(by_id) if splits[pid] == split]
-        unfit: list[str] = []
-        for r, relation in enumerate(Relation):
-            n = _split_count(cfg, split)
-            if not n:
-                continue
-            if relation in (Relation.COINCIDENT, Relation.CONCENTRIC):
-                for p in members:
-                    if p.part_id not in offers:
-                        offers[p.part_id] = offers_of(p.model)
-            pool = [p for p in members if is_eligible(p, relation, cfg, offers.get(p.part_id))]
-            if len(pool) < 2:  # a part beside itself would be one part to later stages
-                unfit.append(relation.value)
-                continue
-            rng = np.random.default_rng([cfg.seed, s, r])
-            rows += [_scene(pool, offers, relation, split, i, n, rng, cfg) for i in range(n)]
+        placed, unfit = _relation_scenes(members, offers, split, s, cfg)
+        rows += placed
         rows += _contact_scenes(members, offers, split, s, cfg)
         rows += _clearance_scenes(members, offers, split, s, cfg)
         if unfit:
@@ -194,6 +181,29 @@ def generate_scenes(parts: Sequence[ScenePart], cfg: SceneConfig,
     df = pd.DataFrame(rows, columns=list(COLUMNS))
     df.attrs["config"] = scenes_stamp(cfg)
     return df
+
+
+def _relation_scenes(members: Sequence[ScenePart], offers: dict[str, Offers], split: str,
+                     s: int, cfg: SceneConfig) -> tuple[list[dict[str, Any]], list[str]]:
+    """The scenes of each relation in one split (``offers`` filled where the relation needs
+    them), and the relations no two parts of the split fit."""
+    rows: list[dict[str, Any]] = []
+    unfit: list[str] = []
+    for r, relation in enumerate(Relation):
+        n = _split_count(cfg, split)
+        if not n:
+            continue
+        if relation in (Relation.COINCIDENT, Relation.CONCENTRIC):
+            for p in members:
+                if p.part_id not in offers:
+                    offers[p.part_id] = offers_of(p.model)
+        pool = [p for p in members if is_eligible(p, relation, cfg, offers.get(p.part_id))]
+        if len(pool) < 2:  # a part beside itself would be one part to later stages
+            unfit.append(relation.value)
+            continue
+        rng = np.random.default_rng([cfg.seed, s, r])
+        rows += [_scene(pool, offers, relation, split, i, n, rng, cfg) for i in range(n)]
+    return rows, unfit
 
 
 def scenes_stamp(cfg: SceneConfig) -> dict[str, Any]:
@@ -263,7 +273,7 @@ def _contact_scenes(members: Sequence[ScenePart], offers: dict[str, Offers], spl
             if p.part_id not in offers:
                 offers[p.part_id] = offers_of(p.model)
         pose_a, pose_b = touch(offers[a.part_id], offers[b.part_id], rng)
-        rows.append(_placed_row(a, b, pose_a, pose_b, CONTACT, split, i, False, "", cfg))
+        rows.append(_placed_row((a, b), (pose_a, pose_b), CONTACT, split, i, False, "", cfg))
     return rows
 
 
@@ -288,7 +298,7 @@ def _clearance_scenes(members: Sequence[ScenePart], offers: dict[str, Offers], s
     rows = []
     for i in range(n):
         a, b, pose_a, pose_b = _concentric(pool, offers, "", rng, cfg, (low, high))
-        rows.append(_placed_row(a, b, pose_a, pose_b, CLEARANCE, split, i, False, "", cfg))
+        rows.append(_placed_row((a, b), (pose_a, pose_b), CLEARANCE, split, i, False, "", cfg))
     return rows
 
 
@@ -310,14 +320,15 @@ def _scene(pool: Sequence[ScenePart], offers: Mapping[str, Offers], relation: Re
         else:
             pose_a, pose_b = parallel_or_perpendicular(a.features, b.features, relation,
                                                        side, rng, cfg)
-    return _placed_row(a, b, pose_a, pose_b, relation.value, split, i, near, side, cfg)
+    return _placed_row((a, b), (pose_a, pose_b), relation.value, split, i, near, side, cfg)
 
 
-def _placed_row(a: ScenePart, b: ScenePart, pose_a: FloatArray, pose_b: FloatArray,
+def _placed_row(parts: tuple[ScenePart, ScenePart], poses: tuple[FloatArray, FloatArray],
                 intended: str, split: str, i: int, near: bool, side: str,
                 cfg: SceneConfig) -> dict[str, Any]:
     """The table row of a placed pair: centred, labelled by the truth."""
-    pose_a, pose_b = _centred(a.features, b.features, pose_a, pose_b)
+    a, b = parts
+    pose_a, pose_b = _centred(a.features, b.features, *poses)
     result = label_pair(a, b, pose_a, pose_b, cfg)
     return {
         "scene_id": f"s{cfg.seed}-{split}-{intended}-{i:05d}", "split": split,

@@ -75,7 +75,7 @@ def train_model(ws: Workspace, method: str, protocol: str, steps: int, out_dir: 
     train, val = _files(ws, rows), _files(ws, split_rows(ws, protocol, "val"))
     parts = sorted(set(rows["part_id"]))
     chosen = dict(CPU_RATES if rates is None else rates)
-    if method != "gan_lstm":
+    if not getattr(config_for(method), "gan", False):  # only a critic has its own rate
         chosen.pop("lr_d", None)
     cfg = config_for(method, **{**chosen, **overrides})
     snapshot = ws.root / "models" / f"completion-{method}-{protocol}.resume.pt"

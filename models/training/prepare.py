@@ -81,35 +81,51 @@ def corpus_fractions(library: Path, shared: Path | None) -> Callable[[str], tupl
     return fractions
 
 
-def prepare_corpus(ws: Workspace, shared: Path | None, variants: int, seed: int,
-                   ingest_cfg: IngestConfig, corpus_cfg: CorpusConfig,
-                   progress: Progress | None = None, pairs_per_relation: int = 150,
-                   assemblies: int = 20 * len(FAMILIES), contact_pairs: int = 0,
-                   clearance_pairs: int = 0,
-                   kinds: tuple[str, ...] = KINDS) -> Corpus:
+@dataclass(frozen=True)
+class CorpusPlan:
+    """What the corpus is made of: the real files of ``shared`` (None: the generated library
+    only), ``variants`` per category of the sample library, ``assemblies`` seeded assembly
+    variants, the pair scenes (``pairs_per_relation``, and ``contact_pairs`` and
+    ``clearance_pairs``: touching pairs and coaxial pairs apart, ``SceneConfig``), the
+    ``kinds`` of shot rendered (the relation networks need no part alone), all drawn from
+    ``seed``."""
+
+    shared: Path | None = None
+    variants: int = 100
+    seed: int = 0
+    pairs_per_relation: int = 150
+    assemblies: int = 20 * len(FAMILIES)
+    contact_pairs: int = 0
+    clearance_pairs: int = 0
+    kinds: tuple[str, ...] = KINDS
+
+    def scenes(self) -> SceneConfig:
+        return SceneConfig(seed=self.seed, pairs_per_relation=self.pairs_per_relation,
+                           contact_pairs=self.contact_pairs, clearance_pairs=self.clearance_pairs)
+
+
+def prepare_corpus(ws: Workspace, plan: CorpusPlan, ingest_cfg: IngestConfig,
+                   corpus_cfg: CorpusConfig, progress: Progress | None = None) -> Corpus:
     """Library with variants of its parts and assemblies (+ shared parts), ingest, pair
     scenes, the corpus of shots (``models.training.corpus``). Reruns reuse every step; a stopped
-    build resumes. ``contact_pairs``, ``clearance_pairs``: touching pairs and coaxial pairs
-    apart among the pair scenes (``SceneConfig``); ``kinds``: the kinds of shot rendered (the
-    relation networks need no part alone)."""
+    build resumes."""
     clock = time.perf_counter()
     library = corpus_library(ws)
-    generate_library(library, SampleConfig(variants=variants, variant_seed=seed))
-    write_assembly_variants(library / "assemblies" / "variants", assemblies, seed,
+    generate_library(library, SampleConfig(variants=plan.variants, variant_seed=plan.seed))
+    write_assembly_variants(library / "assemblies" / "variants", plan.assemblies, plan.seed,
                             workers=ingest_cfg.limits.workers)
-    found = discover(library) + (discover(shared) if shared is not None else [])
+    found = discover(library) + (discover(plan.shared) if plan.shared is not None else [])
     rows = ingest_files(found, ws.root, ingest_cfg, read_catalog(ws.catalog))
     catalog = to_frame(mark_duplicates(rows))
     write_catalog(ws.catalog, catalog)
-    fractions = corpus_fractions(library, shared)
+    fractions = corpus_fractions(library, plan.shared)
     out = dataset_dir(ws)
     out.mkdir(parents=True, exist_ok=True)
-    scenes = _corpus_scenes(ws, catalog, fractions, seed, pairs_per_relation, out, contact_pairs,
-                            clearance_pairs)
-    plan = plan_corpus(catalog, ws.mesh, scenes, fractions, seed)
-    groups = pd.DataFrame(sorted(plan.group_split.items()), columns=["source", "split"])
+    scenes = _corpus_scenes(ws, catalog, fractions, plan.scenes(), out)
+    shots_plan = plan_corpus(catalog, ws.mesh, scenes, fractions, plan.seed)
+    groups = pd.DataFrame(sorted(shots_plan.group_split.items()), columns=["source", "split"])
     groups.to_csv(out / "groups.csv", index=False)
-    shots = [s for s in plan.shots if s.kind in kinds]
+    shots = [s for s in shots_plan.shots if s.kind in plan.kinds]
     index = build_corpus(shots, out, corpus_cfg, ingest_cfg.limits, progress)
     ok = index[index["status"] == "ok"]
     per_split = ok.drop_duplicates("part_id")["split"].value_counts().to_dict()
@@ -122,21 +138,18 @@ def prepare_corpus(ws: Workspace, shared: Path | None, variants: int, seed: int,
 
 
 def _corpus_scenes(ws: Workspace, catalog: pd.DataFrame,
-                   fractions: Callable[[str], tuple[float, float]], seed: int,
-                   pairs_per_relation: int, out: Path, contact_pairs: int = 0,
-                   clearance_pairs: int = 0) -> pd.DataFrame:
+                   fractions: Callable[[str], tuple[float, float]], cfg: SceneConfig,
+                   out: Path) -> pd.DataFrame:
     """The pair scenes of the corpus's single parts (each part in its corpus split), kept in
     the corpus folder and reused while their stamp holds (the same config and placement rules;
     a table drawn by other rules is drawn anew, and its shots with it)."""
     path = out / "scenes.parquet"
-    cfg = SceneConfig(seed=seed, pairs_per_relation=pairs_per_relation,
-                      contact_pairs=contact_pairs, clearance_pairs=clearance_pairs)
     if path.exists():
         kept = read_scenes(path)
         if kept.attrs["config"] == scenes_stamp(cfg):
             return kept
         log.info("%s: drawn by other rules or another config; drawing the scenes anew", path)
-    _, part_split = plan_splits(catalog, fractions, seed)
+    _, part_split = plan_splits(catalog, fractions, cfg.seed)
     parts = [p for p in read_scene_parts(catalog, ws.root) if p.part_id in part_split]
     scenes = generate_scenes(parts, cfg, part_split)
     write_scenes(path, scenes)

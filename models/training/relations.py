@@ -28,11 +28,14 @@ import pandas as pd
 
 from cadio.catalog import read_catalog
 from cadio.evidence.pair_features import evidence_digest
-from cadio.evidence.pairs import DEFAULT_PAIRS, INPUTS
+from cadio.evidence.pairs import DEFAULT_PAIRS
 from cadio.sandbox import Limits
 from cadio.truth.corpus_labels import LabelJob, LabelPart, ShotLabels, label_shots
 from cadio.workspace import Workspace, atomic_write
-from models.geometric import OBSERVED_BY, evidence_gains, evidence_names, tests_for
+from models.completions import ours as completion_ours
+from models.geometric import evidence_gains, evidence_names, tests_for
+from models.relation_inputs import INPUTS, trained
+from models.relation_methods import RELATION_METHODS
 from models.training.corpus import Shot, read_index, read_shots
 from models.training.prepare import dataset_dir
 
@@ -106,7 +109,7 @@ def build_dataset(ws: Workspace, completion_models: Path, limits: Limits,
 
     labels = label_corpus(ws, limits, progress)
     models = load_models(completion_models)
-    key = ("gan_lstm", "observed")
+    key = (completion_ours().name, "observed")
     stamp = {"shots": sorted(labels), "labels": labels_digest(labels),
              "completion": models.cards[key]["code_version"] if key in models.cards else "",
              "completion_step": models.cards[key]["step"] if key in models.cards else -1,
@@ -118,10 +121,7 @@ def build_dataset(ws: Workspace, completion_models: Path, limits: Limits,
     shots = read_shots(dataset_dir(ws) / "shots.parquet")
     index = read_index(dataset_dir(ws) / "index.parquet")
     rows = build_relation_dataset(dataset_dir(ws), shots, labels, index, models.models.get(key),
-                                  out, n_points=DEFAULT_PAIRS.n_points,
-                                  min_observed=DEFAULT_PAIRS.min_observed,
-                                  evidence_points=DEFAULT_PAIRS.evidence_points,
-                                  progress=progress)
+                                  out, DEFAULT_PAIRS, progress=progress)
     (out / "stamp.json").write_text(json.dumps(stamp))
     return rows
 
@@ -182,7 +182,7 @@ def train_relation_model(ws: Workspace, method: str, name: str, steps: int, out_
 def evaluate_relations(ws: Workspace, models_dir: Path, run_dir: Path,
                        progress: Progress | None = None) -> Path:
     """Every method on every input of the test split; the run's relation report."""
-    from models.relate import METHODS, decide, load_relation_models
+    from models.relate import PairBatch, decide, load_relation_models
     from models.relation_data import read_split
     from reports.relations import pairs_frame, write_relation_report
 
@@ -193,18 +193,18 @@ def evaluate_relations(ws: Workspace, models_dir: Path, run_dir: Path,
     keys = [((s, a, v), (s, b, v)) for s, a, b, v in
             zip(meta["scene"], meta["part_a"], meta["part_b"], meta["view"], strict=True)]
     rows = []
-    for name in INPUTS:
-        reads = OBSERVED_BY.get(name)
+    for name in trained():
+        reads = INPUTS.get(name).observed_by
         observed = None if reads is None else (test.inputs[reads], test.network_evidence(reads))
-        for method in METHODS:
-            out = decide(test.inputs[name], mm, method, models.models.get((method, name)),
-                         keys, test.features[name], test.centres_of(name), tests_for(name),
-                         observed)
+        batch = PairBatch(test.inputs[name], mm, keys, test.features[name],
+                          test.centres_of(name), tests_for(name), observed)
+        for method in RELATION_METHODS.entries():
+            out = decide(batch, method, models.models.get((method.name, name)))
             if out is None:
                 continue
-            rows += _rows(meta, test.labels, name, method, *out)
+            rows += _rows(meta, test.labels, name, method.name, *out)
             if progress is not None:
-                progress(f"{method}/{name}")
+                progress(f"{method.name}/{name}")
     jointed = meta[meta["joint"].astype(str) != "none"]
     joints = jointed[["scene", "part_a", "part_b"]].assign(
         kinematic=jointed["joint"].astype(str)).drop_duplicates()
@@ -240,6 +240,17 @@ def dataset_rows(ws: Workspace) -> pd.DataFrame:
                          "scenes": meta["scene"].nunique(),
                          "parts": len(set(meta["part_a"]) | set(meta["part_b"])),
                          "near_boundary": int(meta["near_boundary"].sum())})
+    return pd.DataFrame(rows)
+
+
+def registered_table() -> pd.DataFrame:
+    """The registered relation methods and inputs: kind, name, role, what each is."""
+    from models.relation_inputs import INPUTS
+
+    rows = [{"kind": "method", "name": m.name, "role": m.role.value, "what": m.summary}
+            for m in RELATION_METHODS.entries()]
+    rows += [{"kind": "input", "name": i.name, "role": i.role.value, "what": i.summary}
+             for i in INPUTS.entries()]
     return pd.DataFrame(rows)
 
 
@@ -285,6 +296,7 @@ def write_relation_card(ws: Workspace, out_dir: Path, run_dir: Path, command: st
         "cylindrical, slider), trained on the CAD's joints of the labelled pairs; the report's "
         "joint agreement scores it on the jointed pairs. The networks see the points in the "
         "observer's frame only. Load with `torch.load(weights_only=True)`.", "",
+        "## Methods and inputs", "", markdown_table(registered_table()), "",
         "## Checkpoints", "", markdown_table(pd.DataFrame(ckpts)), "",
         "## Data", "", "The pairs of the completion corpus's shots (pair scenes and assemblies "
         "as placed, seeded assembly variants and the training split of the shared multi-part "
