@@ -373,3 +373,33 @@ def test_the_box_outline_casts_every_ray_the_slab_test_casts() -> None:
     inside = staged.box_m.mean(axis=0)
     assert not box_outline(px.x[:k.width], px.y[::k.width], rot_cw, inside, staged.box_m,
                             margin, lo, hi)
+
+
+def test_the_d435_model_has_the_datasheet_rms_at_inspection_range_in_millimetre_steps() -> None:
+    from cadio.camera.noise import D435
+
+    for z, rms_mm in ((0.5, 0.95), (0.6, 1.37), (1.0, 3.8)):
+        depth = np.full((240, 320), z, dtype=np.float32)
+        noisy = apply_noise(depth, np.ones_like(depth), D435, view=0)
+        seen = noisy[noisy > 0].astype(np.float64)
+        assert np.std(seen - z) * 1000 == pytest.approx(rms_mm, rel=0.1)
+        assert np.allclose(seen * 1000, np.round(seen * 1000), atol=1e-3)  # 1 mm steps
+        assert 0.005 < 1 - seen.size / depth.size < 0.02  # its 1% dropout
+
+
+def test_correlated_noise_errs_together_so_averaging_does_not_wash_it_out() -> None:
+    depth = np.full((480, 640), 0.6, dtype=np.float32)
+    cos = np.ones_like(depth)
+    white = NoiseConfig(sigma_base_m=0.0, sigma_quadratic_per_m=0.0038, quantisation_m=0.0)
+    smooth = NoiseConfig(sigma_base_m=0.0, sigma_quadratic_per_m=0.0038, quantisation_m=0.0,
+                         correlated_fraction=0.5, correlated_px=8)
+    sigma = 0.0038 * 0.36
+    for cfg, patch_sd in ((white, sigma / 32), (smooth, sigma * math.sqrt(0.5) / 2)):
+        noisy = apply_noise(depth, cos, cfg, view=3).astype(np.float64) - 0.6
+        assert np.std(noisy) == pytest.approx(sigma, rel=0.05)  # the same per-pixel rms
+        means = noisy.reshape(15, 32, 20, 32).mean(axis=(1, 3))  # 32 x 32 px patches
+        assert np.std(means) == pytest.approx(patch_sd, rel=0.6)
+    # without the correlated share, the per-pixel draws are those of the model before it
+    again = apply_noise(depth, cos, NoiseConfig(quantisation_m=0.0), view=3)
+    assert np.array_equal(again, apply_noise(depth, cos, NoiseConfig(quantisation_m=0.0,
+                                                                      correlated_px=4), view=3))

@@ -300,8 +300,9 @@ def light(ambient: float) -> npt.NDArray[np.float32]:
 
 @_jit
 def shade_and_measure(hit: Any, px: Any, rot_cw: Any, tables: Any,  # noqa: PLR0913
-                      light: Any, out: Any, model: Any, rng: Any, measured: Any) -> None:
+                      light: Any, out: Any, model: Any, rng: Any, measured: Any,
+                      field: Any) -> None:
     """``shade_pixels``, then the sensor model on its depth into ``measured`` (h, w): one call
     without the GIL, so all of a frame's pixel work overlaps the next view's ray cast."""
     shade_pixels(hit, px, rot_cw, tables, light, out)
-    measure_depth(out[0], out[1], model, rng, measured)
+    measure_depth(out[0], out[1], model, rng, measured, field)

@@ -38,7 +38,7 @@ import numpy.typing as npt
 import open3d as o3d
 
 from cadio.camera import CIRCLE_VIEWS
-from cadio.camera.noise import NoiseConfig, sensor_model, sensor_rng
+from cadio.camera.noise import NoiseConfig, sensor_field, sensor_model, sensor_rng
 from cadio.camera.raycast import (
     LEVELS,
     OUTLINE_MARGIN_PX,
@@ -312,7 +312,8 @@ def _frame(staged: StagedScene, cfg: CaptureConfig, px: PixelGrid, c: _Cast) -> 
         shade_pixels(*pixels)
     else:
         depth = np.empty(shape, np.float32)
-        shade_and_measure(*pixels, sensor_model(cfg.noise), sensor_rng(cfg.noise, c.view), depth)
+        shade_and_measure(*pixels, sensor_model(cfg.noise), sensor_rng(cfg.noise, c.view), depth,
+                          sensor_field(cfg.noise, c.view, shape))
     meta = {**staged.meta, "view_index": c.view, "azimuth_deg": view_azimuth_deg(cfg, c.view),
             "elevation_deg": cfg.elevation_deg, "noise": cfg.noise is not None}
     return RgbdFrame(timestamp_ns=c.view * cfg.frame_period_ns, intrinsics=k, colour=out[3],
