@@ -61,6 +61,7 @@ from reports.render import (
     write_stage_report,
 )
 from reports.run_report import RunReport, previous_runs, write_run_report
+from reports.shapes import read_part_geometry
 from reports.trends import DEFAULT_THRESHOLDS, read_thresholds
 
 
@@ -121,9 +122,11 @@ def relations_report_task(run: Run, batches: list[RelateBatch]) -> str:
 @task(name="completion-report")
 def completion_report_task(run: Run, scores: list[Scores]) -> str:
     """The completion report of the run (``completion_parts.parquet``, categories, the
-    coverage of the library's parts, Markdown)."""
-    ingested = ingested_parts(read_catalog(Workspace(Path(run.workspace)).catalog))
-    return str(write_completion_report(Path(run.run_dir), scores, ingested))
+    coverage of the library's parts, the headline per distinct shape, Markdown)."""
+    catalog = Workspace(Path(run.workspace)).catalog
+    return str(write_completion_report(Path(run.run_dir), scores,
+                                       ingested_parts(read_catalog(catalog)),
+                                       read_part_geometry(catalog)))
 
 
 @task(name="report")
