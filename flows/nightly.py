@@ -83,6 +83,8 @@ class NightlySummary:
 
     coverage: per category (and ``all``) the library's parts (``parts_ingested``), those the
     completion stage scored (``parts_scored``) and their share (``coverage_parts``).
+    verdict: the report's word (``reports.verdict.Verdict.word``): a night that checked
+    nothing is ``UNCHECKED``, never ``PASS``.
     """
 
     run_id: str
@@ -101,6 +103,7 @@ class NightlySummary:
     exports: str = ""
     export_status: dict[str, int] = field(default_factory=dict)
     coverage: dict[str, dict[str, Any]] = field(default_factory=dict)
+    verdict: str = ""  # PASS, FAIL, or UNCHECKED: no threshold check applied
 
 
 @task(name="relations-report")
@@ -322,7 +325,7 @@ def stages_of(config: NightConfig) -> NightlySummary:
         relations_report=relations, ingest=ingest, stages=stages,
         run_report=str(report.html), failed_checks=list(report.failed),
         stage_seconds=clock.seconds, exports=exports, export_status=status,
-        coverage=coverage)
+        coverage=coverage, verdict=report.verdict)
     write_json(Path(run.run_dir) / "summary.json", asdict(summary))
     Workspace(Path(run.workspace)).mark_latest(run.run_id)
     return summary
