@@ -14,7 +14,8 @@ with the night's verdict in a dozen lines (``reports.verdict``), or with ``--jso
 full ``summary.json``.
 
 This module holds the parser; the commands live beside it: ``cli_cad`` (ingest, mates, capture,
-export, samples), ``cli_train`` (train, ship) and ``cli_nightly`` (nightly, serve).
+export, samples), ``cli_train`` (train, ship), ``cli_nightly`` (nightly, serve) and
+``cli_thresholds`` (thresholds calibrate: floors from a healthy night).
 """
 
 from __future__ import annotations
@@ -30,6 +31,7 @@ from cadio.tolerances import DEFAULT_TOLERANCES
 from flows.cli_cad import cmd_capture, cmd_export, cmd_ingest, cmd_mates, cmd_samples
 from flows.cli_nightly import cmd_nightly, cmd_serve
 from flows.cli_options import allowed, bounded, check_inputs, config_of, tolerances_of
+from flows.cli_thresholds import add_thresholds_parser
 from flows.cli_train import cmd_ship, cmd_train
 
 if TYPE_CHECKING:
@@ -246,6 +248,8 @@ def _parser() -> argparse.ArgumentParser:
                    help="parallel CAD worker processes (0 = one per core)"
                    + allowed("runtime.workers"))
     p.set_defaults(func=cmd_export, tol=[], tolerances_file=None)
+
+    add_thresholds_parser(sub)
 
     p = sub.add_parser("samples", help="generate the built-in sample library",
                        description="Write the built-in sample STEP library into OUT.")

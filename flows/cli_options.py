@@ -32,7 +32,7 @@ OPTION_FIELDS = {
 }
 # Commands whose options are their own (training knobs), not a night's: train's --seed and
 # --pairs-per-relation are the corpus's.
-_OWN_OPTIONS = {"train", "ship", "serve", "samples"}
+_OWN_OPTIONS = {"train", "ship", "serve", "samples", "thresholds"}
 
 
 def allowed(field: str) -> str:
