@@ -51,7 +51,9 @@ def model_card(folder: Path, data: pd.DataFrame, categories: pd.DataFrame,
              "Shape completion from single RGB-D views (and sequences of views): `gan_lstm` "
              "(3D conv encoder-decoder with skips, a 3D conv-LSTM over the views, conditional "
              "WGAN-GP critic), and the learned baselines `ae` (the same generator without LSTM "
-             "and critic) and `r2n2` (3D-R2N2 on depth views). One checkpoint per method and "
+             "and critic) and `r2n2` (3D-R2N2 on depth views of the seen surface only, without "
+             "the seen-free and unknown states the others read: labelled surface-only, no fair "
+             "baseline). One checkpoint per method and "
              "protocol; the nightly loads them with `torch.load(weights_only=True)`.", "",
              "## Checkpoints", "", markdown_table(checkpoint_table(folder)), "",
              "## Data", "", "Parts are split by part (never by view); the nightly's own sample "
