@@ -52,6 +52,7 @@ td:first-child,th:first-child{text-align:left}
 .no-threshold{background:#eee;color:#666}.nodata{color:#888;font-style:italic}
 table.verdict{font-size:14px}
 table.verdict td,table.verdict th{text-align:left;white-space:nowrap}
+table.verdict th{white-space:normal;vertical-align:bottom}
 table.verdict small{color:#555}
 .facts,.legend{font-size:13px;color:#555;margin:2px 0 6px}
 .banner{padding:8px;font-weight:bold;margin:6px 0}
