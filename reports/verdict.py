@@ -21,7 +21,14 @@ from typing import Any
 import pandas as pd
 
 from reports.tables import printable
-from reports.trends import ALL, CATEGORIES_COLUMNS
+from reports.trends import (
+    ALL,
+    CATEGORIES_COLUMNS,
+    DEFAULT_THRESHOLDS,
+    OURS,
+    ThresholdsError,
+    read_thresholds,
+)
 
 # The figures shown per category, then those the assemblies give (category "all" only).
 # Completion: the mean per distinct shape over parts scored where they were placed
@@ -221,7 +228,6 @@ def completion_said(run_dir: Path) -> str:
     one sentence (empty where the run has no headline file): the verdict's cell has room for
     the value only."""
     from reports.headline import read_headline
-    from reports.trends import OURS
 
     table = read_headline(Path(run_dir))
     rows = table[(table["category"] == ALL) & (table["method"] == OURS[0])
@@ -243,8 +249,6 @@ FLOORS_FILE = "thresholds.toml"  # the thresholds a run was checked against, as 
 def floors_said(run_dir: Path) -> str:
     """Where the floors of a run came from, in one sentence (empty where the run kept no
     thresholds file): calibrated from a reference run, the shipped defaults, or set by hand."""
-    from reports.trends import DEFAULT_THRESHOLDS, ThresholdsError, read_thresholds
-
     path = Path(run_dir) / FLOORS_FILE
     if not path.is_file():
         return ""
@@ -253,7 +257,7 @@ def floors_said(run_dir: Path) -> str:
     except ThresholdsError:
         return ""
     if limits.reference_run:
-        return (f"Floors: calibrated from the run {Path(limits.reference_run).name} "
+        return (f"Floors: calibrated from the run {printable(Path(limits.reference_run).name)} "
                 f"({printable(limits.reference_run)}); see {FLOORS_FILE} in this run's folder")
     if path.read_bytes() == DEFAULT_THRESHOLDS.read_bytes():
         return ("Floors: the shipped defaults, loose enough for any library (a damaged model "
