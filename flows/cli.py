@@ -14,7 +14,8 @@ with the night's verdict in a dozen lines (``reports.verdict``), or with ``--jso
 full ``summary.json``.
 
 This module holds the parser; the commands live beside it: ``cli_cad`` (ingest, mates, capture,
-export, samples), ``cli_train`` (train, ship) and ``cli_nightly`` (nightly, serve).
+export, samples), ``cli_train`` (train, ship), ``cli_nightly`` (nightly, serve) and
+``cli_thresholds`` (thresholds calibrate: floors from a healthy night).
 """
 
 from __future__ import annotations
@@ -36,6 +37,7 @@ from flows.cli_options import (
     config_of,
     tolerances_of,
 )
+from flows.cli_thresholds import add_thresholds_parser
 from flows.cli_train import cmd_ship, cmd_train
 
 if TYPE_CHECKING:
@@ -98,6 +100,7 @@ def _parser() -> argparse.ArgumentParser:
     _train_command(sub)
     _ship_command(sub)
     _export_command(sub)
+    add_thresholds_parser(sub)
     _samples_command(sub)
     return parser
 

@@ -62,6 +62,7 @@ from reports.render import (
     write_stage_report,
 )
 from reports.run_report import RunReport, previous_runs, write_run_report
+from reports.shapes import read_part_geometry
 from reports.trends import DEFAULT_THRESHOLDS, read_thresholds
 
 
@@ -83,6 +84,8 @@ class NightlySummary:
 
     coverage: per category (and ``all``) the library's parts (``parts_ingested``), those the
     completion stage scored (``parts_scored``) and their share (``coverage_parts``).
+    verdict: the report's word (``reports.verdict.Verdict.word``): a night that checked
+    nothing is ``UNCHECKED``, never ``PASS``.
     """
 
     run_id: str
@@ -101,6 +104,7 @@ class NightlySummary:
     exports: str = ""
     export_status: dict[str, int] = field(default_factory=dict)
     coverage: dict[str, dict[str, Any]] = field(default_factory=dict)
+    verdict: str = ""  # PASS, FAIL, or UNCHECKED: no threshold check applied
 
 
 @task(name="relations-report")
@@ -122,9 +126,11 @@ def relations_report_task(run: Run, batches: list[RelateBatch]) -> str:
 @task(name="completion-report")
 def completion_report_task(run: Run, scores: list[Scores]) -> str:
     """The completion report of the run (``completion_parts.parquet``, categories, the
-    coverage of the library's parts, Markdown)."""
-    ingested = ingested_parts(read_catalog(Workspace(Path(run.workspace)).catalog))
-    return str(write_completion_report(Path(run.run_dir), scores, ingested))
+    coverage of the library's parts, the headline per distinct shape, Markdown)."""
+    catalog = Workspace(Path(run.workspace)).catalog
+    return str(write_completion_report(Path(run.run_dir), scores,
+                                       ingested_parts(read_catalog(catalog)),
+                                       read_part_geometry(catalog)))
 
 
 @task(name="report")
@@ -310,7 +316,7 @@ def stages_of(config: NightConfig) -> NightlySummary:
         relations_report=relations, ingest=ingest, stages=stages,
         run_report=str(report.html), failed_checks=list(report.failed),
         stage_seconds=clock.seconds, exports=exports, export_status=status,
-        coverage=coverage)
+        coverage=coverage, verdict=report.verdict)
     write_json(Path(run.run_dir) / "summary.json", asdict(summary))
     Workspace(Path(run.workspace)).mark_latest(run.run_id)
     return summary

@@ -35,7 +35,9 @@ from models.completions import COMPLETIONS, ours
 from models.train import Model, predict
 from reports.completion import CompletionCase, parts_frame, write_completion
 from reports.coverage import part_coverage, write_part_coverage
+from reports.headline import headline_markdown, headline_table, write_headline
 from reports.metrics import surface_points
+from reports.shapes import GEOMETRY_COLUMNS
 from reports.tables import markdown_table
 
 log = logging.getLogger(__name__)
@@ -221,16 +223,24 @@ def complete_parts(folders: Iterable[Path], models_dir: Path, ws: Workspace) -> 
 
 
 def write_completion_report(run_dir: Path, scores: Iterable[Scores],
-                            ingested: pd.DataFrame | None = None) -> Path:
+                            ingested: pd.DataFrame | None = None,
+                            geometry: pd.DataFrame | None = None) -> Path:
     """``completion_parts.parquet``, ``completion_categories.csv``, ``completion.md`` and
-    ``completion_registration.csv`` of the scores, and with ``ingested`` (the library's parts:
-    part_id, category) ``completion_coverage.csv``; returns the Markdown's path."""
+    ``completion_registration.csv`` of the scores, with ``ingested`` (the library's parts:
+    part_id, category) ``completion_coverage.csv``, and ``completion_headline.csv`` (per
+    distinct shape of ``geometry``, ``reports.shapes.part_geometry``: without it each part is
+    a shape and a file of its own); returns the Markdown's path."""
     batches = list(scores)
     parts = parts_frame(row for s in batches for row in s.parts)
     library = None if ingested is None else part_coverage(parts, ingested)
     if library is not None:
         write_part_coverage(run_dir, library)
     md = write_completion(run_dir, parts, library)
+    headline = headline_table(parts, pd.DataFrame(columns=list(GEOMETRY_COLUMNS))
+                              if geometry is None else geometry)
+    write_headline(run_dir, headline)
+    with md.open("a") as fh:
+        fh.write(headline_markdown(headline))
     registration = pd.DataFrame([r for s in batches for r in s.registration],
                                 columns=[f.name for f in fields(RegistrationRow)])
     with atomic_path(run_dir / "completion_registration.csv") as tmp:

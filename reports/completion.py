@@ -42,7 +42,7 @@ import pandas as pd
 from cadio.errors import InputFileError
 from cadio.records import Category
 from cadio.workspace import atomic_path, atomic_write
-from reports.methods import completion_order
+from reports.methods import completion_order, method_labels
 from reports.metrics import METRICS, BoolGrid, part_metrics
 from reports.tables import markdown_table
 
@@ -304,10 +304,18 @@ def _wide(categories: pd.DataFrame,
     keys = ["protocol", "category"]
     wide = frame.pivot(index=keys, columns="method", values="cell")
     methods = _sorted(categories.drop_duplicates("method"), ["method"])["method"]
-    wide = wide.reindex(columns=list(methods))
+    wide = wide.reindex(columns=list(methods)).rename(columns=method_labels())
     wide.columns.name = None
     wide.insert(0, "n_parts", frame.groupby(keys)["n_parts"].max())
     return _sorted(wide.reset_index(), keys)
+
+
+def labelled_methods(table: pd.DataFrame) -> pd.DataFrame:
+    """``table`` with its ``method`` column (where it has one) named for reading
+    (``CompletionMethod.label``)."""
+    if "method" not in table:
+        return table
+    return table.assign(method=table["method"].replace(method_labels()))
 
 
 def split_sizes(parts: pd.DataFrame) -> pd.DataFrame:
@@ -370,7 +378,7 @@ def context_iou_table(contexts: pd.DataFrame) -> pd.DataFrame:
     keys = ["protocol", "context", "category"]
     wide = frame.pivot(index=keys, columns="method", values="cell")
     methods = _sorted(contexts.drop_duplicates("method"), ["method"])["method"]
-    wide = wide.reindex(columns=list(methods))
+    wide = wide.reindex(columns=list(methods)).rename(columns=method_labels())
     wide.columns.name = None
     wide.insert(0, "coverage", frame.groupby(keys)["coverage"].mean() * 100)
     wide.insert(0, "n_parts", frame.groupby(keys)["n_parts"].max())
@@ -405,7 +413,7 @@ def _protocol_section(parts: pd.DataFrame, categories: pd.DataFrame, protocol: s
     mine = parts[parts["protocol"] == protocol]
     cats = categories[categories["protocol"] == protocol]
     tables = [
-        ("Per category", _fmt(cats, 3)),
+        ("Per category", _fmt(labelled_methods(cats), 3)),
         (f"IoU (%) beside the paper's Table II ({_PAPER_SETTING})",
          _fmt(paper_iou_table(cats), 2)),
         (f"Projection overlap (%) XY/YZ/ZX beside the paper's Table I ({_PAPER_SETTING})",

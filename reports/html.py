@@ -28,9 +28,11 @@ from reports import plots
 from reports.completion import (
     iou_by_n_views,
     iou_by_view_angle,
+    labelled_methods,
     paper_iou_table,
     paper_overlap_table,
 )
+from reports.headline import HEADLINE_NOTE, display_table
 from reports.relations import accuracy_table, calibration_table
 from reports.verdict import HEADLINE, LABELS, Figure, Verdict
 
@@ -50,6 +52,7 @@ td:first-child,th:first-child{text-align:left}
 .no-threshold{background:#eee;color:#666}.nodata{color:#888;font-style:italic}
 table.verdict{font-size:14px}
 table.verdict td,table.verdict th{text-align:left;white-space:nowrap}
+table.verdict th{white-space:normal;vertical-align:bottom}
 table.verdict small{color:#555}
 .facts,.legend{font-size:13px;color:#555;margin:2px 0 6px}
 .banner{padding:8px;font-weight:bold;margin:6px 0}
@@ -129,19 +132,23 @@ class Page:
 
 
 def first_screen(page: Page, verdict: Verdict, facts: str, categories: pd.DataFrame,
-                 mates: pd.DataFrame, joints: pd.DataFrame, intervals: str = "") -> None:
+                 mates: pd.DataFrame, joints: pd.DataFrame, intervals: str = "",
+                 said: Sequence[str] = ()) -> None:
     """The verdict, its table of headline figures, the assembly figures' intervals
-    (``verdict.assembly_intervals``), the failed inputs' count and the three plots
+    (``verdict.assembly_intervals``), the sentences ``said`` (the completion headline's
+    interval, where the floors came from), the failed inputs' count and the three plots
     (``categories``: ``completion_categories`` rows of the observed protocol)."""
     page.text(facts, "facts")
-    page.parts.append(f"<div class='banner {'pass' if verdict.passed else 'fail'}'>"
-                      f"{html.escape(verdict.headline())}</div>")
+    banner = {"PASS": "pass", "FAIL": "fail"}.get(verdict.word, "no-data")
+    page.parts.append(f"<div class='banner {banner}'>{html.escape(verdict.headline())}</div>")
     page.parts.append(verdict_table(verdict))
     page.text("Each cell: tonight's value, its floor and the previous night's value. Red: below "
               "the floor (fail) or worse than the previous night by more than the allowed drop "
               "(regressed); grey: too few parts, pairs or files to check. A category's verdict "
               "is the worst of all its checks (the folded table below lists every one).",
               "legend")
+    for line in said:
+        page.text(f"{line}.", "legend")
     if intervals:
         page.text(f"Assemblies: {intervals}.", "legend")
     if verdict.problems:
@@ -149,7 +156,8 @@ def first_screen(page: Page, verdict: Verdict, facts: str, categories: pd.DataFr
                   "\"Inputs that failed, and why\" below.", "legend")
     page.parts.append("<div class='first'>")
     page.plot("category_iou", "Completion IoU per category and method (held-out parts, one "
-              "view, observed protocol)", lambda fig: plots.category_iou(fig, categories), SMALL)
+              "view, observed protocol, per-part mean over every context)",
+              lambda fig: plots.category_iou(fig, labelled_methods(categories)), SMALL)
     page.plot("relation_f1", "Relation F1 against the CAD per relation, every assembly "
               "(ltn on completed points; n: the CAD's pairs)",
               lambda fig: plots.relation_f1(fig, mates), SMALL)
@@ -195,11 +203,20 @@ def _figure_cell(figure: Figure | None) -> str:
 # ---------------------------------------------------------------- the folded sections
 
 
-def completion_section(page: Page, parts: pd.DataFrame, categories: pd.DataFrame) -> None:
-    """``categories``: ``completion_categories`` rows of both protocols (held-out parts)."""
+def completion_section(page: Page, parts: pd.DataFrame, categories: pd.DataFrame,
+                       headline: pd.DataFrame | None = None) -> None:
+    """``categories``: ``completion_categories`` rows of both protocols (held-out parts);
+    ``headline``: ``completion_headline.csv`` (``reports.headline``)."""
     if parts.empty:
         page.text("no completion scores in this run", "nodata")
         return
+    if headline is not None and len(headline):
+        page.heading("The headline: IoU (%) per distinct shape, parts scored where they were "
+                     "placed (observed protocol)")
+        page.text(HEADLINE_NOTE)
+        page.table(display_table(headline))
+        page.text("The tables below are per-part means over every context (parts re-rendered "
+                  "alone too), as the paper's are.")
     page.text("Held-out parts, one view. Observed protocol: the networks see the observed "
               "points and the camera only; oracle-box: the paper's setting (truth grid), "
               "beside it for comparison.")
@@ -208,7 +225,7 @@ def completion_section(page: Page, parts: pd.DataFrame, categories: pd.DataFrame
     page.heading("Projection overlap XY/YZ/ZX (%) beside the paper's Table I")
     page.table(paper_overlap_table(categories))
     page.heading("Every metric per category, method and protocol")
-    page.table(categories)
+    page.table(labelled_methods(categories))
     page.plot("iou_by_view_angle", "IoU against the view angle (observed, all categories)",
               lambda fig: plots.iou_lines(fig, iou_by_view_angle(parts), "view azimuth "
                                           "(degrees)"))
@@ -248,6 +265,7 @@ def assemblies_section(page: Page, mates: pd.DataFrame, joints: pd.DataFrame) ->
 
 
 def trends_section(page: Page, history: Sequence[tuple[str, pd.DataFrame]]) -> None:
-    metrics = ("completion_iou", "relation_accuracy", "mates_f1", "ingest_ok_fraction")
+    metrics = ("completion_iou_shapes", "completion_iou", "relation_accuracy", "mates_f1",
+               "ingest_ok_fraction")
     page.plot("trends", "Headline metrics (all categories) over the last runs",
               lambda fig: plots.trends(fig, history, metrics))

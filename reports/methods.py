@@ -26,6 +26,14 @@ def completion_order() -> tuple[str, ...]:
     return COMPLETIONS.names()
 
 
+def method_labels() -> dict[str, str]:
+    """How the tables a person reads name the completion methods where it is not their name
+    (``CompletionMethod.label``: r2n2 is labelled surface-only); the files keep the names."""
+    from models.completions import COMPLETIONS
+
+    return {m.name: m.label for m in COMPLETIONS.entries() if m.label != m.name}
+
+
 def product() -> tuple[str, str]:
     """(input, method) of the product's relation answers: the assembly table, the checks and
     the exported notes read these rows."""

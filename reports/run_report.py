@@ -1,7 +1,8 @@
 """The report of one night, from the files its stages wrote into ``runs/<run_id>/``.
 
 ``write_run_report`` adds ``parts.parquet`` (one row per part, method, protocol and views:
-the completion scores with the part's source file and status), ``pairs.parquet`` (every
+the completion scores with the part's source file and status, its distinct shape and whether
+the row scores it where it was placed), ``pairs.parquet`` (every
 relation decision), ``categories.csv`` (each metric per category against its threshold, the
 previous run and the last runs), ``junit.xml`` (one test case per category and metric),
 ``report.md`` (the checks in Markdown) and ``report.html`` (everything, self-contained: the
@@ -21,6 +22,7 @@ import pandas as pd
 
 from cadio.workspace import atomic_path, atomic_write
 from reports.completion import HELD_OUT, category_means, read_completion_parts
+from reports.headline import HEADLINE_FILE, part_shapes, placed, read_headline
 from reports.html import (
     Page,
     assemblies_section,
@@ -29,6 +31,7 @@ from reports.html import (
     relations_section,
     trends_section,
 )
+from reports.shapes import read_part_geometry
 from reports.tables import markdown_table, markdown_text
 from reports.trends import (
     Thresholds,
@@ -38,7 +41,15 @@ from reports.trends import (
     write_categories,
     write_junit,
 )
-from reports.verdict import assembly_intervals, build_verdict, read_problems
+from reports.verdict import (
+    FLOORS_FILE,
+    Verdict,
+    assembly_intervals,
+    build_verdict,
+    completion_said,
+    floors_said,
+    read_problems,
+)
 
 SUMMARY = "summary.json"  # written last by a run that completed
 
@@ -57,6 +68,7 @@ class RunReport:
     failed: tuple[str, ...]
     markdown: str
     checks: tuple[dict[str, Any], ...]
+    verdict: str = ""  # PASS, FAIL, or UNCHECKED where no check applied (reports.verdict)
 
     @property
     def passed(self) -> bool:
@@ -93,6 +105,7 @@ def write_run_report(run_dir: Path, history: Sequence[Path], thresholds: Thresho
         The paths written and the failed checks.
     """
     run_dir = Path(run_dir)
+    _keep_thresholds(run_dir, thresholds)
     earlier = [(p.name, run_metrics(p)) for p in history]
     current = run_metrics(run_dir)
     checks = check_metrics(current, [t for _, t in earlier], thresholds)
@@ -107,13 +120,24 @@ def write_run_report(run_dir: Path, history: Sequence[Path], thresholds: Thresho
     markdown = _markdown(run_dir.name, checks, failed)
     with atomic_write(run_dir / "report.md", "w") as fh:
         fh.write(markdown)
-    page = _page(run_dir, checks, parts, pairs, facts or {}, [*earlier, (run_dir.name, current)])
+    verdict = build_verdict(run_dir.name, checks, read_problems(run_dir))
+    page = _page(run_dir, verdict, checks, parts, pairs, facts or {},
+                 [*earlier, (run_dir.name, current)])
     with atomic_write(run_dir / "report.html", "w") as fh:
         fh.write(page)
     return RunReport(str(run_dir), str(run_dir / "report.html"), str(run_dir / "report.md"),
                      str(run_dir / "categories.csv"), str(run_dir / "junit.xml"),
                      str(run_dir / "parts.parquet"), str(run_dir / "pairs.parquet"),
-                     tuple(failed), markdown, tuple(checks.to_dict("records")))
+                     tuple(failed), markdown, tuple(checks.to_dict("records")), verdict.word)
+
+
+def _keep_thresholds(run_dir: Path, thresholds: Thresholds) -> None:
+    """A copy of the thresholds file the run is checked against (``verdict.FLOORS_FILE``):
+    the report says where its floors came from, and the run can be checked again."""
+    source = Path(thresholds.source) if thresholds.source else None
+    if source is not None and source.is_file():
+        with atomic_write(run_dir / FLOORS_FILE, "wb") as fh:
+            fh.write(source.read_bytes())
 
 
 def _read_parquet(path: Path) -> pd.DataFrame:
@@ -125,7 +149,8 @@ def _read_csv(path: Path) -> pd.DataFrame:
 
 
 def _parts(run_dir: Path, catalog: Path | None) -> pd.DataFrame:
-    """Completion scores with each part's source file, name and ingest status."""
+    """Completion scores with each part's source file, name and ingest status, its distinct
+    shape and whether the row scores it where it was placed (``reports.headline``)."""
     parts = read_completion_parts(run_dir) if (run_dir / "completion_parts.parquet").is_file() \
         else pd.DataFrame(columns=["part_id"])
     if catalog is None or not Path(catalog).is_file():
@@ -133,11 +158,17 @@ def _parts(run_dir: Path, catalog: Path | None) -> pd.DataFrame:
     cols = ["part_id", "source", "name", "status", "error"]
     table = pd.read_parquet(catalog)
     table = table[[c for c in cols if c in table.columns]].drop_duplicates("part_id")
-    return parts.merge(table, on="part_id", how="left")
+    parts = parts.merge(table, on="part_id", how="left")
+    if parts.empty or "context" not in parts:
+        return parts
+    geometry = read_part_geometry(Path(catalog))
+    return parts.assign(shape=part_shapes(parts["part_id"], geometry),
+                        placed=placed(parts, geometry.set_index("part_id")["n_solids"]))
 
 
-def _page(run_dir: Path, checks: pd.DataFrame, parts: pd.DataFrame, pairs: pd.DataFrame,
-          facts: dict[str, Any], history: Sequence[tuple[str, pd.DataFrame]]) -> str:
+def _page(run_dir: Path, verdict: Verdict, checks: pd.DataFrame, parts: pd.DataFrame,
+          pairs: pd.DataFrame, facts: dict[str, Any],
+          history: Sequence[tuple[str, pd.DataFrame]]) -> str:
     """The verdict first, then every table folded, each with links to its files."""
     page = Page(f"mateqa nightly {run_dir.name}")
     problems = read_problems(run_dir)
@@ -147,8 +178,9 @@ def _page(run_dir: Path, checks: pd.DataFrame, parts: pd.DataFrame, pairs: pd.Da
         categories
     mates = _read_csv(run_dir / "assembly_mates.csv")
     joints = _read_csv(run_dir / "assembly_joints.csv")
-    first_screen(page, build_verdict(run_dir.name, checks, problems), _facts_line(facts),
-                 observed, mates, joints, assembly_intervals(run_dir))
+    first_screen(page, verdict, _facts_line(facts),
+                 observed, mates, joints, assembly_intervals(run_dir),
+                 [s for s in (completion_said(run_dir), floors_said(run_dir)) if s])
 
     def files(*names: str) -> list[str]:
         return [n for n in names if (run_dir / n).is_file()]
@@ -159,11 +191,12 @@ def _page(run_dir: Path, checks: pd.DataFrame, parts: pd.DataFrame, pairs: pd.Da
     with page.folded("The run: facts, totals and stage times",
                      [SUMMARY, *files("ingest.json", "stages.json", "tolerances.json")]):
         page.table(pd.DataFrame([{"item": k, "value": str(v)} for k, v in facts.items()]))
-    with page.folded("Thresholds and the previous run", files("categories.csv", "junit.xml")):
+    with page.folded("Thresholds and the previous run", files("categories.csv", "junit.xml",
+                                                             FLOORS_FILE)):
         page.table(checks, digits=4, status=True)
-    with page.folded("Shape completion", files("completion_categories.csv",
+    with page.folded("Shape completion", files(HEADLINE_FILE, "completion_categories.csv",
                                                "completion_parts.parquet", "parts.parquet")):
-        completion_section(page, parts, categories)
+        completion_section(page, parts, categories, read_headline(run_dir))
     with page.folded("Relations", files("relations_summary.csv", "relations_near_boundary.csv",
                                         "relations_pairs.parquet", "relations.md")):
         relations_section(page, _read_csv(run_dir / "relations_summary.csv"), pairs)

@@ -50,6 +50,9 @@ class Thresholds:
     # Fewer parts, pairs or files than this and a value is reported but not checked
     # ("too-few"): a mean over a handful says little about a category.
     min_n: int = 10
+    # The run the floors were calibrated from (``reports.calibrate``); empty for floors set by
+    # hand, as the shipped ones are.
+    reference_run: str = ""
 
     def limit(self, metric: str, category: str) -> Limit:
         base = self.limits.get(metric, Limit())
@@ -85,6 +88,10 @@ def read_thresholds(path: Path) -> Thresholds:
     min_n = data.pop("min_n", Thresholds.min_n)
     if isinstance(min_n, bool) or not isinstance(min_n, int) or min_n < 0:
         raise ThresholdsError(path, f"min_n must be a count, got {min_n!r}")
+    reference = data.pop("reference_run", "")
+    if not isinstance(reference, str):
+        raise ThresholdsError(path, f"reference_run must be a run folder's path, got "
+                              f"{reference!r}")
     for metric, table in data.items():
         if metric not in METRICS:
             raise ThresholdsError(path, f"unknown metric {metric!r} (known: {sorted(METRICS)})")
@@ -97,7 +104,7 @@ def read_thresholds(path: Path) -> Thresholds:
                                   f"got {over!r}")
         categories[metric] = {c: _limit(path, f"{metric}.categories.{c}", t, _LIMIT_KEYS)
                               for c, t in over.items()}
-    return Thresholds(limits, categories, str(path), min_n)
+    return Thresholds(limits, categories, str(path), min_n, reference)
 
 
 _LIMIT_KEYS = ("floor", "max_drop")
@@ -151,6 +158,17 @@ def _completion(metric: str) -> Callable[[Path], pd.DataFrame]:
     return read
 
 
+def _completion_shapes(run: Path) -> pd.DataFrame:
+    """The completion headline (``reports.headline``): per distinct shape, parts scored where
+    they were placed; n counts the shapes."""
+    from reports.headline import read_headline
+
+    table = read_headline(run)
+    method, protocol = completion_ours()
+    rows = table[(table["method"] == method) & (table["protocol"] == protocol)]
+    return rows.rename(columns={"iou": "value", "n_shapes": "n"})[["category", "value", "n"]]
+
+
 def _relation_accuracy(run: Path) -> pd.DataFrame:
     table = _read_csv(run / "relations_summary.csv")
     if table.empty:
@@ -169,6 +187,19 @@ def _mates_f1(run: Path) -> pd.DataFrame:
     return pd.DataFrame([{"category": ALL, "value": rows["f1"].mean(), "n": rows["n_cad"].sum()}])
 
 
+def _mate_f1(relation: str) -> Callable[[Path], pd.DataFrame]:
+    """The F1 of one relation against the CAD's mates over every assembly; n counts the
+    CAD's true pair views, as ``mates_f1``'s."""
+    def read(run: Path) -> pd.DataFrame:
+        table = _read_csv(run / "assembly_mates.csv")
+        if table.empty:
+            return table
+        rows = table[(table["assembly"] == ALL) & (table["relation"] == relation)]
+        return pd.DataFrame({"category": ALL, "value": rows["f1"].astype(float),
+                             "n": rows["n_cad"]})
+    return read
+
+
 def _joint_agreement(run: Path) -> pd.DataFrame:
     table = _read_csv(run / "assembly_joints.csv")
     if table.empty:
@@ -179,6 +210,7 @@ def _joint_agreement(run: Path) -> pd.DataFrame:
 # metric -> (reader of a run folder, higher is better)
 METRICS: dict[str, tuple[Callable[[Path], pd.DataFrame], bool]] = {
     "ingest_ok_fraction": (_ingest_ok, True),
+    "completion_iou_shapes": (_completion_shapes, True),
     "completion_iou": (_completion("iou"), True),
     "completion_overlap_xy": (_completion("overlap_xy"), True),
     "completion_overlap_yz": (_completion("overlap_yz"), True),
@@ -187,6 +219,8 @@ METRICS: dict[str, tuple[Callable[[Path], pd.DataFrame], bool]] = {
     "completion_fscore": (_completion("fscore"), True),
     "relation_accuracy": (_relation_accuracy, True),
     "mates_f1": (_mates_f1, True),
+    "mates_f1_concentric": (_mate_f1("concentric"), True),
+    "mates_f1_coincident": (_mate_f1("coincident"), True),
     "joint_agreement": (_joint_agreement, True),
 }
 

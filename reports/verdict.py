@@ -20,14 +20,25 @@ from typing import Any
 
 import pandas as pd
 
+from reports.methods import completion_ours
 from reports.tables import printable
-from reports.trends import ALL, CATEGORIES_COLUMNS
+from reports.trends import (
+    ALL,
+    CATEGORIES_COLUMNS,
+    DEFAULT_THRESHOLDS,
+    ThresholdsError,
+    read_thresholds,
+)
 
 # The figures shown per category, then those the assemblies give (category "all" only).
-HEADLINE = ("completion_iou", "relation_accuracy", "ingest_ok_fraction", "mates_f1",
-            "joint_agreement")
-LABELS = {"completion_iou": "completion IoU", "relation_accuracy": "relation accuracy",
-          "ingest_ok_fraction": "ingest ok", "mates_f1": "mates F1",
+# Completion: the mean per distinct shape over parts scored where they were placed
+# (``reports.headline``), not the per-part mean over every context.
+HEADLINE = ("completion_iou_shapes", "relation_accuracy", "ingest_ok_fraction", "mates_f1",
+            "mates_f1_concentric", "mates_f1_coincident", "joint_agreement")
+LABELS = {"completion_iou_shapes": "completion IoU per shape",
+          "relation_accuracy": "relation accuracy", "ingest_ok_fraction": "ingest ok",
+          "mates_f1": "mates F1 (mean of 10 relations)",
+          "mates_f1_concentric": "concentric F1", "mates_f1_coincident": "coincident F1",
           "joint_agreement": "joint agreement"}
 # A category's verdict is the first of these among its checks (all metrics, not only the
 # headline): one failed check fails the category.
@@ -89,19 +100,25 @@ class Verdict:
 
     @property
     def passed(self) -> bool:
-        return not self.failed
+        """Some check applied and none failed: a night that checked nothing did not pass."""
+        return not self.failed and self.checked > 0
+
+    @property
+    def word(self) -> str:
+        """``PASS``, ``FAIL`` or ``UNCHECKED`` (no check applied: every value too few to check,
+        without a threshold or without data)."""
+        return "FAIL" if self.failed else "PASS" if self.checked else "UNCHECKED"
 
     def headline(self) -> str:
-        """One sentence: pass or fail, and how many checks applied."""
-        word = "PASS" if self.passed else "FAIL"
+        """One sentence: pass, fail or unchecked, and how many checks applied."""
         checks = f"{self.checked} threshold check{'s' if self.checked != 1 else ''}"
         counts = (f"{len(self.failed)} of {checks} failed or regressed" if self.failed
                   else f"{'the' if self.checked == 1 else 'all'} {checks} passed")
         if not self.checked:
-            counts = "no threshold check applied"
+            counts = "no threshold check applied: this night checked nothing"
         few = f", {self.too_few} too few to check" if self.too_few else ""
         first = "" if self.has_previous else "; first night: no previous values"
-        return f"Night {self.run_id}: {word}, {counts}{few}{first}"
+        return f"Night {self.run_id}: {self.word}, {counts}{few}{first}"
 
     def problem_counts(self) -> str:
         """``3 (ingest 2, capture 1)``, or ``none``."""
@@ -207,6 +224,49 @@ def assembly_intervals(run_dir: Path) -> str:
     return ("95% intervals over the distinct pairs: " + ", ".join(said)) if said else ""
 
 
+def completion_said(run_dir: Path) -> str:
+    """The completion headline of all categories with its interval and what it rests on, as
+    one sentence (empty where the run has no headline file): the verdict's cell has room for
+    the value only."""
+    from reports.headline import read_headline
+
+    table = read_headline(Path(run_dir))
+    method, protocol = completion_ours()
+    rows = table[(table["category"] == ALL) & (table["method"] == method)
+                 & (table["protocol"] == protocol)]
+    if rows.empty:
+        return ""
+    r = rows.iloc[0]
+    interval = (f", 95% interval {r['iou_low']:.3f} to {r['iou_high']:.3f} over its "
+                f"{int(r['n_files'])} files" if r["iou_low"] == r["iou_low"] else "")
+    return (f"Completion IoU per shape {r['iou']:.3f}{interval}: {int(r['n_shapes'])} distinct "
+            f"shapes of {int(r['n_parts'])} parts scored where they were placed (the per-part "
+            f"mean over every context, parts re-rendered alone too: "
+            f"{r['iou_all_contexts']:.3f} over {int(r['n_parts_all'])} parts)")
+
+
+FLOORS_FILE = "thresholds.toml"  # the thresholds a run was checked against, as written
+
+
+def floors_said(run_dir: Path) -> str:
+    """Where the floors of a run came from, in one sentence (empty where the run kept no
+    thresholds file): calibrated from a reference run, the shipped defaults, or set by hand."""
+    path = Path(run_dir) / FLOORS_FILE
+    if not path.is_file():
+        return ""
+    try:
+        limits = read_thresholds(path)
+    except ThresholdsError:
+        return ""
+    if limits.reference_run:
+        return (f"Floors: calibrated from the run {printable(Path(limits.reference_run).name)} "
+                f"({printable(limits.reference_run)}); see {FLOORS_FILE} in this run's folder")
+    if path.read_bytes() == DEFAULT_THRESHOLDS.read_bytes():
+        return ("Floors: the shipped defaults, loose enough for any library (a damaged model "
+                "can pass them); `mateqa thresholds calibrate` sets floors from a healthy night")
+    return f"Floors: set by hand; see {FLOORS_FILE} in this run's folder"
+
+
 # ---------------------------------------------------------------- the console
 
 
@@ -215,7 +275,9 @@ def console_verdict(run_dir: Path) -> str:
     category with its figures, the failed checks, the failed inputs and where the report is."""
     run_dir = Path(run_dir).resolve()
     verdict = read_verdict(run_dir)
-    lines = [verdict.headline(), *_figure_lines(verdict, assembly_intervals(run_dir))]
+    said = [line for line in (completion_said(run_dir), floors_said(run_dir)) if line]
+    lines = [verdict.headline(), *_figure_lines(verdict, assembly_intervals(run_dir)),
+             *(f"  {line}" for line in said)]
     for line in verdict.failed[:SHOWN_FAILURES]:
         lines.append(f"  failed: {printable(line)}")
     if len(verdict.failed) > SHOWN_FAILURES:

@@ -209,8 +209,8 @@ def local_night(small_library: Path, prefect_api: dict[str, str],
 
 # Test files that share the session's Prefect server or its uninterrupted night: the test run
 # (`pytest -n 2`) gives them to one worker together, so that each is started once.
-SERVER_GROUP = {"test_bad_inputs", "test_dask", "test_docker", "test_export", "test_resume",
-                "test_verdict"}
+SERVER_GROUP = {"test_bad_inputs", "test_calibrate", "test_dask", "test_docker", "test_export",
+                "test_resume", "test_verdict"}
 
 
 # The heaviest scopes of the run (a test file, or "server" for SERVER_GROUP), heaviest first:

@@ -158,10 +158,12 @@ def test_tables_beside_the_paper() -> None:
             _row("c", "other", overlap_xy=0.614, overlap_yz=0.2, overlap_zx=1.0)]
     categories = category_means(parts_frame(rows))
     iou_table = paper_iou_table(categories).set_index("category")
-    assert list(iou_table.columns) == ["protocol", "n_parts", "gan_lstm", "r2n2", "paper",
+    surface = "r2n2 (surface only)"  # it reads the seen surface alone: labelled, not renamed
+    assert list(iou_table.columns) == ["protocol", "n_parts", "gan_lstm", surface, "paper",
                                        "paper_r2n2"]
-    assert iou_table.loc[BRAKES, ["gan_lstm", "r2n2", "paper", "paper_r2n2"]].tolist() == (
+    assert iou_table.loc[BRAKES, ["gan_lstm", surface, "paper", "paper_r2n2"]].tolist() == (
         pytest.approx([70.0, 50.0, 70.48, 64.2]))
+    assert set(categories["method"]) == {"gan_lstm", "r2n2"}  # the file keeps the name
     assert iou_table.loc[ALL, "paper"] == 57.23 and math.isnan(iou_table.loc["other", "paper"])
     overlap = paper_overlap_table(categories).set_index("category")
     assert overlap.loc[BRAKES, "paper"] == "60/47/86"

@@ -172,8 +172,10 @@ def test_a_night_whose_recordings_are_all_unusable_fails_naming_them(
     # does: beside the foreign one, the night scores it and reports the other
     ours = capture_step(str(lib / "box.step"), tmp_path / "here", ScanConfig(views_per_scene=1))
     shutil.copy(ours.path, recordings / "of-this-library.mcap")
-    stages = nightly(config).stages
+    summary = nightly(config)
+    stages = summary.stages
     assert (stages.captures, stages.captures_failed, stages.input_parts) == (2, 1, 1)
+    assert summary.verdict == "UNCHECKED"  # one part, one file: too few to check, not a PASS
 
 
 def test_a_method_registered_in_one_module_reaches_the_night_s_tables(

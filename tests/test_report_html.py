@@ -14,9 +14,11 @@ import pandas as pd
 import pytest
 
 from reports.completion import METRICS, parts_frame, write_completion
+from reports.headline import headline_table, write_headline
 from reports.html import FIRST_SCREEN, PLOTS
 from reports.relations import RELATIONS, pairs_frame, write_relation_report
 from reports.run_report import write_run_report
+from reports.shapes import GEOMETRY_COLUMNS
 from reports.trends import DEFAULT_THRESHOLDS, read_thresholds
 
 CHROMIUM, DRIVER = shutil.which("chromium"), shutil.which("chromedriver")
@@ -36,9 +38,9 @@ def _completion_rows(rng: np.random.Generator) -> list[dict[str, Any]]:
             for protocol in ("observed", "oracle-box"):
                 for n_views, view in ((1, 2.88 * (k * 5 % 125)), (2, 0.0)):
                     rows.append({"part_id": f"p{k}-0", "category": category, "split": "test",
-                                 "method": method, "protocol": protocol, "n_views": n_views,
-                                 "view_deg": view, **{m: float(rng.uniform(0.2, 0.9))
-                                                      for m in METRICS}})
+                                 "context": "pair", "method": method, "protocol": protocol,
+                                 "n_views": n_views, "view_deg": view,
+                                 **{m: float(rng.uniform(0.2, 0.9)) for m in METRICS}})
     return rows
 
 
@@ -68,7 +70,9 @@ def run_dir(tmp_path_factory: pytest.TempPathFactory) -> Path:
     for name in ("20260101T000000Z", "20260102T000000Z"):
         run = runs / name
         run.mkdir()
-        write_completion(run, parts_frame(_completion_rows(rng)))
+        parts = parts_frame(_completion_rows(rng))
+        write_completion(run, parts)
+        write_headline(run, headline_table(parts, pd.DataFrame(columns=list(GEOMETRY_COLUMNS))))
         joints = pd.DataFrame([{"scene": "assembly-gear", "part_a": "p1-0", "part_b": "p2-0",
                                 "kinematic": "revolute"}])
         write_relation_report(run, pairs_frame(_pair_rows(rng)), ["test run"], joints)
@@ -166,10 +170,10 @@ def _box(browser: Any, element: Any) -> dict[str, float]:
 def test_the_report_flags_a_failed_threshold_in_the_page(run_dir: Path, tmp_path: Path,
                                                          browser: Any) -> None:
     strict = tmp_path / "strict.toml"
-    strict.write_text("[completion_iou]\nfloor = 0.99\n")
+    strict.write_text("[completion_iou_shapes]\nfloor = 0.99\n")
     run = shutil.copytree(run_dir, tmp_path / run_dir.name)
     report = write_run_report(run, [], read_thresholds(strict))
-    assert not report.passed and any("completion_iou fail" in f for f in report.failed)
+    assert not report.passed and any("completion_iou_shapes fail" in f for f in report.failed)
     browser.get(Path(report.html).as_uri())
     from selenium.webdriver.common.by import By
 

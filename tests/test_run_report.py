@@ -85,7 +85,7 @@ def test_junit_has_one_case_per_category_and_metric_and_counts_failures(tmp_path
 
 def test_the_shipped_thresholds_read_and_bad_files_name_themselves(tmp_path: Path) -> None:
     shipped = read_thresholds(DEFAULT_THRESHOLDS)
-    assert set(shipped.limits) <= set(METRICS) and shipped.limit("completion_iou", "x").floor
+    assert set(shipped.limits) <= set(METRICS) and shipped.limit("completion_iou_shapes", "x").floor
     cases = {"unknown.toml": ("[iou]\nfloor = 1\n", "unknown metric 'iou'"),
              "text.toml": ("[completion_iou]\nfloor = 'high'\n", "must be a finite number"),
              "broken.toml": ("[completion_iou\n", "cannot read thresholds")}

@@ -18,7 +18,8 @@ from reports.run_report import write_run_report
 from reports.trends import Limit, Thresholds, check_metrics
 from reports.verdict import build_verdict, console_verdict, read_problems, read_verdict
 
-LIMITS = Thresholds(limits={"completion_iou": Limit(floor=0.3, max_drop=0.05),
+IOU = "completion_iou_shapes"  # the completion headline: per distinct shape, as placed
+LIMITS = Thresholds(limits={IOU: Limit(floor=0.3, max_drop=0.05),
                             "completion_fscore": Limit(floor=0.5),
                             "relation_accuracy": Limit(floor=0.8)}, min_n=10)
 NO_PROBLEMS = pd.DataFrame(columns=["stage", "item", "status", "reason"])
@@ -28,13 +29,13 @@ def _metrics(rows: list[tuple[str, str, float, int]]) -> pd.DataFrame:
     return pd.DataFrame([{"category": c, "metric": m, "value": v, "n": n} for c, m, v, n in rows])
 
 
-TONIGHT = _metrics([("fasteners", "completion_iou", 0.45, 20),
+TONIGHT = _metrics([("fasteners", IOU, 0.45, 20),
                     ("fasteners", "completion_fscore", 0.40, 20),  # fails: not a headline figure
-                    ("motion", "completion_iou", 0.36, 12),  # regressed: 0.44 before
+                    ("motion", IOU, 0.36, 12),  # regressed: 0.44 before
                     ("motion", "relation_accuracy", 0.95, 40),
-                    ("brakes", "completion_iou", 0.10, 3),  # too few to check
-                    ("all", "completion_iou", 0.40, 35), ("all", "relation_accuracy", 0.9, 40)])
-LAST_NIGHT = _metrics([("motion", "completion_iou", 0.44, 12), ("all", "completion_iou", 0.41, 35)])
+                    ("brakes", IOU, 0.10, 3),  # too few to check
+                    ("all", IOU, 0.40, 35), ("all", "relation_accuracy", 0.9, 40)])
+LAST_NIGHT = _metrics([("motion", IOU, 0.44, 12), ("all", IOU, 0.41, 35)])
 
 
 def test_a_category_fails_on_any_of_its_checks_and_shows_its_headline_figures() -> None:
@@ -43,21 +44,62 @@ def test_a_category_fails_on_any_of_its_checks_and_shows_its_headline_figures() 
     by_name = {c.category: c for c in verdict.categories}
     assert [c.category for c in verdict.categories] == ["brakes", "fasteners", "motion", "all"]
     assert by_name["fasteners"].status == "fail" and by_name["fasteners"].failed == 1
-    fasteners_iou = by_name["fasteners"].figure("completion_iou")
+    fasteners_iou = by_name["fasteners"].figure(IOU)
     assert fasteners_iou is not None and fasteners_iou.status == "pass"
     assert by_name["fasteners"].figure("completion_fscore") is None  # not a headline metric
     assert by_name["motion"].status == "regressed" and by_name["brakes"].status == "too-few"
     assert by_name["all"].status == "pass" and by_name["all"].checked == 2
-    motion_iou = by_name["motion"].figure("completion_iou")
+    motion_iou = by_name["motion"].figure(IOU)
     assert motion_iou is not None and motion_iou.previous == 0.44 and motion_iou.threshold == 0.3
     assert verdict.failed == (  # in the order of categories.csv: by metric
-        "motion completion_iou regressed: 0.36 (previous 0.44, allowed drop 0.05)",
+        "motion completion_iou_shapes regressed: 0.36 (previous 0.44, allowed drop 0.05)",
         "fasteners completion_fscore fail: 0.4 (floor 0.5)")
     assert not verdict.passed and verdict.checked == 6 and verdict.too_few == 1
     assert verdict.headline() == ("Night 20260102T0Z: FAIL, 2 of 6 threshold checks failed or "
                                   "regressed, 1 too few to check")
     first = build_verdict("20260101T0Z", check_metrics(LAST_NIGHT, [], LIMITS), NO_PROBLEMS)
     assert first.passed and first.headline().endswith("first night: no previous values")
+
+
+def test_a_night_that_checked_nothing_does_not_pass(tmp_path: Path) -> None:
+    """Every value too few to check, or without a threshold: the verdict says so, never PASS
+    (a night over one recording it could not use once read "PASS, no threshold check")."""
+    few = _metrics([("fasteners", IOU, 0.45, 3), ("all", "ingest_ok_fraction", 1.0, 1)])
+    verdict = build_verdict("20260105T0Z", check_metrics(few, [], LIMITS), NO_PROBLEMS)
+    assert not verdict.passed and not verdict.failed and verdict.word == "UNCHECKED"
+    assert verdict.headline() == ("Night 20260105T0Z: UNCHECKED, no threshold check applied: "
+                                  "this night checked nothing, 2 too few to check; first "
+                                  "night: no previous values")
+    run = tmp_path / "20260105T000000Z"
+    run.mkdir()
+    (run / "ingest.json").write_text(json.dumps({"totals": {"files": 1, "ok": 1}}))
+    report = write_run_report(run, [], LIMITS)
+    assert report.verdict == "UNCHECKED" and report.passed  # nothing failed: exit 0
+    page = Path(report.html).read_text()
+    assert "banner no-data'>Night 20260105T000000Z: UNCHECKED" in page
+    assert console_verdict(run).startswith("Night 20260105T000000Z: UNCHECKED")
+
+
+def test_the_verdict_says_where_its_floors_came_from(tmp_path: Path) -> None:
+    from reports.trends import DEFAULT_THRESHOLDS, read_thresholds
+
+    run = tmp_path / "20260106T000000Z"
+    run.mkdir()
+    write_run_report(run, [], LIMITS)  # floors given in code: no file to keep
+    assert not (run / "thresholds.toml").exists() and "Floors" not in console_verdict(run)
+    write_run_report(run, [], read_thresholds(DEFAULT_THRESHOLDS))
+    assert (run / "thresholds.toml").read_bytes() == DEFAULT_THRESHOLDS.read_bytes()
+    assert "  Floors: the shipped defaults" in console_verdict(run)
+    mine = tmp_path / "mine.toml"
+    mine.write_text("[completion_iou_shapes]\nfloor = 0.3\n")
+    write_run_report(run, [], read_thresholds(mine))
+    assert "  Floors: set by hand; see thresholds.toml in this run's folder" in \
+        console_verdict(run).splitlines()
+    mine.write_text('reference_run = "/ws/runs/20260101T000000Z"\n' + mine.read_text())
+    report = write_run_report(run, [], read_thresholds(mine))
+    assert "Floors: calibrated from the run 20260101T000000Z (/ws/runs/20260101T000000Z)" \
+        in console_verdict(run)
+    assert "Floors: calibrated from the run 20260101T000000Z" in Path(report.html).read_text()
 
 
 def test_the_verdict_table_escapes_names_and_colours_each_cell_by_its_status() -> None:
@@ -95,8 +137,8 @@ def test_the_console_verdict_is_a_dozen_lines_with_the_failed_inputs_and_the_rep
     assert 6 <= len(lines) <= 14, text
     assert lines[0] == ("Night 20260102T000000Z: FAIL, 2 of 2 threshold checks failed or "
                         "regressed; first night: no previous values")
-    assert lines[1].split() == ["category", "verdict", "completion", "IoU", "relation",
-                                "accuracy", "ingest", "ok"]
+    assert lines[1].split() == ["category", "verdict", "completion", "IoU", "per", "shape",
+                                "relation", "accuracy", "ingest", "ok"]
     assert lines[2].split() == ["fasteners", "fail", "-", "-", "0.917", "fail"]
     assert "  failed: fasteners ingest_ok_fraction fail: 0.917 (floor 0.95)" in lines
     assert "Failed inputs: 2 (ingest 1, capture 1)" in text
@@ -166,8 +208,8 @@ def test_a_threshold_failure_prints_the_verdict_and_exits_3_without_a_traceback(
 
 
 def test_the_console_lists_pair_categories_only_where_they_failed(tmp_path: Path) -> None:
-    singles = [("bolts", "completion_iou", 0.5, 20), ("gears", "completion_iou", 0.5, 20),
-               ("shafts", "completion_iou", 0.5, 20), ("all", "completion_iou", 0.5, 60)]
+    singles = [("bolts", IOU, 0.5, 20), ("gears", IOU, 0.5, 20),
+               ("shafts", IOU, 0.5, 20), ("all", IOU, 0.5, 60)]
     pairs = [("bolts+gears", "relation_accuracy", 0.95, 40),
              ("bolts+shafts", "relation_accuracy", 0.50, 40),  # fails the 0.8 floor
              ("gears+shafts", "relation_accuracy", 0.90, 4),  # too few to check
@@ -221,7 +263,7 @@ def test_the_assembly_figures_come_with_intervals_over_their_distinct_pairs(
                              .split(" to "))
     assert joint_low <= 8 / 12 <= joint_high and joint_high - joint_low > 0.3
     assert 0 < mates_low < mates_high < 1
-    check_metrics(_metrics([("all", "completion_iou", 0.5, 40), ("all", "mates_f1", 0.7, 40),
+    check_metrics(_metrics([("all", IOU, 0.5, 40), ("all", "mates_f1", 0.7, 40),
                             ("all", "joint_agreement", 8 / 12, 48)]), [], LIMITS).to_csv(
         run / "categories.csv", index=False)
     assert f"    {said}" in console_verdict(run).splitlines()

@@ -42,6 +42,12 @@ class CompletionMethod:
     model_input: Callable[[Example], npt.NDArray[Any]] | None = None
     config: str = ""  # "module:Class" of a learned method's config
     defaults: Mapping[str, Any] = field(default_factory=dict)
+    # How the tables a person reads name it, where not by its name (the files keep the name).
+    display: str = ""
+
+    @property
+    def label(self) -> str:
+        return self.display or self.name
 
     def __post_init__(self) -> None:
         if (self.solid is None) == (self.model_input is None):
