@@ -266,8 +266,14 @@ def test_foreign_recording_without_ids_or_labels_reads(tmp_path: Path,
     given = np.eye(4)
     given[:3, 3] = (0.1, 0.2, 0.3)
     back = list(read_capture(path, pose=given))
-    assert len(back) == len(frames)  # the lone colour and lone depth images pair with nothing
-    for a, b in zip(frames, back, strict=True):
+    # the lone colour image pairs with nothing; the lone depth image keeps its frame, without
+    # colour, and the reader says so
+    assert len(back) == len(frames) + 1
+    lone = back[-1]
+    assert lone.meta["colour"] == "none" and not lone.colour.any()
+    assert np.isfinite(lone.depth).any()
+    assert any("without a colour image within" in w for w in lone.meta["warnings"])
+    for a, b in zip(frames, back[:-1], strict=True):
         assert b.instance is None and b.intrinsics == a.intrinsics
         assert np.array_equal(b.colour, a.colour)
         assert np.max(np.abs(b.depth - a.depth)) <= 0.0005 + 1e-6
@@ -285,12 +291,38 @@ def test_foreign_recording_without_ids_or_labels_reads(tmp_path: Path,
     assert np.degrees(np.arccos(own.world_to_camera[:3, 2] @ up_true)) < 1.0
 
 
+def test_colour_stamped_a_frame_apart_never_loses_the_depth(tmp_path: Path,
+                                                             frames: list[RgbdFrame]) -> None:
+    """As a D435 logs it: one colour image 101 ms before two depth images. The depth is read,
+    without colour, with a warning; colour a frame period off still pairs."""
+    fid, t0 = "camera_color_optical_frame", 1_700_000_000 * 10**9
+    path = tmp_path / "d435.mcap"
+    f = frames[0]
+    mm = np.round(f.depth.astype(np.float64) * 1000).astype("<u2")
+    with path.open("wb") as fh, ProtobufWriter(fh) as w:
+        w.write_message(CAMERA_INFO_TOPIC, _calibration(t0, fid, f), t0, t0)
+        w.write_message(COLOR_TOPIC, _image(t0, fid, np.ascontiguousarray(f.colour[..., ::-1]),
+                                            "bgr8"), t0, t0)
+        for dt in (101_000_000, 134_000_000):
+            w.write_message(DEPTH_TOPIC, _image(t0 + dt, fid, mm, "16UC1"), t0 + dt, t0 + dt)
+        late = t0 + 150_000_000
+        w.write_message(COLOR_TOPIC, _image(late, fid, np.ascontiguousarray(f.colour[..., ::-1]),
+                                            "bgr8"), late, late)
+    back = list(read_capture(path, pose=np.eye(4)))
+    assert len(back) == 2
+    assert back[0].meta["colour"] == "none" and not back[0].colour.any()
+    assert np.max(np.abs(back[0].depth - f.depth)) <= 0.0005 + 1e-6
+    assert any("without a colour image" in w for w in back[0].meta["warnings"])
+    assert back[1].meta["colour_offset_ns"] == 16_000_000  # 16 ms: within a frame period
+    assert np.array_equal(back[1].colour, f.colour)
+
+
 def test_registered_depth_is_preferred_and_infrared_ignored(tmp_path: Path,
                                                             frames: list[RgbdFrame]) -> None:
     path = tmp_path / "realsense-all-streams.mcap"
     aligned = "/camera/aligned_depth_to_color/image_raw"
     write_foreign_recording(path, frames, depth_topic=aligned, sensor_streams=True)
-    back = list(read_capture(path))
+    back = list(read_capture(path))[:-1]  # the last depth image has no colour (above)
     assert len(back) == len(frames)
     assert {f.meta["depth_topic"] for f in back} == {aligned}
     assert {f.meta["colour_topic"] for f in back} == {COLOR_TOPIC}

@@ -101,7 +101,8 @@ class ReadOptions:
 
     pose: world_to_camera (4, 4), metres, for frames without a transform (None: the camera is
         the world frame, levelled by the support plane, with a warning).
-    tolerance_ns: pairing tolerance (20 ms: half a 30 fps frame plus slack).
+    tolerance_ns: pairing tolerance (34 ms: a frame period at 30 fps; colour and depth come
+        from different sensors and are not stamped together).
     depth_scale_m: metres per unit of 16UC1 / mono16 depth (1 mm, the ROS convention).
     depth_topic, colour_topic: pick topics when a recording has several.
     fixed_frame: the frame poses are given in, taken to be level (None: the root of the depth
@@ -109,7 +110,7 @@ class ReadOptions:
     """
 
     pose: FloatArray | None = None
-    tolerance_ns: int = 20_000_000
+    tolerance_ns: int = 34_000_000
     depth_scale_m: float = 0.001
     depth_topic: str | None = None
     colour_topic: str | None = None
@@ -221,9 +222,11 @@ class _Reader:
         inst = pair.instance
         ids = (None if inst is None or (inst.width, inst.height) != (d.width, d.height)
                else _pixels(self.path, inst, lambda: instance_ids(inst)))
+        c = pair.colour
         meta = {"dialect": self.channels.dialects.get(d.topic, ""), "depth_topic": d.topic,
-                "colour_topic": pair.colour.topic,
-                "colour_offset_ns": pair.colour.stamp_ns - d.stamp_ns, "colour": colour_mode,
+                "colour_topic": c.topic if c is not None else "",
+                "colour_offset_ns": c.stamp_ns - d.stamp_ns if c is not None else 0,
+                "colour": colour_mode,
                 "pose_source": "tf" if look else ("given" if self.opts.pose is not None
                                                   else "camera"),
                 "world_frame": look.root if look else "", "tf_gap_ns": look.gap_ns if look else 0,
@@ -263,6 +266,11 @@ class _Reader:
 
     def _colour(self, pair: Pair, depth: Any) -> tuple[Any, str]:
         c, d, cal = pair.colour, pair.depth, pair.colour_calibration
+        if c is None:
+            ms = self.opts.tolerance_ns / 1e6
+            self._warn(f"depth images of {d.topic} without a colour image within {ms:g} ms "
+                       "(the sensors are stamped apart): those frames have no colour")
+            return np.zeros((d.height, d.width, 3), dtype=np.uint8), "none"
         if registered(pair):
             return _pixels(self.path, c, lambda: colour_pixels(c)), "registered"
         extrinsic = colour_extrinsic(pair, self.pairer.tree) if cal is not None else None
@@ -290,13 +298,6 @@ class _Reader:
         for role in ("depth", "colour"):
             if getattr(self.channels, f"{role}_topic") is None:
                 raise self.channels.missing(role)
-        if self.frames_out == 0 and self.pairer.skipped:
-            ms = self.opts.tolerance_ns / 1e6
-            raise CaptureTopicError(self.path, self.channels.colour_topic,
-                                    f"no image within {ms:g} ms of any of the "
-                                    f"{self.pairer.skipped} depth images of "
-                                    f"{self.channels.depth_topic}",
-                                    "colour stamped with the depth images' clock")
 
 
 def _pixels(path: Path, img: ImageMsg, decode: Any) -> Any:

@@ -3,8 +3,10 @@
 Both MCAP dialects end here (``cadio.recordings.recording``'s records), so the rules are one:
 
 - **Pairing**: each depth image is paired with the nearest colour image (and instance image)
-  within a tolerance; a depth image is settled once the stream has moved a tolerance past it
-  (no nearer partner can arrive) or at the end. Depth without colour is skipped.
+  within a tolerance (a frame period: colour and depth come from different sensors, stamped
+  apart); a depth image is settled once the stream has moved a tolerance past it (no nearer
+  partner can arrive) or at the end. Depth without colour within it is kept without colour
+  (the geometry needs the depth, not the colour), and the reader warns.
 - **Calibration**: an image's camera info is, among the latest message of each camera info
   topic when the image settles, one of the image's size, preferring the same frame id, then the
   topic sharing the longest namespace (``/camera/color/camera_info`` for
@@ -45,7 +47,7 @@ class Pair:
     """A settled depth image, its partners and the calibrations that fit them."""
 
     depth: ImageMsg
-    colour: ImageMsg
+    colour: ImageMsg | None  # None: no colour image within the tolerance
     instance: ImageMsg | None
     depth_calibration: CalibrationMsg
     colour_calibration: CalibrationMsg | None
@@ -78,7 +80,7 @@ class Pairer:
     others: dict[str, deque[ImageMsg]] = field(
         default_factory=lambda: {"colour": deque(), "instance": deque()})
     calibrations: dict[str, CalibrationMsg] = field(default_factory=dict)  # latest per topic
-    skipped: int = 0  # depth images without colour within the tolerance
+    uncoloured: int = 0  # depth images without colour within the tolerance
 
     def add_image(self, role: str, img: ImageMsg) -> None:
         if role == "depth":
@@ -109,12 +111,10 @@ class Pairer:
             self._prune(d.stamp_ns - self.tol)
             self.tree.prune(d.stamp_ns - self.tol)
             if colour is None:
-                self.skipped += 1
-                log.debug("depth at %d ns has no colour within %d ns; skipped", d.stamp_ns,
-                          self.tol)
-                continue
+                self.uncoloured += 1
+                log.debug("depth at %d ns has no colour within %d ns", d.stamp_ns, self.tol)
             yield Pair(d, colour, instance, calibration,
-                       calibration_for(colour, self.calibrations))
+                       None if colour is None else calibration_for(colour, self.calibrations))
 
     def _nearest(self, role: str, d: ImageMsg) -> ImageMsg | None:
         cands = [m for m in self.others[role] if abs(m.stamp_ns - d.stamp_ns) <= self.tol]
@@ -130,7 +130,7 @@ def _known_frame(frame_id: str) -> bool:
 def registered(pair: Pair) -> bool:
     """Whether the colour image is registered to the depth image (pixel for pixel)."""
     d, c, cal = pair.depth, pair.colour, pair.colour_calibration
-    if (c.width, c.height) != (d.width, d.height):
+    if c is None or (c.width, c.height) != (d.width, d.height):
         return False
     if cal is None or cal is pair.depth_calibration:
         return True
@@ -141,6 +141,8 @@ def registered(pair: Pair) -> bool:
 def colour_extrinsic(pair: Pair, tree: TransformTree) -> FloatArray | None:
     """(4, 4) depth camera -> colour camera coordinates, when the recording holds it: identity
     for one named frame, else the transform tree's path between the two frames."""
+    if pair.colour is None:
+        return None
     df, cf = pair.depth.frame_id, pair.colour.frame_id
     if not (_known_frame(df) and _known_frame(cf)):
         return None
