@@ -14,8 +14,9 @@ with the night's verdict in a dozen lines (``reports.verdict``), or with ``--jso
 full ``summary.json``.
 
 This module holds the parser; the commands live beside it: ``cli_cad`` (ingest, mates, capture,
-export, samples), ``cli_train`` (train, ship), ``cli_nightly`` (nightly, serve) and
-``cli_thresholds`` (thresholds calibrate: floors from a healthy night).
+export, samples), ``cli_train`` (train, ship), ``cli_nightly`` (nightly, serve),
+``cli_thresholds`` (thresholds calibrate: floors from a healthy night) and ``cli_inspect``
+(inspect: one recording of an assembly against its design).
 """
 
 from __future__ import annotations
@@ -29,6 +30,7 @@ from typing import TYPE_CHECKING, Any, NoReturn
 from cadio.camera import CIRCLE_VIEWS
 from cadio.tolerances import DEFAULT_TOLERANCES
 from flows.cli_cad import cmd_capture, cmd_export, cmd_ingest, cmd_mates, cmd_samples
+from flows.cli_inspect import add_inspect_parser
 from flows.cli_nightly import cmd_nightly, cmd_serve
 from flows.cli_options import (
     add_config_options,
@@ -101,6 +103,7 @@ def _parser() -> argparse.ArgumentParser:
     _ship_command(sub)
     _export_command(sub)
     add_thresholds_parser(sub)
+    add_inspect_parser(sub, settings.workspace)
     _samples_command(sub)
     return parser
 

@@ -35,6 +35,10 @@ NIGHT_FLAGS = {
     "models.completion": "--completion-models", "models.relations": "--relation-models",
     "thresholds.file": "--thresholds", "runtime.file_timeout_s": "--timeout",
     "runtime.file_memory_mb": "--memory-mb",
+    # the inspection's knobs by their group's name (its noise and seed are not the capture's)
+    "inspection.enabled": "--inspection",
+    **{f"inspection.{name}": f"--inspection-{name.replace('_', '-')}" for name in (
+        "views", "distance_m", "noise", "defects", "parts_per_defect", "search", "seed")},
 }
 # Fields a command sets from somewhere else than a flag of their own.
 TOLERANCES = "tolerances"  # --tol and --tolerances
@@ -123,6 +127,8 @@ def add_config_options(parser: argparse.ArgumentParser, command: str) -> None:
         if path in spec.positional:
             parser.add_argument(dest(path), metavar=spec.positional[path], help=text, **kwargs)
         else:
+            if "action" not in kwargs and "choices" not in kwargs:
+                kwargs["metavar"] = path.rsplit(".", 1)[-1].upper()
             parser.add_argument(spec.flag(path), dest=dest(path), default=None, help=text,
                                 **kwargs)
 
@@ -286,6 +292,9 @@ def check_inputs(args: argparse.Namespace) -> list[str]:
         check_workspace(out, "OUT" if args.command == "samples" else "--out", problems)
     if args.command == "mates":
         _regular_file(args.step, "STEP", problems)
+    if args.command == "inspect":
+        _regular_file(args.step, "ASSEMBLY.step", problems)
+        _regular_file(args.recording, "RECORDING.mcap", problems)
     if args.command == "capture" and not 1 <= args.views <= CIRCLE_VIEWS:
         problems.append(("--views", f"must be 1 to {CIRCLE_VIEWS}, got {args.views}"))
     if args.command == "export":
@@ -320,8 +329,8 @@ def _out(args: argparse.Namespace) -> str | Path | None:
     if args.command == "export":
         out: str | None = args.config.out
         return out
-    if args.command == "train":
-        return None  # the stage's out is checked where it is written
+    if args.command in ("train", "inspect"):
+        return None  # the stage's out is checked where it is written; inspect's is a file
     return getattr(args, "out", None)
 
 

@@ -116,6 +116,31 @@ class ModelOptions(_Group):
         "ones (models/checkpoints/relations)")
 
 
+class InspectionOptions(_Group):
+    """How each assembly is checked as built against its design: real-size captures by the
+    inspection camera, its CAD registered in the scan, each CAD mate's residuals, and planted
+    defects to judge it by."""
+
+    enabled: bool = Field(default=True, description="inspect every assembly of the library "
+                          "as built (as_built.csv, the as-built verdict, the registered "
+                          "relations)")
+    views: int = Field(default=4, ge=1, le=16, description="inspection views around each "
+                       "assembly, a full turn apart")
+    distance_m: float = Field(default=0.6, ge=0.28, le=3.0, description="camera distance, "
+                              "metres (a D435's working range; farther where an assembly "
+                              "needs it to fit the view)")
+    noise: bool = Field(default=True, description="the inspection camera's sensor model (a "
+                        "D435: noise growing with depth, millimetre steps, holes)")
+    defects: bool = Field(default=True, description="also plant defects (parts shifted 1, 2 "
+                          "and 5 mm, turned 2 and 5 degrees, left out) and score what the "
+                          "inspection catches")
+    parts_per_defect: int = Field(default=3, ge=1, le=20, description="parts moved in each "
+                                  "variant (never two sharing a mate)")
+    search: bool = Field(default=True, description="register each part without the design "
+                         "too (the registered relations and their F1 against the CAD's mates)")
+    seed: int = Field(default=0, ge=0, le=2**32 - 1, description="seed of the planted defects")
+
+
 class ThresholdOptions(_Group):
     """What a pass is: per-category thresholds and the trend against earlier nights."""
 
@@ -170,6 +195,8 @@ class NightConfig(_Group):
     capture: CaptureOptions = Field(default=CaptureOptions(),
                                     description=CaptureOptions.__doc__)
     models: ModelOptions = Field(default=ModelOptions(), description=ModelOptions.__doc__)
+    inspection: InspectionOptions = Field(default=InspectionOptions(),
+                                          description=InspectionOptions.__doc__)
     thresholds: ThresholdOptions = Field(default=ThresholdOptions(),
                                          description=ThresholdOptions.__doc__)
     runtime: RuntimeOptions = Field(default=RuntimeOptions(),

@@ -11,10 +11,12 @@ from __future__ import annotations
 
 import time
 from collections import Counter
+from collections.abc import Sequence
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
 
+import pandas as pd
 from prefect import flow, get_run_logger, task
 from prefect.artifacts import (
     create_link_artifact,
@@ -29,6 +31,7 @@ from cadio.capture.scan import ScanConfig
 from cadio.catalog import read_catalog
 from cadio.contracts import CaptureSummary, MatesSummary
 from cadio.export.job import model_digests
+from cadio.inspect.evaluate import AssemblyInspection
 from cadio.truth.scene_config import night_scene_config
 from cadio.truth.scenes import read_scenes
 from cadio.workspace import Workspace, write_json
@@ -43,6 +46,7 @@ from flows.tasks import (
     export_stage,
     generate_library_task,
     ingest_stage,
+    inspect_stage,
     mates_stage,
     relate_stage,
     render_stage,
@@ -51,6 +55,7 @@ from flows.tasks import (
 )
 from models.evaluate import SHIPPED, Scores, write_completion_report
 from models.relate import SHIPPED_RELATIONS, RelateBatch
+from reports.asbuilt import verdicts, write_inspection_report
 from reports.coverage import coverage_summary, read_part_coverage
 from reports.relations import combine_pairs, write_relation_report
 from reports.render import (
@@ -105,11 +110,14 @@ class NightlySummary:
     export_status: dict[str, int] = field(default_factory=dict)
     coverage: dict[str, dict[str, Any]] = field(default_factory=dict)
     verdict: str = ""  # PASS, FAIL, or UNCHECKED: no threshold check applied
+    as_built_report: str = ""  # inspect.md: each assembly as built against its design
 
 
 @task(name="relations-report")
-def relations_report_task(run: Run, batches: list[RelateBatch]) -> str:
-    """The run's relation files (pairs, summary, near-boundary, assembly mates, Markdown)."""
+def relations_report_task(run: Run, batches: list[RelateBatch],
+                          registered: Sequence[str] = ()) -> str:
+    """The run's relation files (pairs, summary, near-boundary, assembly mates, Markdown);
+    ``registered``: the inspection's relation files, whose ``registered`` rows join them."""
     failed = [f for b in batches for f in b.failed]
     notes = [f"{sum(b.pair_views for b in batches)} pair views of "
              f"{sum(b.captures for b in batches)} captures; {len(failed)} captures failed."]
@@ -119,8 +127,30 @@ def relations_report_task(run: Run, batches: list[RelateBatch]) -> str:
                      "(their scores would not be held out).")
     notes += [f"- {f}" for f in failed]
     pairs = combine_pairs([Path(b.path) for b in batches])
+    inspected = [pd.read_parquet(p) for p in registered if Path(p).is_file()]
+    inspected = [f[f["input"] == "registered"] for f in inspected if not f.empty]
+    if inspected:
+        pairs = pd.concat([pairs, *inspected], ignore_index=True)
     joints = combine_pairs([Path(b.joints_path) for b in batches if b.joints_path], joints=True)
     return str(write_relation_report(Path(run.run_dir), pairs, notes, joints))
+
+
+@task(name="as-built-report")
+def as_built_report_task(run: Run, inspected: list[AssemblyInspection],
+                         relations: list[str]) -> str:
+    """The as-built files of the run (``as_built.csv``, the inspection's summaries) and its
+    Prefect artifact: each assembly's verdict."""
+    failed = [f"{i.assembly}: {i.error}" for i in inspected if i.error]
+    path = write_inspection_report(Path(run.run_dir),
+                                   [Path(i.folder) for i in inspected if not i.error],
+                                   [Path(r) for r in relations], failed)
+    as_built = Path(run.run_dir) / "as_built.parquet"
+    if as_built.is_file():
+        table = verdicts(pd.read_parquet(as_built))
+        create_table_artifact(key="nightly-as-built", table=table.to_dict("records"),
+                              description="Each assembly as built against its design "
+                              "(as_built.csv holds every mate)")
+    return str(path)
 
 
 @task(name="completion-report")
@@ -250,11 +280,30 @@ def run_stages(config: NightConfig) -> NightlySummary:
 
 def stages_of(config: NightConfig) -> NightlySummary:
     """The body of ``run_stages`` (``bench/speed/nightly.py`` runs it without Prefect)."""
-    lib_cfg, cap, models, limits = config.library, config.capture, config.models, config.thresholds
-    tolerances = config.tolerances
-    log, clock = get_run_logger(), _Stopwatch()
+    clock = _Stopwatch()
+    run = start_run(config.runtime.workspace, config.tolerances)
+    cad = _cad_stages(config, run, clock)
+    captured = _capture_stages(config, run, cad, clock)
+    learned = _learned_stages(config, run, captured, clock)
+    inspected = _inspection_stage(config, run, cad, learned, clock)
+    return _report_stages(config, run, cad, captured, learned, inspected, clock)
+
+
+@dataclass(frozen=True)
+class _Cad:
+    """What the CAD stages left: the library, the catalog, the mates, the scenes, the limits."""
+
+    library: str
+    catalog: str
+    mates: list[MatesSummary]
+    scenes: Any
+    limits: Any
+
+
+def _cad_stages(config: NightConfig, run: Run, clock: _Stopwatch) -> _Cad:
+    """Library, ingest, mates and scenes."""
+    lib_cfg, tolerances, log = config.library, config.tolerances, get_run_logger()
     cfg = ingest_config(runtime_settings(config.runtime), lib_cfg.voxel_sizes, tolerances)
-    run = start_run(config.runtime.workspace, tolerances)
     lib = lib_cfg.path or generate_library_task(run.workspace)
     log.info("library: %s (%.1f s)", lib, clock.lap("library"))
     catalog = ingest_stage(lib, run, cfg, lib_cfg.batch_size, lib_cfg.categories)
@@ -264,24 +313,50 @@ def stages_of(config: NightConfig) -> NightlySummary:
     mates = mates_stage(catalog, run, tolerances, cfg.limits)
     log.info("mates: %d assemblies, %d failed, %d face mates (%.1f s)", len(mates),
              sum(not m.ok for m in mates), sum(m.face_mates for m in mates), clock.lap("mates"))
-    scene_cfg = night_scene_config(cap.seed, cap.pairs_per_relation, tolerances)
-    scenes = scenes_task(catalog, run.workspace, scene_cfg)
+    cap = config.capture
+    scenes = scenes_task(catalog, run.workspace,
+                         night_scene_config(cap.seed, cap.pairs_per_relation, tolerances))
     log.info("scenes: %d from %d parts (%.1f s)", scenes.scenes, scenes.parts,
              clock.lap("scenes"))
+    return _Cad(str(lib), catalog, mates, scenes, cfg.limits)
+
+
+def _capture_stages(config: NightConfig, run: Run, cad: _Cad, clock: _Stopwatch
+                    ) -> list[CaptureSummary]:
+    """The scenes, the assemblies and every part captured, or the recordings read."""
+    cap = config.capture
     scan_cfg = ScanConfig(views_per_scene=cap.views_per_scene, noise=cap.noise,
-                          tolerances=tolerances)
+                          tolerances=config.tolerances)
     # recordings stand on their own; a rendered night captures the assemblies and every part
-    captured = (capture_stage(scenes, run, scan_cfg, cap.recordings) if cap.recordings
-                else render_stage(catalog, scenes, mates, run, scan_cfg))
+    captured = (capture_stage(cad.scenes, run, scan_cfg, cap.recordings) if cap.recordings
+                else render_stage(cad.catalog, cad.scenes, cad.mates, run, scan_cfg))
     if cap.recordings and all(c.error for c in captured):  # each reason is in the report
         raise ConfigError([("capture.recordings", f"none of the {len(captured)} recording(s) "
                             "could be used, the night would check nothing: " + "; ".join(
                                 f"{c.path}: {c.error}" for c in captured[:3]))])
-    log.info("captures: %d, %d failed, %d frames (%.1f s)", len(captured),
-             sum(bool(c.error) for c in captured), sum(c.frames for c in captured),
-             clock.lap("captures"))
-    completion_dir = models.completion or str(SHIPPED)
-    relations_dir = models.relations or str(SHIPPED_RELATIONS)
+    get_run_logger().info("captures: %d, %d failed, %d frames (%.1f s)", len(captured),
+                          sum(bool(c.error) for c in captured),
+                          sum(c.frames for c in captured), clock.lap("captures"))
+    return captured
+
+
+@dataclass(frozen=True)
+class _Learned:
+    """What the learned stages left: their checkpoints, reports, batches and coverage."""
+
+    completion_dir: str
+    relations_dir: str
+    completion: str
+    batches: list[RelateBatch]
+    coverage: dict[str, dict[str, Any]]
+
+
+def _learned_stages(config: NightConfig, run: Run, captured: list[CaptureSummary],
+                    clock: _Stopwatch) -> _Learned:
+    """Completion and relations of every captured part and pair."""
+    log = get_run_logger()
+    completion_dir = config.models.completion or str(SHIPPED)
+    relations_dir = config.models.relations or str(SHIPPED_RELATIONS)
     scores = complete_stage(captured, run, completion_dir)
     completion = completion_report_task(run, scores)
     coverage = coverage_summary(read_part_coverage(Path(run.run_dir)))
@@ -291,32 +366,56 @@ def stages_of(config: NightConfig) -> NightlySummary:
              coverage.get("all", {}).get("parts_scored", 0),
              coverage.get("all", {}).get("parts_ingested", 0), clock.lap("completion"))
     batches = relate_stage(captured, run, relations_dir, completion_dir)
-    relations = relations_report_task(run, batches)
     log.info("relations: %d pair views, %d rows, %d captures failed (%.1f s)",
              sum(b.pair_views for b in batches), sum(b.rows for b in batches),
              sum(len(b.failed) for b in batches), clock.lap("relations"))
-    ingest, stages = report_task(run, catalog, mates, scenes.path, captured)
-    facts = {"library": str(lib), "thresholds": limits.file or str(DEFAULT_THRESHOLDS),
+    return _Learned(completion_dir, relations_dir, completion, batches, coverage)
+
+
+def _inspection_stage(config: NightConfig, run: Run, cad: _Cad, learned: _Learned,
+                      clock: _Stopwatch) -> tuple[list[AssemblyInspection], list[str]]:
+    """Every assembly checked as built against its design (when the night asks for it)."""
+    if not config.inspection.enabled:
+        return [], []
+    inspected, relations = inspect_stage(cad.mates, run, config.inspection, config.tolerances,
+                                         learned.relations_dir)
+    get_run_logger().info(
+        "inspection: %d assemblies, %d failed, %d captures, %d mates checked (%.1f s)",
+        len(inspected), sum(bool(i.error) for i in inspected),
+        sum(i.captures for i in inspected), sum(i.mates for i in inspected),
+        clock.lap("inspection"))
+    return inspected, relations
+
+
+def _report_stages(config: NightConfig, run: Run, cad: _Cad, captured: list[CaptureSummary],
+                   learned: _Learned, inspected: tuple[list[AssemblyInspection], list[str]],
+                   clock: _Stopwatch) -> NightlySummary:
+    """Every report, the verdict, the export, and ``summary.json`` last."""
+    log, limits = get_run_logger(), config.thresholds
+    relations = relations_report_task(run, learned.batches, inspected[1])
+    as_built = as_built_report_task(run, inspected[0], inspected[1])
+    ingest, stages = report_task(run, cad.catalog, cad.mates, cad.scenes.path, captured)
+    facts = {"library": cad.library, "thresholds": limits.file or str(DEFAULT_THRESHOLDS),
              **{f"{k} seconds": v for k, v in clock.seconds.items()}}
     report = run_report_task(run, limits.file, limits.history, facts)
     publish(report)
     log.info("report: %s, %d threshold checks failed (%.1f s)", report.html,
              len(report.failed), clock.lap("report"))
-    digests = model_digests({"relations": Path(relations_dir),
-                             "completion": Path(completion_dir)})
-    exports, exported = export_stage(run, digests, cfg.limits)
+    digests = model_digests({"relations": Path(learned.relations_dir),
+                             "completion": Path(learned.completion_dir)})
+    exports, exported = export_stage(run, digests, cad.limits)
     status = dict(Counter(e.status for e in exported))
     log.info("export: %d assemblies (%s) (%.1f s)", len(exported),
              ", ".join(f"{n} {k}" for k, n in sorted(status.items())) or "none",
              clock.lap("export"))
     summary = NightlySummary(
-        run_id=run.run_id, library=str(lib), workspace=run.workspace, run_dir=run.run_dir,
+        run_id=run.run_id, library=cad.library, workspace=run.workspace, run_dir=run.run_dir,
         ingest_report=str(Path(run.run_dir) / "ingest.md"),
-        stages_report=str(Path(run.run_dir) / "stages.md"), completion_report=completion,
-        relations_report=relations, ingest=ingest, stages=stages,
-        run_report=str(report.html), failed_checks=list(report.failed),
+        stages_report=str(Path(run.run_dir) / "stages.md"),
+        completion_report=learned.completion, relations_report=relations, ingest=ingest,
+        stages=stages, run_report=str(report.html), failed_checks=list(report.failed),
         stage_seconds=clock.seconds, exports=exports, export_status=status,
-        coverage=coverage, verdict=report.verdict)
+        coverage=learned.coverage, verdict=report.verdict, as_built_report=as_built)
     write_json(Path(run.run_dir) / "summary.json", asdict(summary))
     Workspace(Path(run.workspace)).mark_latest(run.run_id)
     return summary

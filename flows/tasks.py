@@ -54,6 +54,9 @@ from cadio.catalog import CatalogRow, read_catalog, to_frame, write_catalog
 from cadio.contracts import CaptureSummary, ExportSummary, MatesSummary, ScenesSummary
 from cadio.evidence.pair_features import evidence_digest
 from cadio.export.job import ExportJob, export_assemblies, run_jobs, write_index
+from cadio.inspect.defects import DefectPlan
+from cadio.inspect.evaluate import AssemblyInspection, inspect_assembly, inspection_digest
+from cadio.inspect.stage import InspectConfig
 from cadio.sandbox import Limits
 from cadio.tolerances import Tolerances, write_tolerances
 from cadio.truth.assemblies import (
@@ -64,13 +67,15 @@ from cadio.truth.assemblies import (
 )
 from cadio.truth.scene_config import SceneConfig
 from cadio.truth.scenes import build_scenes, read_scenes
-from cadio.workspace import Workspace
+from cadio.workspace import Workspace, atomic_path
+from flows.config import InspectionOptions
 from models.completions import COMPLETIONS
 from models.evaluate import Scores, complete_parts, part_inputs
-from models.relate import RelateBatch, relate_batch
+from models.relate import RelateBatch, load_relation_models, relate_batch, relate_inspection
 from models.relation_inputs import INPUTS
 from models.relation_methods import RELATION_METHODS
 from reports.methods import product
+from reports.relations import pairs_frame
 
 # Bump when a stage's code changes what it writes, so cached batches are redone.
 CAPTURE_VERSION = "capture-2"
@@ -440,3 +445,66 @@ def export_stage(run: Run, models: dict[str, str], limits: Limits, out: str | No
     futures = [export_task.submit(b, limits) for b in batches(jobs, 4)]
     summaries = [s for f in futures for s in f.result()]
     return str(write_index(Path(out) if out else run_dir / "exports", summaries)), summaries
+
+
+# ---------------------------------------------------------------- the inspection
+
+
+INSPECT_VERSION = "inspect-1"
+
+
+def inspect_config(options: InspectionOptions, tolerances: Tolerances) -> InspectConfig:
+    """The inspection stage's config of the night's ``inspection`` options."""
+    plan = DefectPlan(parts_per_variant=options.parts_per_defect, seed=options.seed) \
+        if options.defects else DefectPlan(shifts_mm=(), turns_deg=(), missing=False)
+    return InspectConfig(views=options.views, distance_m=options.distance_m,
+                         noise=options.noise, defects=plan, search=options.search,
+                         tolerances=tolerances)
+
+
+@task(name="inspect", **_CACHED)
+def inspect_task(assembly: str, workspace: str, cfg: InspectConfig,
+                 key: str) -> AssemblyInspection:
+    """Capture one assembly and its planted variants as the inspection camera sees them, and
+    check each against the design."""
+    return inspect_assembly(assembly, Workspace(Path(workspace)), cfg, key)
+
+
+@task(name="relate-inspection", **_CACHED)
+def relate_inspection_task(folder: str, workspace: str, relations_models: str,
+                           key: str) -> str:
+    """The relations of an inspected assembly on the registered CAD (and the truth, on the
+    same pair views), written beside its inspection rows."""
+    rows = relate_inspection(Path(folder), Workspace(Path(workspace)),
+                             load_relation_models(Path(relations_models)))
+    out = Path(folder) / "relations.parquet"
+    with atomic_path(out) as tmp:
+        pairs_frame(rows.to_dict("records")).to_parquet(tmp, index=False)
+    return str(out)
+
+
+def inspect_stage(mates: list[MatesSummary], run: Run, options: InspectionOptions,
+                  tolerances: Tolerances, relations_models: str
+                  ) -> tuple[list[AssemblyInspection], list[str]]:
+    """Every assembly whose mates were extracted, inspected as built (one task each, keyed on
+    its meshes, its mates, the config and the inspection's code), and its registered
+    relations; the inspections and the relation files."""
+    ws = Workspace(Path(run.workspace))
+    cfg = inspect_config(options, tolerances)
+    catalog = read_catalog(ws.catalog)
+    futures = []
+    for summary in (m for m in mates if m.ok):
+        parts = catalog[catalog["source"] == summary.source]["part_id"].astype(str)
+        files = [ws.mesh(p) for p in sorted(parts)] + [Path(summary.path)]
+        key = content_digest(files, cfg=cfg, epoch=run.epoch, version=INSPECT_VERSION,
+                             code=inspection_digest())[:32]
+        futures.append(inspect_task.submit(summary.assembly, run.workspace, cfg, key))
+    inspected = [f.result() for f in futures]
+    relations = []
+    for done in (i for i in inspected if not i.error and cfg.search):
+        key = content_digest([Path(done.folder) / "found.parquet", *_models(relations_models)],
+                             version=INSPECT_VERSION, evidence=evidence_digest(),
+                             methods=RELATION_METHODS.digest(), inputs=INPUTS.digest())
+        relations.append(relate_inspection_task(done.folder, run.workspace, relations_models,
+                                                key))
+    return inspected, relations

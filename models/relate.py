@@ -25,7 +25,8 @@ import numpy.typing as npt
 import pandas as pd
 
 from cadio.capture.examples import OBSERVED
-from cadio.capture.scan import ASSEMBLY_PREFIX
+from cadio.capture.scan import ASSEMBLY_PREFIX, assembly_pairs
+from cadio.catalog import read_catalog
 from cadio.errors import CaptureError
 from cadio.evidence.pairs import DEFAULT_PAIRS, PairConfig, PairView, capture_pairs
 from cadio.records import Relation
@@ -278,7 +279,6 @@ def relate_batch(captures: Sequence[Path], ws: Workspace, relations_dir: Path,
     """The relation stage for a batch of captures: rows of every method on every input,
     written to ``out`` (parquet); pairs with a part that the relation or the completion
     networks trained on are left out (their scores would not be held out)."""
-    from cadio.catalog import read_catalog
     from models.evaluate import load_models
     from reports.relations import pairs_frame
 
@@ -322,3 +322,43 @@ def cad_joints(captures: Sequence[Path], ws: Workspace) -> pd.DataFrame:
             frames.append(joint.assign(scene=path.stem))
     columns = ["scene", "part_a", "part_b", "kinematic"]
     return pd.concat(frames)[columns] if frames else pd.DataFrame(columns=columns)
+
+
+def relate_inspection(folder: Path, ws: Workspace, models: RelationModels,
+                      cfg: PairConfig = DEFAULT_PAIRS) -> pd.DataFrame:
+    """The relations of an inspected assembly's intact capture: every method on the
+    ``registered`` input (the CAD at the poses the search route found without the design) and
+    on ``truth`` (the CAD where the parts stood), on the same pair views, for each set of views
+    the capture was inspected with (scene ``<capture>`` for all views, ``<capture>@<view>``
+    for one alone). Rows of ``reports.relations.PAIR_COLUMNS``."""
+    from cadio.evidence.pairs import PosedScene, posed_pair_views
+    from cadio.inspect.evaluate import read_tables
+    from cadio.inspect.stage import ALL_VIEWS, part_ids, read_truth
+    from cadio.recordings.mcap_io import read_capture
+    from cadio.truth.relations import contacts_of_mates
+
+    found = read_tables(folder)["found"]
+    if found.empty:
+        return pd.DataFrame()
+    rows: list[dict[str, Any]] = []
+    for (capture, views), group in found.groupby(["capture", "views"], sort=True):
+        truth = read_truth(ws, str(capture))
+        mates = pd.read_parquet(ws.mates(str(truth["assembly"])))
+        ids = dict(enumerate(part_ids(str(truth["assembly"]), ws)))
+        cameras = [f.world_to_camera for f in read_capture(ws.capture(str(capture)))]
+        if views != ALL_VIEWS:
+            cameras = [cameras[int(views)]]
+        catalog = read_catalog(ws.catalog)
+        known = PosedScene(
+            str(capture) if views == ALL_VIEWS else f"{capture}@{views}",
+            {ids[int(i)]: np.array(p) for i, p in truth["poses"].items() if int(i) in ids},
+            [(a, b) for a, b in assembly_pairs(mates)],
+            dict(zip(catalog["part_id"].astype(str), catalog["category"].astype(str),
+                     strict=True)),
+            contacts_of_mates(mates.to_dict("records"), mates.attrs.get("near_boundary", [])))
+        registered = {ids[int(r.index)]: np.array(r.pose).reshape(4, 4)
+                      for r in group.itertuples() if int(r.index) in ids}
+        views_of = posed_pair_views(known, {"registered": registered, "truth": dict(known.truth)},
+                                    cameras, ws, cfg)
+        rows += relate_views(views_of, models)
+    return pd.DataFrame(rows)

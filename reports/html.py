@@ -20,8 +20,10 @@ import io
 import math
 from collections.abc import Callable, Iterator, Sequence
 from contextlib import contextmanager
+from pathlib import Path
 from typing import Any
 
+import numpy as np
 import pandas as pd
 
 from reports import plots
@@ -164,6 +166,45 @@ def first_screen(page: Page, verdict: Verdict, facts: str, categories: pd.DataFr
     page.plot("joint_agreement", "Joint agreement: the product's joint against the CAD's",
               lambda fig: plots.joint_agreement(fig, joints), SMALL)
     page.parts.append("</div>")
+
+
+def as_built_screen(page: Page, run_dir: Path) -> None:
+    """Each assembly as built against its design: its verdict (holds, the broken mates, or not
+    inspectable) and its first view coloured by the scan's distance from the registered CAD,
+    with the histogram and the share within tolerance."""
+    from reports.asbuilt import verdicts
+
+    path = run_dir / "as_built.csv"
+    if not path.is_file():
+        return
+    table = pd.read_csv(path)
+    if table.empty:
+        return
+    page.heading("As built against as designed", 3)
+    page.table(verdicts(table))
+    for image in sorted(run_dir.glob("deviation-*.npz")):
+        with np.load(image) as z:
+            data, tol = z["deviation_mm"], float(z["tolerance_mm"])
+        assembly = image.stem.removeprefix("deviation-")
+        page.plot(f"deviation-{assembly}", f"{assembly}: scan to CAD, first view",
+                  _deviation_plot(data, tol, assembly), WIDE)
+
+
+def _deviation_plot(data: np.ndarray, tolerance_mm: float, title: str
+                    ) -> Callable[[Any], bool]:
+    def draw(fig: Any) -> bool:
+        return plots.deviation(fig, data, tolerance_mm, title)
+    return draw
+
+
+def inspection_section(page: Page, run_dir: Path) -> None:
+    """The inspection's own figures: defects caught, false alarms, pose errors, and the
+    registered relations' F1 beside the truth's."""
+    for name in ("inspect_summary.csv", "inspect_pose_summary.csv", "registered_mates.csv"):
+        path = run_dir / name
+        if path.is_file():
+            page.heading(name.removesuffix(".csv").replace("_", " "), 4)
+            page.table(pd.read_csv(path), digits=3)
 
 
 def verdict_table(verdict: Verdict) -> str:

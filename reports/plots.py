@@ -146,3 +146,24 @@ def trends(fig: Any, history: Sequence[tuple[str, pd.DataFrame]],
 def _value(table: pd.DataFrame, metric: str) -> float:
     rows = table[(table["metric"] == metric) & (table["category"] == ALL)]
     return float(rows["value"].iloc[0]) if len(rows) else float("nan")
+
+
+def deviation(fig: Any, image: np.ndarray, tolerance_mm: float, title: str) -> bool:
+    """A view's scan-to-CAD deviation (mm, signed: red where there is material the CAD has
+    not), and its histogram with the tolerance marked."""
+    values = image[np.isfinite(image)]
+    if not len(values):
+        return False
+    limit = 3 * tolerance_mm
+    ax = fig.add_subplot(1, 2, 1)
+    shown = ax.imshow(np.clip(image, -limit, limit), cmap="RdBu_r", vmin=-limit, vmax=limit)
+    ax.set(title=title, xticks=[], yticks=[])
+    fig.colorbar(shown, ax=ax, fraction=0.04, label="mm")
+    ax = fig.add_subplot(1, 2, 2)
+    ax.hist(np.clip(values, -limit, limit), bins=60, color="#777")
+    for x in (-tolerance_mm, tolerance_mm):
+        ax.axvline(x, color="#c33", lw=1)
+    share = float(np.mean(np.abs(values) <= tolerance_mm))
+    ax.set(xlabel="scan to CAD, mm", ylabel="pixels",
+           title=f"{share:.1%} within +/-{tolerance_mm:g} mm")
+    return True

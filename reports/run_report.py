@@ -21,13 +21,16 @@ from typing import Any
 import pandas as pd
 
 from cadio.workspace import atomic_path, atomic_write
+from reports.asbuilt import junit_suites
 from reports.completion import HELD_OUT, category_means, read_completion_parts
 from reports.headline import HEADLINE_FILE, part_shapes, placed, read_headline
 from reports.html import (
     Page,
+    as_built_screen,
     assemblies_section,
     completion_section,
     first_screen,
+    inspection_section,
     relations_section,
     trends_section,
 )
@@ -110,7 +113,9 @@ def write_run_report(run_dir: Path, history: Sequence[Path], thresholds: Thresho
     current = run_metrics(run_dir)
     checks = check_metrics(current, [t for _, t in earlier], thresholds)
     write_categories(run_dir / "categories.csv", checks)
-    write_junit(run_dir / "junit.xml", checks, suite=f"nightly {run_dir.name}")
+    as_built = _read_parquet(run_dir / "as_built.parquet")
+    write_junit(run_dir / "junit.xml", checks, suite=f"nightly {run_dir.name}",
+                more=junit_suites(as_built) if not as_built.empty else ())
     parts = _parts(run_dir, catalog)
     pairs = _read_parquet(run_dir / "relations_pairs.parquet")
     for name, frame in (("parts.parquet", parts), ("pairs.parquet", pairs)):
@@ -181,6 +186,7 @@ def _page(run_dir: Path, verdict: Verdict, checks: pd.DataFrame, parts: pd.DataF
     first_screen(page, verdict, _facts_line(facts),
                  observed, mates, joints, assembly_intervals(run_dir),
                  [s for s in (completion_said(run_dir), floors_said(run_dir)) if s])
+    as_built_screen(page, run_dir)
 
     def files(*names: str) -> list[str]:
         return [n for n in names if (run_dir / n).is_file()]
@@ -203,6 +209,12 @@ def _page(run_dir: Path, verdict: Verdict, checks: pd.DataFrame, parts: pd.DataF
     with page.folded("Assemblies against their CAD mates",
                      files("assembly_mates.csv", "assembly_joints.csv")):
         assemblies_section(page, mates, joints)
+    inspected = files("as_built.csv", "inspect_summary.csv", "inspect_poses.csv",
+                      "inspect_defects.csv", "registered_mates.csv", "inspect.md")
+    if inspected:  # a night that inspected nothing has no section of it
+        with page.folded("As built: defects caught, false alarms, pose errors, registered "
+                         "relations", inspected):
+            inspection_section(page, run_dir)
     with page.folded("Trends over the last runs", files("categories.csv")):
         trends_section(page, history)
     return page.render()

@@ -322,24 +322,29 @@ def write_categories(path: Path, checks: pd.DataFrame) -> Path:
 _NOT_XML = re.compile("[^\t\n\r\x20-\ud7ff\ue000-\ufffd\U00010000-\U0010ffff]")
 
 
-def _xml_safe(value: object) -> str:
+def xml_safe(value: object) -> str:
     """``str(value)`` with what XML cannot hold written as its Python escape (``\\x1b``):
     a category is a folder name, which may hold any character but ``/``."""
     return _NOT_XML.sub(lambda m: ascii(m.group())[1:-1], str(value))
 
 
-def write_junit(path: Path, checks: pd.DataFrame, suite: str) -> Path:
+def write_junit(path: Path, checks: pd.DataFrame, suite: str,
+                more: Sequence[ET.Element] = ()) -> Path:
     """JUnit XML: one test case per category (class) and metric (name); ``fail`` and
-    ``regressed`` are failures, ``no-data``, ``no-threshold`` and ``too-few`` are skipped."""
+    ``regressed`` are failures, ``no-data``, ``no-threshold`` and ``too-few`` are skipped.
+    ``more``: further test suites (each assembly's mates as built)."""
     failures = int(checks["status"].isin(["fail", "regressed"]).sum())
     skipped = int(checks["status"].isin(["no-data", "no-threshold", "too-few"]).sum())
-    root = ET.Element("testsuites", name="mateqa", tests=str(len(checks)),
-                      failures=str(failures), skipped=str(skipped))
-    node = ET.SubElement(root, "testsuite", name=_xml_safe(suite), tests=str(len(checks)),
+    total = {k: sum(int(m.get(k, "0")) for m in more) for k in ("tests", "failures", "skipped")}
+    root = ET.Element("testsuites", name="mateqa", tests=str(len(checks) + total["tests"]),
+                      failures=str(failures + total["failures"]),
+                      skipped=str(skipped + total["skipped"]))
+    node = ET.SubElement(root, "testsuite", name=xml_safe(suite), tests=str(len(checks)),
                          failures=str(failures), errors="0", skipped=str(skipped))
+    root.extend(more)
     for r in checks.itertuples():
-        case = ET.SubElement(node, "testcase", classname=_xml_safe(r.category),
-                             name=_xml_safe(r.metric))
+        case = ET.SubElement(node, "testcase", classname=xml_safe(r.category),
+                             name=xml_safe(r.metric))
         message = (f"{r.metric} = {r.value:.4g} ({r.direction} is better), threshold "
                    f"{r.threshold:.4g}, max drop {r.max_drop:.4g}, previous {r.previous:.4g}")
         if r.status in ("fail", "regressed"):

@@ -22,7 +22,7 @@ from flows.config import (
     range_text,
 )
 
-GROUPS = ("library", "capture", "models", "thresholds", "runtime")
+GROUPS = ("library", "capture", "models", "inspection", "thresholds", "runtime")
 
 
 def _leaves() -> list[str]:

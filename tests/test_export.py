@@ -188,6 +188,31 @@ def test_the_xbf_reopens_with_every_note_on_its_parts(local_night: Path) -> None
         assert kinds == {"part": len(doc["parts"]), "pair": len(doc["pairs"]), "assembly": 1}
 
 
+def test_the_export_carries_each_cad_mate_as_built(local_night: Path) -> None:
+    """The night inspected its assembly: each face mate's check (status, residuals against
+    their thresholds) is in the sidecar, and in the notes of its pair."""
+    as_built = pd.read_csv(local_night / "as_built.csv")
+    assert not as_built.empty
+    for row in _exports(local_night).itertuples():
+        doc = read_sidecar(Path(row.sidecar))
+        mine = as_built[as_built["assembly"] == row.assembly]
+        checks = doc["as_built"]["mates"]
+        assert len(checks) == len(mine) > 0
+        assert [c["status"] for c in checks] == list(mine["status"])
+        held = [c for c in checks if c["status"] == "holds"]
+        for c in held:
+            assert c["residuals"] and all(r["value"] <= r["threshold"]
+                                          for r in c["residuals"].values())
+        assert doc["as_built"]["verdict"]
+        notes = [n.data for n in read_notes(Path(row.xbf))]
+        assembly = next(n for n in notes if n["kind"] == "assembly")
+        assert assembly["as_built"] == doc["as_built"]["verdict"]
+        in_pairs = sum(len(n["as_built"]) for n in notes if n["kind"] == "pair")
+        paired = {(p["a"]["index"], p["b"]["index"]) for p in doc["pairs"]}
+        assert in_pairs == sum((min(c["index_a"], c["index_b"]),
+                                max(c["index_a"], c["index_b"])) in paired for c in checks)
+
+
 def _solve(script: Path, tmp: Path, *args: str) -> dict:
     out = tmp / f"{script.stem}.json"
     proc = subprocess.run([sys.executable, str(script), "--json", str(out), *args],

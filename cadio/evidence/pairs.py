@@ -192,7 +192,7 @@ def capture_pairs(capture: Path, ws: Workspace, categories: Mapping[str, str],
     seen = {k: read_part_points(folders[k], str(placed[k]["part_id"]))
             for k in needed if folders[k].exists()}
     scale = float(meta["scale_m_per_mm"])
-    parts = {k: PlacedPart(str(placed[k]["part_id"]), placed[k], ws, scale, cfg.n_points,
+    parts = {k: PosedPart(str(placed[k]["part_id"]), placed[k], ws, scale, cfg.n_points,
                         cfg.evidence_points) for k in seen}
     out = []
     for a, b in pairs:
@@ -253,7 +253,7 @@ def _labelled_pairs(meta: dict[str, Any]) -> list[tuple[str, str]]:
     return []
 
 
-class PlacedPart:
+class PosedPart:
     """A part instance as the capture placed it: its features placed (mm), ``truth``: k
     samples of its CAD surface and ``dense``: the pair evidence's samples with their faces'
     exact normals, (m, 6), and ``centre``: its solid's centroid, all world metres."""
@@ -277,8 +277,8 @@ class _Pair:
 
     scene: str
     instances: tuple[int, int]
-    a: PlacedPart
-    b: PlacedPart
+    a: PosedPart
+    b: PosedPart
     seen_a: CapturedPart
     seen_b: CapturedPart
     category: str
@@ -291,14 +291,14 @@ class ViewSources:
     """What one view of a pair offers the relation inputs.
 
     instances: the two parts' instance ids in the capture. placed: the two parts as placed,
-    with their CAD samples (``PlacedPart``). observed: (2, k, 3) float32 world metres, their
+    with their CAD samples (``PosedPart``). observed: (2, k, 3) float32 world metres, their
     observed points in this view. view: the view's index.
     """
 
     capture: str
     view: int
     instances: tuple[int, int]
-    placed: tuple[PlacedPart, PlacedPart]
+    placed: tuple[PosedPart, PosedPart]
     observed: Cloud
     cfg: PairConfig
 
@@ -365,3 +365,52 @@ def k_points(points: FloatArray, k: int) -> Cloud:
 def stack_inputs(views: Sequence[PairView], name: str) -> Cloud:
     """(N, 2, k, 3) float32 observer-frame points of one input over pair views that have it."""
     return np.stack([v.observer_points(name) for v in views if name in v.points])
+
+
+@dataclass(frozen=True)
+class PosedScene:
+    """Parts whose true poses are known (part id -> part -> world, mm) and what a view of them
+    is scored on: the labelled pairs, the parts' categories, the pairs' face-mate truth."""
+
+    scene: str
+    truth: Mapping[str, FloatArray]
+    pairs: Sequence[tuple[str, str]]
+    categories: Mapping[str, str]
+    contacts: Mapping[tuple[str, str], PairContact]
+
+
+def posed_pair_views(known: PosedScene, posed: Mapping[str, Mapping[str, FloatArray]],
+                     cameras: Sequence[FloatArray], ws: Workspace,
+                     cfg: PairConfig = DEFAULT_PAIRS) -> list[PairView]:
+    """Pair views of parts whose poses an input gives directly (a registration's): for every
+    camera (world -> camera, metres) and labelled pair, the truth of the view from the parts'
+    true poses and, per input of ``posed`` (part id -> pose), the CAD samples of each part at
+    the input's pose (points, the evidence's samples with their faces' exact normals, the
+    solids' centroids), world metres. A pair whose two parts an input has no pose for lacks
+    that input; a view without any input for the pair gives none."""
+    scale = 1e-3
+    placed = {pid: PosedPart(pid, {"pose_mm": pose}, ws, scale, cfg.n_points,
+                              cfg.evidence_points) for pid, pose in known.truth.items()}
+    inputs = {name: {pid: PosedPart(pid, {"pose_mm": pose}, ws, scale, cfg.n_points,
+                                     cfg.evidence_points) for pid, pose in poses.items()}
+              for name, poses in posed.items()}
+    out = []
+    for view, w2c in enumerate(cameras):
+        for a, b in known.pairs:
+            if a not in placed or b not in placed:
+                continue
+            rr = relate(placed[a].features, placed[b].features, w2c[2, :3], cfg.tolerances,
+                        known.contacts.get((a, b), NO_CONTACT), cfg.margins)
+            points, evidence, centres = {}, {}, {}
+            for name, parts in inputs.items():
+                if a in parts and b in parts:
+                    pa, pb = parts[a], parts[b]
+                    points[name] = np.stack([pa.truth, pb.truth])
+                    evidence[name] = (pa.dense, pb.dense)
+                    centres[name] = np.stack([pa.centre, pb.centre])
+            if points:
+                out.append(PairView(known.scene, view, a, b, pair_category(
+                    known.categories.get(a, "?"), known.categories.get(b, "?")),
+                    np.array(rr.truth, dtype=bool), rr.near_boundary(), np.asarray(w2c),
+                    scale, points, np.array(rr.near, dtype=bool), evidence, centres))
+    return out

@@ -29,6 +29,7 @@ from cadio.export.predictions import (
     PREDICTED,
     AssemblyMates,
     assembly_mates,
+    mate_checks,
 )
 from cadio.export.script import mass_properties, write_script
 from cadio.export.sidecar import write_sidecar
@@ -65,6 +66,7 @@ class ExportJob:
     tolerances: Tolerances = DEFAULT_TOLERANCES
     reason: str = ""
     captured: bool = True
+    as_built: str = ""  # the run's as_built.parquet ("" when the run inspected nothing)
 
 
 def file_names(assembly: str) -> dict[str, str]:
@@ -87,6 +89,7 @@ class RunFiles:
     models: Mapping[str, str]
     tolerances: Tolerances
     answers: tuple[str, str]
+    as_built: Path | None = None
 
 
 def export_jobs(catalog: pd.DataFrame, run: RunFiles) -> list[ExportJob]:
@@ -106,7 +109,8 @@ def export_jobs(catalog: pd.DataFrame, run: RunFiles) -> list[ExportJob]:
             out=str(run.out / name), run_id=run.run_id, timestamp=run.timestamp,
             answers=run.answers, models=dict(run.models), tolerances=run.tolerances,
             reason="" if mates.is_file() else "no CAD mates (the mates stage failed for it)",
-            captured=capture.is_file()))
+            captured=capture.is_file(),
+            as_built=str(run.as_built) if run.as_built and run.as_built.is_file() else ""))
     return jobs
 
 
@@ -134,7 +138,8 @@ def run_jobs(workspace: Path, run_dir: Path, models: Mapping[str, str],
         stamp = datetime.fromtimestamp(run_dir.stat().st_mtime, UTC).isoformat()
     return export_jobs(read_catalog(ws.catalog), RunFiles(
         ws.catalog, ws.root / "mates", run_dir / "relations_pairs.parquet",
-        out or run_dir / "exports", run_id, stamp, models, tol, answers))
+        out or run_dir / "exports", run_id, stamp, models, tol, answers,
+        run_dir / "as_built.parquet"))
 
 
 def model_digests(folders: Mapping[str, Path]) -> dict[str, str]:
@@ -169,6 +174,9 @@ def read_inputs(job: ExportJob) -> AssemblyMates:
     record = assembly_mates(job.assembly, job.category, job.step, job.sha256, rows, mates,
                             _predictions(job), run_id=job.run_id, models=dict(job.models),
                             tolerances=job.tolerances.as_dict(), reason=job.reason)
+    if job.as_built:
+        rows = pd.read_parquet(job.as_built, filters=[("assembly", "==", job.assembly)])
+        record = replace(record, as_built=mate_checks(rows))
     if record.status == NO_PREDICTIONS and not job.reason:
         why = ("the run has no relation predictions" if not job.predictions else
                "the assembly was not captured (see the run's stages report)"

@@ -133,18 +133,25 @@ def pair_note(pair: PairMates, mates: AssemblyMates) -> dict[str, Any]:
                       "cad_suggested": j.cad_suggested, "agrees": j.agrees},
             "relations": [{"relation": c.relation, "predicted": c.predicted,
                            "confidence": finite(c.confidence), "cad": c.cad, "agrees": c.agrees}
-                          for c in pair.relations]}
+                          for c in pair.relations],
+            "as_built": [{"relation": m.relation, "face_a": m.face_a, "face_b": m.face_b,
+                          "status": m.status, "check": m.text()}
+                         for m in mates.as_built
+                         if (m.index_a, m.index_b) in ((pair.a.index, pair.b.index),
+                                                       (pair.b.index, pair.a.index))]}
 
 
 def assembly_note(mates: AssemblyMates) -> dict[str, Any]:
     """The note of the assembly: status, agreement with the CAD, models."""
     agreement = mates.agreement()
     acc = agreement["relation_accuracy"]
+    built = mates.as_built_verdict()
     summary = (f"{mates.assembly}: {mates.status}" + (f" ({mates.reason})" if mates.reason else "")
-               + (f", relation accuracy {acc:.3f} against the CAD" if acc is not None else ""))
+               + (f", relation accuracy {acc:.3f} against the CAD" if acc is not None else "")
+               + (f"; as built: {built}" if built else ""))
     return {"kind": "assembly", "assembly": mates.assembly, "run_id": mates.run_id,
             "status": mates.status, "reason": mates.reason, "summary": summary,
-            "models": dict(mates.models), "agreement": agreement}
+            "models": dict(mates.models), "agreement": agreement, "as_built": built}
 
 
 def write_xbf(step: Path, mates: AssemblyMates, out: Path,

@@ -19,6 +19,7 @@ import jsonschema
 from cadio.export.predictions import (
     AssemblyMates,
     FaceGeometry,
+    MateCheck,
     PairMates,
     PartRef,
     RelationCall,
@@ -68,6 +69,14 @@ def _pair(p: PairMates) -> dict[str, Any]:
     }
 
 
+def _check(m: MateCheck) -> dict[str, Any]:
+    return {"index_a": m.index_a, "index_b": m.index_b, "face_a": m.face_a,
+            "face_b": m.face_b, "relation": m.relation, "status": m.status,
+            "reason": m.reason,
+            "residuals": {k: {"value": finite(v), "threshold": finite(t)}
+                          for k, (v, t) in m.residuals.items()}}
+
+
 def sidecar(mates: AssemblyMates) -> dict[str, Any]:
     """The sidecar document of an assembly (validated against the schema).
 
@@ -82,6 +91,8 @@ def sidecar(mates: AssemblyMates) -> dict[str, Any]:
         "parts": [_part(p) for p in mates.parts],
         "pairs": [_pair(p) for p in mates.pairs],
         "agreement": mates.agreement(),
+        "as_built": {"verdict": mates.as_built_verdict(),
+                     "mates": [_check(m) for m in mates.as_built]},
     }
     jsonschema.validate(doc, schema())
     return doc

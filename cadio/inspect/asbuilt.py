@@ -1,0 +1,246 @@
+"""Each CAD mate as built: its residuals from the two parts' registered poses, and its status.
+
+A face mate of the design (a row of the assembly's mates table: two faces, an axis or a normal
+and a point, in the assembly's frame) holds as built when the two parts sit relative to each
+other as the design puts them, in the directions the mate constrains:
+
+- concentric: the two faces' common axis: the angle between part a's axis and part b's, and
+  how far a's axis moved off b's, across the axis (along it the mate says nothing);
+- coincident: the two faces' common plane: the angle between their normals, and how far a's
+  face moved off b's along the normal (in the plane the mate says nothing).
+
+The residual of each is read from a's pose relative to b's, as built against as designed, so
+that a shift of the whole assembly moves no residual. Its threshold is the larger of the mate's
+tolerance (``Tolerances``) and three standard deviations of the residual, from both parts'
+pose uncertainties (``cadio.inspect.uncertainty``). Status: ``holds``, ``broken`` (a residual
+past its threshold), ``not observable`` (no residual broken, but one of them lies along a
+direction the view does not constrain: never a pass) or ``not inspectable`` (a part shows too
+little of itself, or is missing, which breaks its mates).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from cadio.inspect.uncertainty import PoseUncertainty, point_motion
+from cadio.records import FloatArray
+from cadio.tolerances import DEFAULT_TOLERANCES, Tolerances
+
+HOLDS, BROKEN, NOT_OBSERVABLE, NOT_INSPECTABLE = (
+    "holds", "broken", "not observable", "not inspectable")
+STATUSES = (HOLDS, BROKEN, NOT_OBSERVABLE, NOT_INSPECTABLE)
+SIGMAS = 3.0  # a residual past this many standard deviations (and the tolerance) is broken
+
+
+@dataclass(frozen=True)
+class PartAsBuilt:
+    """A part as the scan shows it: its registered pose (part -> world, mm; None: not found),
+    the pose's uncertainty, and why it cannot be inspected (``missing`` or ``too little
+    visible``; "" when it can)."""
+
+    index: int
+    pose: FloatArray | None
+    uncertainty: PoseUncertainty | None
+    problem: str = ""
+
+
+@dataclass(frozen=True)
+class Residual:
+    """One constrained direction of a mate: its value, threshold and standard deviation."""
+
+    name: str
+    value: float
+    threshold: float
+    sigma: float
+
+    @property
+    def broken(self) -> bool:
+        return self.value > self.threshold
+
+    @property
+    def observable(self) -> bool:
+        return math.isfinite(self.sigma)
+
+
+@dataclass(frozen=True)
+class MateAsBuilt:
+    """A CAD face mate as built (the keys of the mates stage: index_a, index_b, face_a, face_b,
+    relation), its residuals and status."""
+
+    index_a: int
+    index_b: int
+    face_a: int
+    face_b: int
+    relation: str
+    status: str
+    residuals: tuple[Residual, ...] = ()
+    reason: str = ""
+
+    def row(self) -> dict[str, Any]:
+        """The ``as_built.csv`` row of the mate (residuals as ``<name>`` and their
+        ``<name>_threshold`` columns)."""
+        out: dict[str, Any] = {"index_a": self.index_a, "index_b": self.index_b,
+                               "face_a": self.face_a, "face_b": self.face_b,
+                               "relation": self.relation, "status": self.status,
+                               "reason": self.reason}
+        for r in self.residuals:
+            out[r.name] = r.value
+            out[f"{r.name}_threshold"] = r.threshold
+        return out
+
+
+@dataclass(frozen=True)
+class Limits:
+    """The tolerances a mate is held to, before the pose's uncertainty widens them."""
+
+    axis_mm: float
+    axis_deg: float
+    plane_mm: float
+    plane_deg: float
+    sigmas: float = SIGMAS
+
+    @classmethod
+    def of(cls, tol: Tolerances = DEFAULT_TOLERANCES, sigmas: float = SIGMAS) -> Limits:
+        return cls(tol.coaxial_mm, tol.coaxial_deg, tol.contact_mm, tol.mate_angle_deg, sigmas)
+
+
+@dataclass(frozen=True)
+class _Frame:
+    """A mate's geometry in the assembly frame: direction (unit) and a point."""
+
+    direction: FloatArray
+    point: FloatArray
+    extra: dict[str, float] = field(default_factory=dict)
+
+
+def mate_as_built(row: Mapping[str, Any], parts: Mapping[int, PartAsBuilt],
+                  design: Mapping[int, FloatArray], limits: Limits) -> MateAsBuilt:
+    """One face mate of the design as built.
+
+    Args:
+        row: a face row of the assembly's mates table (index_a, index_b, face_a, face_b,
+            relation, axis, origin: the axis or a's outward normal and a point, assembly frame).
+        parts: each part as the scan shows it, by index.
+        design: each part's designed pose (part -> assembly, mm), by index.
+    """
+    a, b = int(row["index_a"]), int(row["index_b"])
+    key = (a, b, int(row["face_a"]), int(row["face_b"]), str(row["relation"]))
+    missing = [p for p in (parts.get(a), parts.get(b)) if p is None or p.problem]
+    if missing:
+        part = missing[0]
+        why = "a part is not in the scan" if part is None else f"part {part.index}: {part.problem}"
+        status = BROKEN if part is not None and part.problem == "missing" else NOT_INSPECTABLE
+        return MateAsBuilt(*key, status=status, reason=why)
+    pa, pb = parts[a], parts[b]
+    assert pa.pose is not None and pb.pose is not None
+    frame = _Frame(_unit(row["axis"]), np.asarray(row["origin"], dtype=np.float64))
+    residuals = _residuals(key[4], frame, (pa, pb), (design[a], design[b]), limits)
+    return MateAsBuilt(*key, status=_status(residuals), residuals=residuals)
+
+
+def _unit(v: Any) -> FloatArray:
+    d = np.asarray(v, dtype=np.float64)
+    unit: FloatArray = d / np.linalg.norm(d)
+    return unit
+
+
+def _status(residuals: Sequence[Residual]) -> str:
+    if any(r.broken and r.observable for r in residuals):
+        return BROKEN
+    if not all(r.observable for r in residuals):
+        return NOT_OBSERVABLE
+    return HOLDS
+
+
+def _residuals(relation: str, frame: _Frame, parts: tuple[PartAsBuilt, PartAsBuilt],
+               design: tuple[FloatArray, FloatArray], limits: Limits) -> tuple[Residual, ...]:
+    """The mate's residuals: a's pose relative to b's as built against as designed, read in
+    the assembly frame at the mate (b's face stays where the design put it)."""
+    (pa, pb), (da, db) = parts, design
+    assert pa.pose is not None and pb.pose is not None
+    # a's deviation from its place on b, in the assembly frame: D = Db Tb^-1 Ta Da^-1
+    deviation = db @ np.linalg.inv(pb.pose) @ pa.pose @ np.linalg.inv(da)
+    d, o = frame.direction, frame.point
+    moved_d = deviation[:3, :3] @ d
+    moved_o = deviation[:3, :3] @ o + deviation[:3, 3]
+    angle = math.degrees(math.acos(float(np.clip(moved_d @ d, -1.0, 1.0))))
+    offset = moved_o - o
+    # the mate's point as each part carries it, and its directions (b's frame), in the world
+    # where the poses' uncertainties live
+    points = (_place(pa.pose @ np.linalg.inv(da), o), _place(pb.pose @ np.linalg.inv(db), o))
+    to_world = pb.pose @ np.linalg.inv(db)
+    world_d = to_world[:3, :3] @ d
+    across = _across(world_d)
+    if relation == "concentric":
+        distance = float(np.linalg.norm(offset - (offset @ d) * d))
+        shift_sigma = max(_sigma(parts, points, u, turn=False) for u in across)
+        turn_sigma = max(_sigma(parts, points, u, turn=True) for u in across)
+        return (Residual("axis_distance_mm", distance,
+                         max(limits.axis_mm, limits.sigmas * shift_sigma), shift_sigma),
+                Residual("axis_angle_deg", angle,
+                         max(limits.axis_deg, limits.sigmas * math.degrees(turn_sigma)),
+                         math.degrees(turn_sigma)))
+    plane = abs(float(offset @ d))
+    shift_sigma = _sigma(parts, points, world_d, turn=False)
+    turn_sigma = max(_sigma(parts, points, u, turn=True) for u in across)
+    return (Residual("plane_offset_mm", plane,
+                     max(limits.plane_mm, limits.sigmas * shift_sigma), shift_sigma),
+            Residual("normal_angle_deg", angle,
+                     max(limits.plane_deg, limits.sigmas * math.degrees(turn_sigma)),
+                     math.degrees(turn_sigma)))
+
+
+def _place(pose: FloatArray, point: FloatArray) -> FloatArray:
+    placed: FloatArray = pose[:3, :3] @ point + pose[:3, 3]
+    return placed
+
+
+def _across(d: FloatArray) -> tuple[FloatArray, FloatArray]:
+    """Two unit vectors across ``d``."""
+    helper = np.array([1.0, 0.0, 0.0]) if abs(d[0]) < 0.9 else np.array([0.0, 1.0, 0.0])
+    u = np.cross(d, helper)
+    u /= np.linalg.norm(u)
+    return u, np.cross(d, u)
+
+
+def _sigma(parts: tuple[PartAsBuilt, PartAsBuilt], points: tuple[FloatArray, FloatArray],
+           direction: FloatArray, turn: bool) -> float:
+    """Standard deviation of the relative motion of the two parts at the mate's point (as each
+    part carries it) along ``direction`` (mm), or of their relative turn about it (radians);
+    inf where a part's view does not constrain it."""
+    total = 0.0
+    for part, point in zip(parts, points, strict=True):
+        u = part.uncertainty
+        if u is None:
+            return math.inf
+        functional = np.concatenate([direction, np.zeros(3)]) if turn else \
+            direction @ point_motion(point, u.centre)
+        s = u.sigma_along(functional)
+        if not math.isfinite(s):
+            return math.inf
+        total += s * s
+    return math.sqrt(total)
+
+
+def assembly_as_built(rows: Sequence[Mapping[str, Any]], parts: Mapping[int, PartAsBuilt],
+                      design: Mapping[int, FloatArray],
+                      limits: Limits | None = None) -> list[MateAsBuilt]:
+    """Every face mate (concentric, coincident) of the design as built."""
+    chosen = limits or Limits.of()
+    return [mate_as_built(r, parts, design, chosen) for r in rows
+            if r["level"] == "face" and r["relation"] in ("concentric", "coincident")]
+
+
+def verdict(mates: Sequence[MateAsBuilt]) -> str:
+    """An assembly's verdict: ``holds``, ``N mates broken`` or ``not inspectable``."""
+    broken = [m for m in mates if m.status == BROKEN]
+    if broken:
+        return f"{len(broken)} mate{'s' if len(broken) > 1 else ''} broken"
+    if mates and all(m.status == NOT_INSPECTABLE for m in mates):
+        return NOT_INSPECTABLE
+    return HOLDS

@@ -1,0 +1,519 @@
+"""Registering a part's CAD to the points a camera saw of it.
+
+Two seeds, as inspection software does it:
+
+- ``refine`` from a given pose (the design pose, once the whole assembly is aligned to the
+  scan): point-to-plane ICP with a robust (Tukey) kernel against the CAD surface as the cameras
+  would see it at the current pose (``surface.visible``, re-rendered at every scale of the
+  correspondence distance, coarse to fine);
+- ``global_search``, which never sees the design: FPFH features of the CAD samples and of the
+  scan, RANSAC over feature matches with fixed seeds, several hypotheses (more for small parts,
+  and each flipped half a turn about its principal axes, the ambiguity a small part's few
+  pixels leave), each refined as above; the best by inlier share of the scan, then by how much
+  of the visible CAD the scan covers, then by the inlier RMS.
+
+Every fit carries the point-to-plane Hessian of its last step (``Fit.hessian``): what the
+points constrain, from which ``cadio.inspect.uncertainty`` reads the pose's covariance and the
+directions the view does not constrain. Everything is millimetres, world frame.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field, replace
+from typing import Any
+
+import numpy as np
+import open3d as o3d
+from scipy.spatial import cKDTree
+
+from cadio.inspect.surface import (
+    Camera,
+    Occluders,
+    PartSurface,
+    as_cloud,
+    visible,
+    voxel_down,
+)
+from cadio.records import FloatArray, apply_pose
+
+# open3d's registration module (its stubs ask for arguments its functions default)
+_REGISTRATION: Any = o3d.pipelines.registration
+
+
+@dataclass(frozen=True)
+class RegisterConfig:
+    """Knobs of registration. Lengths mm."""
+
+    # ICP's correspondence distance at each scale, in voxels of the part (coarse to fine), then
+    # ``fine_mm`` (about twice the sensor's noise at 0.6 m: the part's own points, not its
+    # neighbours'), and the Tukey kernel's width against it: points farther count for nothing.
+    scales: tuple[float, ...] = (4.0, 2.0, 1.0)
+    fine_mm: float = 3.0
+    tukey: float = 1.0  # kernel width, times the scale's distance
+    iterations: int = 20  # per scale
+    keep: int = 3  # distinct candidates refined against the visible surface
+    # The part's voxel: its diameter over this, within the bounds (the scan's spacing at 0.6 m
+    # is about 0.9 mm, the sensor's noise there 1.4 mm).
+    voxels_per_diameter: float = 25.0
+    voxel_bounds_mm: tuple[float, float] = (0.8, 6.0)
+    # Global search: RANSAC runs (each its own seed) for a part of ``reference_mm``; smaller
+    # parts get more, in proportion, up to ``max_hypotheses``.
+    hypotheses: int = 3
+    reference_mm: float = 60.0
+    max_hypotheses: int = 4
+    ransac_iterations: int = 20_000
+    flips: bool = True  # also try each hypothesis turned half a turn about each principal axis
+    # Beside the feature matches, orientations spread over all of SO(3) (the cube's 24 turns,
+    # then seeded draws), each placed on the scan's centroid: features of a featureless part
+    # (a shaft, a ball) under the sensor's noise match nothing, its silhouette still does.
+    orientations: int = 48
+    coarse_iterations: int = 5  # ICP steps that score a candidate before the best are refined
+    coarse_points: int = 300  # scan points that score a candidate (a seeded draw)
+    # The spread orientations are tried only when no candidate's coarse score (the inlier
+    # share of the scan) reaches this.
+    good_enough: float = 0.85
+    seed: int = 0
+    stride: int = 1  # every stride-th pixel of the visible surface
+    # At most this many of the scan's points near the part take part (a seeded draw): the
+    # sensor's errors are correlated over patches, so more points buy little and cost much.
+    max_points: int = 4000
+
+
+@dataclass(frozen=True)
+class Fit:
+    """A part's pose and how well the scan supports it.
+
+    pose: (4, 4) part -> world, mm. fitness: share of the scan points within the finest
+    distance of the visible CAD; coverage: share of the visible CAD with a scan point that near;
+    rmse_mm: the inliers' point-to-plane RMS; inliers: their number; hessian: (6, 6) J^T W J of
+    the last step, rotation (radians, about ``centre``) then translation (mm); centre: (3,) the
+    part's centroid at ``pose``, world mm; visible: CAD points the cameras see at ``pose``.
+    """
+
+    pose: FloatArray
+    fitness: float
+    coverage: float
+    rmse_mm: float
+    inliers: int
+    hessian: FloatArray
+    centre: FloatArray
+    visible: int
+    seed: str = ""
+    consistent: float = 1.0  # the share of the visible CAD the depth does not contradict
+
+    def rank(self) -> tuple[float, float, float]:
+        """Larger is better: the share of the scan it explains times the share of its
+        visible CAD the depth does not contradict (a small segment fits inside a large part,
+        whose other faces the depth then contradicts), the coverage of the CAD, then -RMS."""
+        return (round(self.fitness * self.consistent, 2), round(self.coverage, 2),
+                -self.rmse_mm)
+
+
+def voxel_of(part: PartSurface, cfg: RegisterConfig) -> float:
+    lo, hi = cfg.voxel_bounds_mm
+    return float(np.clip(part.diameter / cfg.voxels_per_diameter, lo, hi))
+
+
+Judge = Callable[[FloatArray], float]  # a hypothesis's visible CAD points -> consistency
+
+
+def refine(part: PartSurface, scan: FloatArray, pose: FloatArray, cameras: Sequence[Camera],
+           cfg: RegisterConfig = RegisterConfig(),
+           hidden_by: tuple[Occluders, int] | None = None, judge: Judge | None = None) -> Fit:
+    """Point-to-plane ICP of the part from ``pose`` onto ``scan`` (n, 3) world mm, coarse to
+    fine, against what the cameras see of it (re-rendered at each scale). Only the scan's
+    points within the part's reach of its place take part.
+
+    Raises:
+        ValueError: an empty scan.
+    """
+    if len(scan) == 0:
+        raise ValueError("registration needs scan points")
+    current = np.asarray(pose, dtype=np.float64)
+    steps = reaches(part, cfg) if cfg.scales else [cfg.fine_mm]
+    # (with ``hidden_by``, what the other parts where they stand hide of it is no target)
+    near = _draw(_around(scan, apply_pose(current, part.centre), part.diameter / 2 + steps[0]),
+                 cfg.max_points, cfg.seed)
+    for reach in steps:
+        model, normals = visible(part, current, cameras, cfg.stride, hidden_by)
+        if len(model) < 6:
+            break
+        current = _icp(model, normals, near, current, apply_pose(current, part.centre), reach,
+                       cfg)
+    return _scored(part, near, current, cameras, cfg, hidden_by, judge)
+
+
+def _around(scan: FloatArray, centre: FloatArray, radius: float) -> FloatArray:
+    """The scan's points within ``radius`` of ``centre``."""
+    out: FloatArray = scan[np.sum((scan - centre) ** 2, axis=1) <= radius * radius]
+    return out
+
+
+def _draw(points: FloatArray, n: int, seed: int) -> FloatArray:
+    """At most n of the points, drawn without repeats (seeded)."""
+    if len(points) <= n:
+        return points
+    chosen = np.sort(np.random.default_rng(seed).choice(len(points), n, replace=False))
+    out: FloatArray = points[chosen]
+    return out
+
+
+def _icp(model: FloatArray, normals: FloatArray, scan: FloatArray, pose: FloatArray,
+         centre: FloatArray, reach: float, cfg: RegisterConfig) -> FloatArray:
+    """``cfg.iterations`` Gauss-Newton steps at one scale. The visible CAD stays put (one
+    tree) and the scan moves by each step's inverse; the part's pose takes the steps."""
+    tree = cKDTree(model)
+    moved = scan
+    total = np.eye(4)
+    for _ in range(cfg.iterations):
+        step = _step(model, normals, moved, tree, centre, reach, cfg.tukey * reach)
+        if step is None:
+            break
+        total = step @ total
+        moved = apply_pose(np.asarray(np.linalg.inv(step), dtype=np.float64), moved)
+        if np.linalg.norm(step[:3, 3]) < 1e-4 and abs(np.trace(step[:3, :3]) - 3) < 1e-9:
+            break
+    # the scan moved by total^-1 against the part: the part moves by total
+    out: FloatArray = total @ pose
+    return out
+
+
+def reaches(part: PartSurface, cfg: RegisterConfig) -> list[float]:
+    """The correspondence distances of ICP's scales, mm, coarse to fine."""
+    voxel = voxel_of(part, cfg)
+    return [*(s * voxel for s in cfg.scales if s * voxel > cfg.fine_mm), cfg.fine_mm]
+
+
+def _step(model: FloatArray, normals: FloatArray, scan: FloatArray, tree: cKDTree,
+          centre: FloatArray, reach: float, kernel: float) -> FloatArray | None:
+    """One Gauss-Newton step of the part (4, 4, world); None without enough pairs.
+
+    Each scan point is paired with its nearest visible CAD point (a model tree would pair the
+    CAD with the scan: the scan holds other parts' points too, the visible CAD only this one's).
+    """
+    dist, idx = tree.query(scan, distance_upper_bound=reach)
+    keep = np.isfinite(dist)
+    if keep.sum() < 6:
+        return None
+    s, m, n = scan[keep], model[idx[keep]], normals[idx[keep]]
+    r = np.einsum("ij,ij->i", n, m - s)
+    w = np.where(np.abs(r) < kernel, (1 - (r / kernel) ** 2) ** 2, 0.0)
+    jac = np.hstack([np.cross(m - centre, n), n])
+    hessian = (jac * w[:, None]).T @ jac
+    grad = (jac * w[:, None]).T @ r
+    # Damped (Levenberg-Marquardt) in units where a turn counts by its motion at the part's
+    # rim: a direction the points do not constrain (a shaft's turn about its axis) takes no
+    # step from the noise instead of a wild one.
+    radius = max(float(np.sqrt(np.mean(np.sum((m - centre) ** 2, axis=1)))), 1e-6)
+    scale = np.array([1 / radius] * 3 + [1.0] * 3)
+    h = hessian * np.outer(scale, scale)
+    damping = 1e-3 * float(np.trace(h)) / 6 + 1e-12
+    try:
+        delta = -scale * np.linalg.solve(h + damping * np.eye(6), scale * grad)
+    except np.linalg.LinAlgError:
+        return None
+    reach_turn = reach / radius  # no step moves a point of the part farther than ``reach``
+    turn, shift = float(np.linalg.norm(delta[:3])), float(np.linalg.norm(delta[3:]))
+    delta[:3] *= min(1.0, reach_turn / max(turn, 1e-12))
+    delta[3:] *= min(1.0, reach / max(shift, 1e-12))
+    return _motion(delta, centre)
+
+
+def _motion(delta: FloatArray, centre: FloatArray) -> FloatArray:
+    """(4, 4): rotation ``delta[:3]`` (axis-angle) about ``centre``, then ``delta[3:]``."""
+    rot = _rodrigues(delta[:3])
+    out = np.eye(4)
+    out[:3, :3] = rot
+    out[:3, 3] = centre - rot @ centre + delta[3:]
+    return out
+
+
+def _rodrigues(w: FloatArray) -> FloatArray:
+    theta = float(np.linalg.norm(w))
+    if theta < 1e-12:
+        return np.eye(3)
+    k = w / theta
+    kx = np.array([[0, -k[2], k[1]], [k[2], 0, -k[0]], [-k[1], k[0], 0]])
+    rot: FloatArray = np.eye(3) + np.sin(theta) * kx + (1 - np.cos(theta)) * kx @ kx
+    return rot
+
+
+def _scored(part: PartSurface, scan: FloatArray, pose: FloatArray,
+            cameras: Sequence[Camera], cfg: RegisterConfig,
+            hidden_by: tuple[Occluders, int] | None = None, judge: Judge | None = None) -> Fit:
+    """The fit at ``pose``: fitness and coverage at the finest distance, RMS, Hessian."""
+    reach = cfg.fine_mm
+    tree = cKDTree(scan) if len(scan) else None
+    model, normals = visible(part, pose, cameras, cfg.stride, hidden_by)
+    centre = apply_pose(pose, part.centre)
+    if len(model) < 6:
+        return Fit(pose, 0.0, 0.0, float("inf"), 0, np.zeros((6, 6)), centre, len(model))
+    near = cKDTree(model)
+    dist, idx = near.query(scan, distance_upper_bound=reach)
+    keep = np.isfinite(dist)
+    covered = tree.query(model, distance_upper_bound=reach)[0] if tree is not None else \
+        np.full(len(model), np.inf)
+    if keep.sum() < 6:
+        return Fit(pose, 0.0, float(np.isfinite(covered).mean()), float("inf"), int(keep.sum()),
+                   np.zeros((6, 6)), centre, len(model))
+    s, m, n = scan[keep], model[idx[keep]], normals[idx[keep]]
+    r = np.einsum("ij,ij->i", n, m - s)
+    jac = np.hstack([np.cross(m - centre, n), n])
+    return Fit(pose, float(keep.mean()), float(np.isfinite(covered).mean()),
+               float(np.sqrt(np.mean(r ** 2))), int(keep.sum()), jac.T @ jac, centre,
+               len(model), consistent=judge(model) if judge is not None else 1.0)
+
+
+# ---------------------------------------------------------------- global search
+
+
+@dataclass(frozen=True, eq=False)
+class _Features:
+    cloud: Any
+    fpfh: Any
+    points: FloatArray = field(repr=False)
+
+
+def _features(points: FloatArray, normals: FloatArray | None, voxel: float,
+              towards: FloatArray | None = None) -> _Features:
+    """FPFH of a cloud downsampled to ``voxel``; normals estimated where not given (turned
+    towards ``towards``, the camera, for a scan)."""
+    cloud = as_cloud(points, normals).voxel_down_sample(voxel)
+    if normals is None:
+        cloud.estimate_normals(o3d.geometry.KDTreeSearchParamHybrid(radius=2.5 * voxel,
+                                                                    max_nn=30))
+        if towards is not None:
+            cloud.orient_normals_towards_camera_location(towards)
+    fpfh = _REGISTRATION.compute_fpfh_feature(
+        cloud, o3d.geometry.KDTreeSearchParamHybrid(radius=5 * voxel, max_nn=100))
+    return _Features(cloud, fpfh, np.asarray(cloud.points))
+
+
+_MODEL_FEATURES: dict[tuple[str, float], _Features] = {}
+
+
+def _model_features(part: PartSurface, voxel: float) -> _Features:
+    """A part's CAD features at a voxel, computed once per part and voxel."""
+    key = (f"{part.part_id}:{part.diameter:.6f}:{len(part.samples)}", voxel)
+    if key not in _MODEL_FEATURES:
+        if len(_MODEL_FEATURES) > 256:
+            _MODEL_FEATURES.clear()
+        _MODEL_FEATURES[key] = _features(part.samples, part.normals, voxel)
+    return _MODEL_FEATURES[key]
+
+
+def hypotheses_for(part: PartSurface, cfg: RegisterConfig) -> int:
+    """RANSAC runs for a part: more where it is small (its few pixels leave more ambiguity)."""
+    scale = cfg.reference_mm / max(part.diameter, 1e-6)
+    return int(np.clip(round(cfg.hypotheses * max(1.0, scale)), cfg.hypotheses,
+                       cfg.max_hypotheses))
+
+
+def global_search(part: PartSurface, scan: FloatArray, cameras: Sequence[Camera],
+                  cfg: RegisterConfig = RegisterConfig(), judge: Judge | None = None
+                  ) -> list[Fit]:
+    """The part's poses in the scan found without any prior pose, best first: candidates from
+    feature matches (FPFH, RANSAC, each also flipped about the part's principal axes) and from
+    the scan's principal axes turned onto the part's, each scored after a few coarse ICP steps
+    against the whole CAD surface (cheap: no rendering); orientations spread over SO(3) only
+    where none of those fits well; the best ``keep`` refined against the visible surface.
+
+    Raises:
+        ValueError: fewer than ten scan points.
+    """
+    if len(scan) < 10:
+        raise ValueError("registration needs scan points")
+    voxel = voxel_of(part, cfg)
+    reach = max(cfg.scales[0] * voxel, cfg.fine_mm)
+    few = _draw(scan, cfg.coarse_points, cfg.seed)
+    towards = np.mean([c.centre for c in cameras], axis=0)
+    scored: list[tuple[tuple[float, float], FloatArray, str]] = []
+    for k, start in enumerate(_ransac(part, scan, cameras, cfg, voxel)):
+        for pose in _with_flips(part, start) if cfg.flips else [start]:
+            scored.append((*_coarse(part, few, pose, reach, cfg), f"ransac-{k}"))
+    turns = _principal_turns(part, scan)
+    if not any(score[0] >= cfg.good_enough for score, _, _ in scored):
+        turns += _orientations(cfg.orientations, cfg.seed)[24:]
+    for k, rot in enumerate(turns):
+        for start in _slides(part, _facing(part, rot, scan.mean(axis=0), towards), scan):
+            scored.append((*_coarse(part, few, start, reach, cfg), f"turn-{k}"))
+    scored.sort(key=lambda item: item[0], reverse=True)
+    best = _distinct(scored, part.diameter / 10, cfg.keep)
+    return sorted((replace(refine(part, scan, pose, cameras, cfg, judge=judge), seed=seed)
+                   for pose, seed in best), key=Fit.rank, reverse=True)
+
+
+def _distinct(scored: Sequence[tuple[tuple[float, float], FloatArray, str]], apart_mm: float,
+              n: int) -> list[tuple[FloatArray, str]]:
+    """The first n poses of a ranked list that differ from every earlier one by more than
+    ``apart_mm`` at the part's rim (or a tenth of a turn)."""
+    out: list[tuple[FloatArray, str]] = []
+    for _, pose, seed in scored:
+        if all(np.linalg.norm(pose[:3, 3] - kept[:3, 3]) > apart_mm
+               or np.trace(pose[:3, :3].T @ kept[:3, :3]) < 1 + 2 * np.cos(0.1 * np.pi)
+               for kept, _ in out):
+            out.append((pose, seed))
+        if len(out) == n:
+            break
+    return out
+
+
+_TREES: dict[int, tuple[PartSurface, cKDTree]] = {}
+
+
+def _tree(part: PartSurface) -> cKDTree:
+    """The k-d tree of a part's samples in its own frame, built once per part."""
+    cached = _TREES.get(id(part))
+    if cached is None or cached[0] is not part:
+        if len(_TREES) > 512:
+            _TREES.clear()
+        cached = (part, cKDTree(part.samples))
+        _TREES[id(part)] = cached
+    return cached[1]
+
+
+def _coarse(part: PartSurface, scan: FloatArray, pose: FloatArray, reach: float,
+            cfg: RegisterConfig) -> tuple[tuple[float, float], FloatArray]:
+    """A candidate after ``coarse_iterations`` point-to-plane steps against the part's whole
+    surface (in its own frame, the scan brought there), and its score: the share of the scan
+    within ``reach / 2`` of the surface, then -RMS."""
+    local = apply_pose(np.asarray(np.linalg.inv(pose), dtype=np.float64), scan)
+    tree = _tree(part)
+    moved, total = local, np.eye(4)
+    for _ in range(cfg.coarse_iterations):
+        step = _step(part.samples, part.normals, moved, tree, part.centre, reach,
+                     cfg.tukey * reach)
+        if step is None:
+            break
+        total = step @ total
+        moved = apply_pose(np.asarray(np.linalg.inv(step), dtype=np.float64), moved)
+    dist, _ = tree.query(moved, distance_upper_bound=reach / 2)
+    near = dist[np.isfinite(dist)]
+    rms = float(np.sqrt(np.mean(near ** 2))) if len(near) else float("inf")
+    out: FloatArray = pose @ total
+    return (round(float(len(near) / len(moved)), 2), -rms), out
+
+
+def _ransac(part: PartSurface, scan: FloatArray, cameras: Sequence[Camera],
+            cfg: RegisterConfig, voxel: float) -> list[FloatArray]:
+    """Poses from RANSAC over FPFH matches, one per seed (none where the features match
+    nothing)."""
+    model = _model_features(part, voxel)
+    towards = np.mean([c.centre for c in cameras], axis=0)
+    seen = _features(voxel_down(scan, 0.5 * voxel), None, voxel, towards)
+    out = []
+    for k in range(hypotheses_for(part, cfg)):
+        o3d.utility.random.seed(cfg.seed * 7919 + k)
+        found = o3d.pipelines.registration.registration_ransac_based_on_feature_matching(
+            model.cloud, seen.cloud, model.fpfh, seen.fpfh, False, 1.5 * voxel,
+            o3d.pipelines.registration.TransformationEstimationPointToPoint(False), 3,
+            [o3d.pipelines.registration.CorrespondenceCheckerBasedOnEdgeLength(0.9),
+             o3d.pipelines.registration.CorrespondenceCheckerBasedOnDistance(1.5 * voxel)],
+            o3d.pipelines.registration.RANSACConvergenceCriteria(cfg.ransac_iterations, 0.999))
+        if found.fitness > 0:
+            out.append(np.asarray(found.transformation, dtype=np.float64))
+    return out
+
+
+def align_samples(part: PartSurface, other: PartSurface) -> FloatArray:
+    """(4, 4) the motion of ``part``'s frame that lays its samples best on ``other``'s surface
+    (two parts of one shape): of the 24 turns putting principal axes on principal axes, the
+    one of least RMS after ICP against ``other``'s whole surface."""
+    reach = max(other.diameter / 10, 1.0)
+    cfg = RegisterConfig(coarse_iterations=30)
+    few = _draw(part.samples, 2000, 0)
+    best: tuple[tuple[float, float], FloatArray] | None = None
+    for rot in _principal_turns(other, part.samples):
+        start = np.eye(4)  # other's frame -> part's frame, as a pose of other in part's
+        start[:3, :3] = rot
+        start[:3, 3] = part.centre - rot @ other.centre
+        score, pose = _coarse(other, few, start, reach, cfg)
+        if best is None or score > best[0]:
+            best = (score, pose)
+    assert best is not None
+    out: FloatArray = np.asarray(np.linalg.inv(best[1]), dtype=np.float64)
+    return out
+
+
+def _principal_turns(part: PartSurface, scan: FloatArray) -> list[FloatArray]:
+    """The 24 turns that put the part's principal axes on the scan's (every order and sign)."""
+    _, seen_axes = np.linalg.eigh(np.cov((scan - scan.mean(axis=0)).T))
+    _, part_axes = np.linalg.eigh(np.cov((part.samples - part.centre).T))
+    turns = [seen_axes @ cube @ part_axes.T for cube in _orientations(24, 0)]
+    return [t if np.linalg.det(t) > 0 else t @ np.diag([1.0, 1.0, -1.0]) for t in turns]
+
+
+def _facing(part: PartSurface, rot: FloatArray, target: FloatArray, towards: FloatArray
+            ) -> FloatArray:
+    """(4, 4) the part turned by ``rot`` and moved so that the mean of its samples facing
+    ``towards`` (the cameras: what they would see of it) lies on ``target``."""
+    pose = np.eye(4)
+    pose[:3, :3] = rot
+    pose[:3, 3] = target - rot @ part.centre
+    points = apply_pose(pose, part.samples)
+    facing = np.einsum("ij,ij->i", part.normals @ rot.T, towards - points) > 0
+    if facing.any():
+        pose[:3, 3] += target - points[facing].mean(axis=0)
+    return pose
+
+
+def _slides(part: PartSurface, pose: FloatArray, scan: FloatArray) -> list[FloatArray]:
+    """The pose, and the pose slid both ways along the part's longest axis by what the part
+    is longer than the scan along it (a bolt whose shank the plates hide shows its head or its
+    end: which, the coarse steps could not find alone)."""
+    axis = pose[:3, :3] @ _principal_axes(part)[:, -1]
+    along = (apply_pose(pose, part.samples[::10]) - pose[:3, 3]) @ axis
+    seen = scan @ axis
+    spare = (np.ptp(along) - (np.percentile(seen, 99) - np.percentile(seen, 1))) / 2
+    if spare < 0.1 * part.diameter:
+        return [pose]
+    out = [pose]
+    for sign in (-1.0, 1.0):
+        slid = pose.copy()
+        slid[:3, 3] += sign * spare * axis
+        out.append(slid)
+    return out
+
+
+def _principal_axes(part: PartSurface) -> FloatArray:
+    """(3, 3) the part's principal axes as columns, the longest last."""
+    centred = part.samples[::10] - part.centre
+    _, vectors = np.linalg.eigh(centred.T @ centred)
+    out: FloatArray = vectors
+    return out
+
+
+def _orientations(n: int, seed: int) -> list[FloatArray]:
+    """The 24 turns of the cube, then seeded uniform draws, n in all."""
+    cube = []
+    for perm in ((0, 1, 2), (1, 2, 0), (2, 0, 1), (1, 0, 2), (0, 2, 1), (2, 1, 0)):
+        for signs in ((1, 1, 1), (1, -1, -1), (-1, 1, -1), (-1, -1, 1),
+                      (-1, 1, 1), (1, -1, 1), (1, 1, -1), (-1, -1, -1)):
+            m = np.zeros((3, 3))
+            m[range(3), perm] = signs
+            if np.linalg.det(m) > 0:
+                cube.append(m)
+    rng = np.random.default_rng(seed)
+    while len(cube) < n:
+        q = rng.standard_normal(4)
+        q /= np.linalg.norm(q)
+        w, x, y, z = q
+        cube.append(np.array([[1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
+                              [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
+                              [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)]]))
+    return cube[:n]
+
+
+def _with_flips(part: PartSurface, pose: FloatArray) -> list[FloatArray]:
+    """The pose, and the pose turned half a turn about each principal axis of the part's
+    samples through its centroid."""
+    centred = part.samples - part.centre
+    _, vectors = np.linalg.eigh(centred.T @ centred)
+    out = [pose]
+    for axis in vectors.T:
+        flip = np.eye(4)
+        flip[:3, :3] = 2 * np.outer(axis, axis) - np.eye(3)  # half a turn about ``axis``
+        flip[:3, 3] = part.centre - flip[:3, :3] @ part.centre
+        out.append(pose @ flip)
+    return out

@@ -1,0 +1,512 @@
+"""The two routes from a scan to the parts' poses.
+
+``by_design`` (inspection software's way, for the as-built check): align the whole assembly as
+designed to the scan (one rigid body, found without its pose: ``register.global_search``), then
+refine each part locally from its place in it, larger parts first; the points a placed part
+explains are not offered to the next. A part whose designed place the cameras should see but
+the scan does not fill is missing; one the design itself hides is not inspectable.
+
+``by_search`` (for the relations read from the registered B-reps, where the design must not
+reach the answer): each segment of the scan is registered to each part shape of the bill of
+materials that could be it, without any prior pose, and given to the best; parts of one shape
+are told apart by where the segments lie together (``name_parts``: a name, never a pose).
+
+Everything is millimetres, world frame; a part is known by its index in the assembly.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field, replace
+
+import numpy as np
+import numpy.typing as npt
+from scipy.optimize import linear_sum_assignment
+from scipy.spatial import cKDTree
+
+from cadio.inspect.asbuilt import PartAsBuilt
+from cadio.inspect.register import Fit, RegisterConfig, global_search, refine
+from cadio.inspect.scan import Scan, consistency
+from cadio.inspect.surface import Occluders, PartSurface, occluders, visible
+from cadio.inspect.symmetry import Symmetry
+from cadio.inspect.uncertainty import PoseUncertainty, pose_uncertainty
+from cadio.records import FloatArray, Mesh, apply_pose
+
+
+@dataclass(frozen=True, eq=False)
+class AssemblyModel:
+    """An assembly as designed: its parts' surfaces, designed poses (part -> assembly, mm),
+    symmetries and shapes (parts of one shape key are interchangeable to a camera)."""
+
+    def as_part(self, index: int, pose: FloatArray) -> FloatArray:
+        """A pose of the first part of ``index``'s shape read as ``index``'s own pose."""
+        if not self.alike:
+            return pose
+        out: FloatArray = pose @ self.alike[index]
+        return out
+
+    name: str
+    parts: tuple[PartSurface, ...]
+    design: tuple[FloatArray, ...]
+    symmetries: tuple[Symmetry, ...]
+    shapes: tuple[str, ...]
+    # per part, its frame -> the frame of the first part of its shape (the search registers
+    # that one's surface; the others' poses follow): identity for the first
+    alike: tuple[FloatArray, ...] = ()
+    _whole: list[PartSurface] = field(default_factory=list, repr=False)
+
+    def whole(self) -> PartSurface:
+        """The assembly as one rigid body, as designed (for the nominal alignment)."""
+        if not self._whole:
+            from cadio.inspect.surface import part_surface
+
+            meshes = [Mesh(apply_pose(d, p.mesh.vertices), p.mesh.triangles)
+                      for p, d in zip(self.parts, self.design, strict=True)]
+            offsets = np.cumsum([0] + [len(m.vertices) for m in meshes[:-1]])
+            merged = Mesh(np.concatenate([m.vertices for m in meshes]),
+                          np.concatenate([m.triangles + o for m, o in zip(meshes, offsets,
+                                                                        strict=True)]))
+            self._whole.append(part_surface(self.name, merged, samples=40_000))
+        return self._whole[0]
+
+
+@dataclass(frozen=True)
+class RouteConfig:
+    """Knobs of the two routes."""
+
+    register: RegisterConfig = field(default_factory=RegisterConfig)
+    # From its place in the aligned design a part is a few millimetres off at most: it is
+    # refined at the fine distance only (a coarse one lets a neighbour's points pull it).
+    local: RegisterConfig = field(default_factory=lambda: RegisterConfig(scales=(),
+                                                                         iterations=30))
+    # A part the design shows fewer scan-sized points of than this is not inspectable; one it
+    # shows but the scan covers less than ``missing_coverage`` of, after its refinement, is
+    # missing.
+    min_visible: int = 60
+    missing_coverage: float = 0.15
+    # A part is called missing only where the design shows this many of its points: of one
+    # it barely shows, too few scan points are no evidence either way (not inspectable).
+    missing_min_points: int = 240
+    # A segment is registered to a shape only where the shape's diameter allows its extent;
+    # the shapes are tried smallest first, and a fit this good (inlier share of the segment,
+    # share of its visible CAD the depth does not contradict) ends the search.
+    extent_slack_mm: float = 3.0
+    good_fit: tuple[float, float] = (0.9, 0.9)
+    correlated_points: float = 16.0  # ``uncertainty.pose_uncertainty``
+
+
+def by_design(model: AssemblyModel, scan: Scan, cfg: RouteConfig = RouteConfig(),
+              fixture: FloatArray | None = None
+              ) -> tuple[FloatArray, dict[int, PartAsBuilt], dict[int, Fit]]:
+    """The nominal alignment (assembly -> world) and each part as built, from the design.
+
+    With a ``fixture`` (where the cell holds the assembly, assembly -> world), the whole
+    assembly is fitted from there, as inspection software aligns to nominal. Without one it
+    is searched for; a whole that is nearly symmetric (a plate's bolts on a square) then
+    leaves several nominals, and of its best fits and their turns by its symmetries, the one
+    whose parts, refined, explain the scan best is taken (on a symmetric whole the answer
+    may be its symmetric copy: the mates are the same, their parts' names swapped).
+
+    Raises:
+        ValueError: the scan has too few points to align the assembly to.
+    """
+    if fixture is not None:
+        whole = refine(model.whole(), scan.points, fixture, scan.cameras,
+                       replace(cfg.register, stride=max(2, cfg.register.stride)))
+        placed, fits, _ = _place_parts(model, scan, whole.pose, cfg)
+        return whole.pose, placed, fits
+    best: tuple[tuple[float, float], FloatArray, dict[int, PartAsBuilt],
+                dict[int, Fit]] | None = None
+    for nominal in nominal_candidates(model, scan, cfg):
+        placed, fits, explained = _place_parts(model, scan, nominal, cfg)
+        score = (round(explained / max(len(scan.points), 1), 1), -_rms(fits))
+        if best is None or score > best[0]:
+            best = (score, nominal, placed, fits)
+    assert best is not None
+    return best[1], best[2], best[3]
+
+
+def _rms(fits: Mapping[int, Fit]) -> float:
+    """The parts' point-to-plane RMS together (each weighted by its inliers)."""
+    total = sum(f.inliers for f in fits.values() if np.isfinite(f.rmse_mm))
+    if not total:
+        return float("inf")
+    return float(np.sqrt(sum(f.inliers * f.rmse_mm ** 2 for f in fits.values()
+                             if np.isfinite(f.rmse_mm)) / total))
+
+
+def _place_parts(model: AssemblyModel, scan: Scan, nominal: FloatArray, cfg: RouteConfig
+                 ) -> tuple[dict[int, PartAsBuilt], dict[int, Fit], int]:
+    """Each part refined from its place in the nominal, larger parts first, and how many of
+    the scan's points they explain together."""
+    placed: dict[int, PartAsBuilt] = {}
+    fits: dict[int, Fit] = {}
+    used = np.zeros(len(scan.points), dtype=bool)
+    expected = expected_points(model, nominal, scan, cfg)
+    others = occluders([(i, p.mesh, nominal @ d) for i, (p, d) in
+                        enumerate(zip(model.parts, model.design, strict=True))])
+    label = designed_labels(others, scan)
+    for i in sorted(range(len(model.parts)), key=lambda k: -model.parts[k].diameter):
+        part, start = model.parts[i], nominal @ model.design[i]
+        if expected[i] < cfg.min_visible:
+            placed[i] = PartAsBuilt(i, None, None, "too little of it visible")
+            continue
+        # the points the design shows of this part, or of none (where a part moved off its
+        # place shows): never a neighbour's, whose faces touch this one's
+        offered = scan.points[~used & ((label == i) | (label < 0))]
+        if len(offered) < 6:
+            placed[i] = PartAsBuilt(i, None, None, "missing")
+            continue
+        fit = refine(part, offered, start, scan.cameras, cfg.local, (others, i))
+        fits[i] = fit
+        if fit.coverage < cfg.missing_coverage:
+            placed[i] = PartAsBuilt(i, None, None, "missing" if expected[i] >=
+                                    cfg.missing_min_points else "too little of it seen")
+            continue
+        placed[i] = PartAsBuilt(i, fit.pose, _uncertainty(part, fit, cfg))
+        used |= _explained(part, fit.pose, scan, cfg, (others, i))
+    return placed, fits, int(used.sum())
+
+
+def designed_labels(design: Occluders, scan: Scan) -> npt.NDArray[np.int64]:
+    """(n,) per scan point, the part the design (placed in the world) shows at its pixel:
+    the first it meets on the ray from the point's camera through it (-1: none)."""
+    label = np.full(len(scan.points), -1, dtype=np.int64)
+    for v, camera in enumerate(scan.cameras):
+        mine = np.flatnonzero(scan.view == v)
+        if not len(mine):
+            continue
+        dirs = scan.points[mine] - camera.centre
+        dirs /= np.linalg.norm(dirs, axis=1, keepdims=True)
+        rays = np.hstack([np.broadcast_to(camera.centre, dirs.shape), dirs]).astype(np.float32)
+        label[mine] = design.first(rays)[1]
+    return label
+
+
+def nominal_candidates(model: AssemblyModel, scan: Scan, cfg: RouteConfig) -> list[FloatArray]:
+    """Poses of the whole assembly (assembly -> world) found without any prior pose: its best
+    fits, and the best turned by each near-symmetry of the whole (a 2 mm tolerance: a whole
+    that is symmetric but for its small parts)."""
+    from cadio.inspect.symmetry import symmetry_of
+
+    whole = model.whole()
+    fits = global_search(whole, scan.points, scan.cameras,
+                         replace(cfg.register, stride=max(2, cfg.register.stride), keep=2))
+    turns = symmetry_of(whole.samples, tolerance_mm=2.0).transforms()
+    out = [f.pose for f in fits]
+    out += [fits[0].pose @ t for t in turns[1:] if len(turns) <= 8]
+    return out
+
+
+def align_nominal(model: AssemblyModel, scan: Scan, cfg: RouteConfig) -> FloatArray:
+    """(4, 4) assembly -> world: the nominal ``by_design`` chose."""
+    return by_design(model, scan, cfg)[0]
+
+
+def expected_points(model: AssemblyModel, nominal: FloatArray, scan: Scan,
+                    cfg: RouteConfig) -> dict[int, int]:
+    """Per part, how many of its designed surface points the cameras would see at its
+    nominal place, the other parts hiding it where they stand in front (every 2nd pixel)."""
+    import open3d as o3d
+
+    scene = o3d.t.geometry.RaycastingScene()
+    owner = []
+    for i, (part, design) in enumerate(zip(model.parts, model.design, strict=True)):
+        vertices = apply_pose(nominal @ design, part.mesh.vertices)
+        scene.add_triangles(
+            o3d.core.Tensor.from_numpy(np.ascontiguousarray(vertices, np.float32)),
+            o3d.core.Tensor.from_numpy(np.ascontiguousarray(part.mesh.triangles, np.uint32)))
+        owner.append(i)
+    counts = dict.fromkeys(range(len(model.parts)), 0)
+    for cam in scan.cameras:
+        k = cam.intrinsics
+        u, v = np.meshgrid(np.arange(0, k.width, 2), np.arange(0, k.height, 2))
+        dirs = np.column_stack([(u.ravel() - k.cx) / k.fx, (v.ravel() - k.cy) / k.fy,
+                                np.ones(u.size)])
+        dirs = (dirs / np.linalg.norm(dirs, axis=1, keepdims=True)) @ cam.world_to_camera[:3, :3]
+        rays = np.hstack([np.broadcast_to(cam.centre, dirs.shape), dirs]).astype(np.float32)
+        hit = scene.cast_rays(o3d.core.Tensor.from_numpy(np.ascontiguousarray(rays)))
+        geometry = hit["geometry_ids"].numpy()
+        found = np.isfinite(hit["t_hit"].numpy())
+        ids, n = np.unique(geometry[found], return_counts=True)
+        for g, c in zip(ids, n, strict=True):
+            counts[owner[int(g)]] += int(c) * 4  # every 2nd pixel each way
+    return counts
+
+
+def _explained(part: PartSurface, pose: FloatArray, scan: Scan, cfg: RouteConfig,
+               hidden_by: tuple[Occluders, int] | None = None) -> npt.NDArray[np.bool_]:
+    """(n,) bool: the scan's points within the fine distance of what the cameras see of the
+    part at ``pose``."""
+    model_pts, _ = visible(part, pose, scan.cameras, cfg.register.stride, hidden_by)
+    if not len(model_pts):
+        return np.zeros(len(scan.points), dtype=bool)
+    dist, _ = cKDTree(model_pts).query(scan.points, distance_upper_bound=cfg.register.fine_mm)
+    explained: npt.NDArray[np.bool_] = np.isfinite(dist)
+    return explained
+
+
+def explained_share(model: AssemblyModel, scan: Scan, parts: Mapping[int, PartAsBuilt],
+                    cfg: RouteConfig) -> float:
+    """The share of the scan's points within the fine distance of what the cameras see of the
+    placed parts (each hidden where the others stand in front)."""
+    placed = {i: p.pose for i, p in parts.items() if p.pose is not None}
+    if not placed or not len(scan.points):
+        return 0.0
+    others = occluders([(i, model.parts[i].mesh, pose) for i, pose in placed.items()])
+    used = np.zeros(len(scan.points), dtype=bool)
+    for i, pose in placed.items():
+        used |= _explained(model.parts[i], pose, scan, cfg, (others, i))
+    return float(used.mean())
+
+
+def _uncertainty(part: PartSurface, fit: Fit, cfg: RouteConfig) -> PoseUncertainty:
+    return pose_uncertainty(fit.hessian, fit.rmse_mm, fit.inliers, fit.centre,
+                            max(part.diameter / 2, 1.0), cfg.correlated_points)
+
+
+# ---------------------------------------------------------------- the search route
+
+
+@dataclass(frozen=True)
+class Found:
+    """A segment registered by the search route: its instance, the part index it was given,
+    the shape, the fit, and the fits of the other shapes tried (their part names)."""
+
+    segment: int
+    index: int
+    fit: Fit
+
+
+def by_search(model: AssemblyModel, scan: Scan, cfg: RouteConfig = RouteConfig()
+              ) -> list[Found]:
+    """Each segment of the scan registered to the part shape that fits it best, found without
+    any prior pose; then each given the name of one part of that shape (``name_parts``).
+
+    Raises:
+        ValueError: a scan without segments (the search route reads segmented clouds).
+    """
+    if not scan.segments:
+        raise ValueError("the search route needs a segmented scan (instance ids)")
+    shapes = _shape_members(model)
+    by_segment: dict[int, tuple[str, Fit]] = {}
+    for segment, idx in sorted(scan.segments.items()):
+        points = scan.points[idx]
+        if len(points) >= 10:
+            best = _best_shape(model, shapes, points, scan, cfg)
+            if best is not None:
+                by_segment[segment] = best
+    return name_parts(model, by_segment)
+
+
+def _best_shape(model: AssemblyModel, shapes: Mapping[str, list[int]], points: FloatArray,
+                scan: Scan, cfg: RouteConfig) -> tuple[str, Fit] | None:
+    """The shape that fits a segment best. Shapes the segment could be (no smaller than its
+    extent) are tried nearest its size first, and the search stops at a good fit: a part many
+    times the segment's size would have to hide nearly all of itself to show only it."""
+    extent = _extent(points)
+    fitting = [(shape, members) for shape, members in shapes.items()
+               if extent <= model.parts[members[0]].diameter + cfg.extent_slack_mm]
+    fitting.sort(key=lambda sm: model.parts[sm[1][0]].diameter)
+    fitness, coverage = cfg.good_fit
+    best: tuple[str, Fit] | None = None
+    for shape, members in fitting:
+        fit = global_search(model.parts[members[0]], points, scan.cameras, cfg.register,
+                            lambda seen: consistency(seen, scan))[0]
+        if best is None or fit.rank() > best[1].rank():
+            best = (shape, fit)
+        if best[1].fitness >= fitness and best[1].consistent >= coverage:
+            break
+    return best
+
+
+def _shape_members(model: AssemblyModel) -> dict[str, list[int]]:
+    out: dict[str, list[int]] = {}
+    for i, shape in enumerate(model.shapes):
+        out.setdefault(shape, []).append(i)
+    return out
+
+
+def _extent(points: FloatArray) -> float:
+    """The length of a cloud's box along its principal axes, from the 1st to the 99th
+    percentile on each (a mask's edge holds a few pixels of what lies behind)."""
+    centred = points - points.mean(axis=0)
+    _, axes = np.linalg.eigh(centred.T @ centred)
+    along = centred @ axes
+    lo, hi = np.percentile(along, [1, 99], axis=0)
+    return float(np.linalg.norm(hi - lo))
+
+
+def name_parts(model: AssemblyModel, by_segment: Mapping[int, tuple[str, Fit]]) -> list[Found]:
+    """Give each registered segment the index of a part of its shape. Which copy of a shape
+    (which bolt of four) a segment is follows from where the segments lie together: the
+    registered poses of a few large parts, each read as each part of its shape and each of its
+    symmetries, propose where the design stands in the scan; the proposal under which most
+    segments' centroids lie on a designed centroid of their shape (matched, least total
+    distance) names them all. It names; it moves no pose.
+    """
+    members = _shape_members(model)
+    centres = {i: apply_pose(model.design[i], model.parts[i].centre)
+               for i in range(len(model.parts))}
+    found = sorted(by_segment.items())
+    best: tuple[tuple[int, float], list[Found]] | None = None
+    for placement in _placements(model, found, members):
+        named, score = _match(model, found, members, centres, placement)
+        if len(named) >= 3:  # refit the placement to the matched centroids, and match again
+            refit = _rigid([(centres[f.index], f.fit.centre) for f in named])
+            named, score = max([(named, score), _match(model, found, members, centres, refit)],
+                               key=lambda ns: ns[1])
+        if best is None or score > best[0]:
+            best = (score, named)
+    if best is None:
+        return []
+    return sorted(best[1], key=lambda f: f.index)
+
+
+def _placements(model: AssemblyModel, found: Sequence[tuple[int, tuple[str, Fit]]],
+                members: Mapping[str, list[int]], generators: int = 3, turns: int = 24
+                ) -> list[FloatArray]:
+    """Design -> scan motions proposed by the registered poses of the largest segments'
+    shapes: each read as each part of its shape, through each of the part's symmetries (a
+    revolved part's turn sampled ``turns`` times)."""
+    by_size = sorted(found, key=lambda item: -model.parts[members[item[1][0]][0]].diameter)
+    out = []
+    for _, (shape, fit) in by_size[:generators]:
+        for i in members[shape]:
+            symmetry = model.symmetries[i]
+            group = symmetry.transforms()
+            step = max(1, len(group) // turns) if symmetry.continuous else 1
+            pose = model.as_part(i, fit.pose)
+            for turn in group[::step][:2 * turns]:
+                out.append(pose @ turn @ np.linalg.inv(model.design[i]))
+    return out
+
+
+def _match(model: AssemblyModel, found: Sequence[tuple[int, tuple[str, Fit]]],
+           members: Mapping[str, list[int]], centres: Mapping[int, FloatArray],
+           placement: FloatArray) -> tuple[list[Found], tuple[int, float]]:
+    """Segments matched to parts of their shape under a placement (least total distance
+    between registered and placed designed centroids) and the match's score: how many lie
+    within a quarter of their part's diameter (5 mm at least), then -the total distance."""
+    named: list[Found] = []
+    close, total = 0, 0.0
+    by_shape: dict[str, list[tuple[int, Fit]]] = {}
+    for segment, (shape, fit) in found:
+        by_shape.setdefault(shape, []).append((segment, fit))
+    for shape, segs in by_shape.items():
+        candidates = members[shape]
+        where = np.array([apply_pose(placement, centres[i]) for i in candidates])
+        cost = np.linalg.norm(np.array([f.centre for _, f in segs])[:, None] - where[None],
+                              axis=2)
+        rows, cols = linear_sum_assignment(cost)
+        reach = max(5.0, model.parts[candidates[0]].diameter / 4)
+        for r, c in zip(rows, cols, strict=True):
+            fit = segs[r][1]
+            named.append(Found(segs[r][0], candidates[c],
+                               replace(fit, pose=model.as_part(candidates[c], fit.pose))))
+            close += int(cost[r, c] <= reach)
+            total += float(cost[r, c])
+    return named, (close, -total)
+
+
+def _rigid(pairs: Sequence[tuple[FloatArray, FloatArray]]) -> FloatArray:
+    """(4, 4) the least-squares rigid motion taking the first points onto the second (Kabsch)."""
+    src = np.array([p for p, _ in pairs])
+    dst = np.array([q for _, q in pairs])
+    cs, cd = src.mean(axis=0), dst.mean(axis=0)
+    u, _, vt = np.linalg.svd((src - cs).T @ (dst - cd))
+    d = np.sign(np.linalg.det(vt.T @ u.T))
+    rot = vt.T @ np.diag([1, 1, d]) @ u.T
+    out = np.eye(4)
+    out[:3, :3] = rot
+    out[:3, 3] = cd - rot @ cs
+    return out
+
+
+def shape_keys(parts: Sequence[PartSurface], symmetries: Sequence[Symmetry],
+               tolerance_mm: float = 1.0) -> tuple[str, ...]:
+    """Per part, the key of the parts a camera cannot tell apart from it: a diameter and
+    principal spreads (of its surface samples) within ``tolerance_mm`` of the first such
+    part's (about the sensor's noise at 0.6 m: a bolt 2 mm longer than its neighbours is the
+    same bolt to it; a plate and its mirror image are one plate). The key names that first
+    part, and its symmetry."""
+    keys: list[str] = []
+    signatures: list[tuple[FloatArray, int, bool]] = []
+    for part, symmetry in zip(parts, symmetries, strict=True):
+        centred = part.samples - part.centre
+        spreads = np.sqrt(np.maximum(np.linalg.eigvalsh(centred.T @ centred / len(centred)),
+                                     0))
+        signature = (np.array([part.diameter, *spreads]),
+                     symmetry.order if symmetry.axis else 1, symmetry.flip is not None)
+        for key, (size, _, _) in zip(keys, signatures, strict=True):
+            if np.all(np.abs(size - signature[0]) <= tolerance_mm):
+                keys.append(key)
+                break
+        else:
+            keys.append(f"{part.part_id}:{signature[1]}:{signature[2]}")
+        signatures.append(signature)
+    return tuple(keys)
+
+
+def alike_transforms(parts: Sequence[PartSurface], shapes: Sequence[str]
+                     ) -> tuple[FloatArray, ...]:
+    """Per part, the motion of its frame onto the first part of its shape's (identity for
+    that one): the Kabsch fit of their vertices where the meshes are one mesh moved (a
+    part instanced several times), else the least-RMS of the turns that put principal axes
+    on principal axes, refined by ICP on the samples."""
+    first: dict[str, int] = {}
+    out = []
+    for i, (part, shape) in enumerate(zip(parts, shapes, strict=True)):
+        j = first.setdefault(shape, i)
+        out.append(np.eye(4) if j == i else _onto(part, parts[j]))
+    return tuple(out)
+
+
+def _onto(part: PartSurface, other: PartSurface) -> FloatArray:
+    """(4, 4) the motion of ``part``'s frame that lays its surface on ``other``'s."""
+    a, b = part.mesh.vertices, other.mesh.vertices
+    if a.shape == b.shape:
+        motion = _rigid(list(zip(a, b, strict=True)))
+        if float(np.abs(apply_pose(motion, a) - b).max()) < 1e-3 * max(part.diameter, 1.0):
+            return motion
+    from cadio.inspect.register import align_samples
+
+    return align_samples(part, other)
+
+
+def visible_share(model: AssemblyModel, poses: Mapping[int, FloatArray], scan: Scan
+                  ) -> dict[int, float]:
+    """Per part at its pose, the share of its surface samples the cameras see, the other parts
+    hiding it (a sample is seen when the ray to it first meets it there)."""
+    import open3d as o3d
+
+    scene = o3d.t.geometry.RaycastingScene()
+    order = sorted(poses)
+    for i in order:
+        vertices = apply_pose(poses[i], model.parts[i].mesh.vertices)
+        scene.add_triangles(
+            o3d.core.Tensor.from_numpy(np.ascontiguousarray(vertices, np.float32)),
+            o3d.core.Tensor.from_numpy(np.ascontiguousarray(model.parts[i].mesh.triangles,
+                                                            np.uint32)))
+    out = {}
+    for geometry, i in enumerate(order):
+        part = model.parts[i]
+        pts = apply_pose(poses[i], part.samples[::10])
+        normals = part.normals[::10] @ poses[i][:3, :3].T
+        seen = np.zeros(len(pts), dtype=bool)
+        for cam in scan.cameras:
+            to = pts - cam.centre
+            dist = np.linalg.norm(to, axis=1)
+            dirs = to / dist[:, None]
+            facing = np.einsum("ij,ij->i", normals, dirs) < 0
+            rays = np.hstack([np.broadcast_to(cam.centre, dirs.shape), dirs]).astype(np.float32)
+            hit = scene.cast_rays(o3d.core.Tensor.from_numpy(np.ascontiguousarray(rays)))
+            first = hit["geometry_ids"].numpy() == geometry
+            near = np.abs(hit["t_hit"].numpy() - dist) < max(0.5, 1e-3 * float(dist.mean()))
+            uv, z = cam.project(pts)
+            inside = (uv[:, 0] >= 0) & (uv[:, 0] < cam.intrinsics.width) & (uv[:, 1] >= 0) & (
+                uv[:, 1] < cam.intrinsics.height) & (z > 0)
+            seen |= facing & first & near & inside
+        out[i] = float(seen.mean())
+    return out
+

@@ -1,0 +1,176 @@
+"""The points an inspection reads: a capture's depth back-projected, the table taken away.
+
+An inspection capture is a recording: depth images with their cameras (and, where a simulation
+wrote them, instance ids: the paper's segmented clouds), never the parts' names or poses. Its
+views are back-projected into one cloud in the world frame, millimetres; the support the parts
+stand on (the largest plane facing up, by the gravity the recording gives) is taken away, as
+inspection software does before it fits anything. Where the frames carry instance ids each
+instance's points are kept apart (``segments``); a real recording has none, and registration
+decides which points are which part.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterable, Sequence
+from dataclasses import dataclass, field
+
+import numpy as np
+import numpy.typing as npt
+
+from cadio.capture.pointcloud import backproject
+from cadio.inspect.surface import MM_PER_M, Camera, camera_of, voxel_down
+from cadio.records import FloatArray, RgbdFrame
+
+IntArray = npt.NDArray[np.int64]
+
+
+@dataclass(frozen=True)
+class ScanConfig:
+    """How a capture becomes the inspection's points. Lengths mm."""
+
+    voxel_mm: float = 0.7  # one point per voxel of this side: below the sensor's spacing
+    plane_mm: float = 3.0  # points this near the support plane are the support's
+    plane_normal_deg: float = 15.0  # the support faces up within this (gravity: -Z)
+    plane_iterations: int = 300
+
+
+@dataclass(frozen=True, eq=False)
+class Scan:
+    """One view's or several views' points, world mm, with their cameras.
+
+    points: (n, 3); view: (n,) the view each came from; segments: instance id -> the indices
+    of its points (only where the frames carried instance ids); support: the plane removed
+    (unit normal, offset: n . x = offset), or None.
+    """
+
+    points: FloatArray
+    view: IntArray
+    cameras: tuple[Camera, ...]
+    segments: dict[int, IntArray] = field(default_factory=dict)
+    support: tuple[FloatArray, float] | None = None
+    depths: tuple[FloatArray, ...] = ()  # per camera: (h, w) mm, NaN where nothing returned
+
+    def of_views(self, views: Iterable[int]) -> Scan:
+        """The part of the scan seen by these views (their cameras kept in order)."""
+        chosen = sorted(set(views))
+        keep = np.isin(self.view, chosen)
+        index = np.cumsum(keep) - 1
+        segments = {k: index[v[keep[v]]] for k, v in self.segments.items() if keep[v].any()}
+        return Scan(self.points[keep], self.view[keep],
+                    tuple(self.cameras[v] for v in chosen), segments, self.support,
+                    tuple(self.depths[v] for v in chosen) if self.depths else ())
+
+    def without(self, used: npt.NDArray[np.bool_]) -> Scan:
+        """The scan without the points of ``used`` (n,) bool."""
+        keep = ~used
+        index = np.cumsum(keep) - 1
+        segments = {k: index[v[keep[v]]] for k, v in self.segments.items() if keep[v].any()}
+        return Scan(self.points[keep], self.view[keep], self.cameras, segments, self.support,
+                    self.depths)
+
+
+def scan_of(frames: Sequence[RgbdFrame], cfg: ScanConfig = ScanConfig()) -> Scan:
+    """The inspection's points of some frames: back-projected (mm), the support plane removed,
+    each instance's points apart where the frames carry ids (0 is the support).
+
+    Raises:
+        ValueError: no frame, or no valid depth in any.
+    """
+    if not frames:
+        raise ValueError("a scan needs at least one frame")
+    points, views, ids = [], [], []
+    for k, frame in enumerate(frames):
+        mask = None if frame.instance is None else frame.instance > 0
+        pts = backproject(frame, mask) * MM_PER_M
+        label = np.asarray(frame.instance[_valid(frame) & mask], dtype=np.int64) \
+            if frame.instance is not None and mask is not None else np.full(len(pts), -1)
+        pts, label = _voxel(pts, label, cfg.voxel_mm)
+        points.append(pts)
+        views.append(np.full(len(pts), k))
+        ids.append(label)
+    cloud, view, label = np.concatenate(points), np.concatenate(views), np.concatenate(ids)
+    if not len(cloud):
+        raise ValueError("no valid depth in the frames")
+    cameras = tuple(camera_of(f.intrinsics, f.world_to_camera) for f in frames)
+    support = None
+    if all(f.instance is None for f in frames):  # no ids: find the support to take it away
+        support = support_plane(cloud, cfg)
+        if support is not None:
+            # what lies on the support or under it (the table's edge, the floor) goes
+            keep = cloud @ support[0] - support[1] > cfg.plane_mm
+            cloud, view, label = cloud[keep], view[keep], label[keep]
+    segments = {int(i): np.flatnonzero(label == i) for i in np.unique(label) if i > 0}
+    depths = tuple(np.where(_valid(f), f.depth.astype(np.float64) * MM_PER_M, np.nan)
+                   for f in frames)
+    return Scan(cloud, view.astype(np.int64), cameras, segments, support, depths)
+
+
+def consistency(points: FloatArray, scan: Scan, tolerance_mm: float = 4.0) -> float:
+    """How well a hypothesis's surface points (n, 3, world mm: what the cameras would see of a
+    part at a pose) agree with the depth the cameras returned: of the points whose pixel holds
+    a depth, the share not contradicted by it. A point is contradicted when the camera saw
+    farther than it (free space where the part would stand); nearer is another part hiding it,
+    and counts neither way. 1.0 where nothing can be checked."""
+    supported = contradicted = 0
+    for camera, depth in zip(scan.cameras, scan.depths, strict=True):
+        uv, z = camera.project(points)
+        k = camera.intrinsics
+        u, v = np.rint(uv[:, 0]).astype(np.int64), np.rint(uv[:, 1]).astype(np.int64)
+        inside = (u >= 0) & (u < k.width) & (v >= 0) & (v < k.height) & (z > 0)
+        seen = depth[v[inside], u[inside]]
+        known = np.isfinite(seen)
+        gap = seen[known] - z[inside][known]
+        supported += int((np.abs(gap) <= tolerance_mm).sum())
+        contradicted += int((gap > tolerance_mm).sum())
+    total = supported + contradicted
+    return supported / total if total else 1.0
+
+
+def _valid(frame: RgbdFrame) -> npt.NDArray[np.bool_]:
+    return np.isfinite(frame.depth) & (frame.depth > 0)
+
+
+def _voxel(points: FloatArray, label: npt.NDArray[np.int64], voxel: float
+           ) -> tuple[FloatArray, npt.NDArray[np.int64]]:
+    """One point per voxel and instance (the mean of its points)."""
+    if voxel <= 0 or not len(points):
+        return points, label
+    out_p, out_l = [], []
+    for i in np.unique(label):
+        pts = voxel_down(points[label == i], voxel)
+        out_p.append(pts)
+        out_l.append(np.full(len(pts), i))
+    return np.concatenate(out_p), np.concatenate(out_l)
+
+
+def support_plane(points: FloatArray, cfg: ScanConfig = ScanConfig()
+                  ) -> tuple[FloatArray, float] | None:
+    """The largest plane facing up (within ``plane_normal_deg`` of +Z) that most points lie
+    on, below most of the cloud: (unit normal, offset); None where none is found. Seeded."""
+    rng = np.random.default_rng(0)
+    if len(points) < 3:
+        return None
+    best, best_count = None, 0
+    cos_max = np.cos(np.radians(cfg.plane_normal_deg))
+    for _ in range(cfg.plane_iterations):
+        a, b, c = points[rng.choice(len(points), 3, replace=False)]
+        n = np.cross(b - a, c - a)
+        norm = np.linalg.norm(n)
+        if norm == 0:
+            continue
+        n = n / norm * (1 if n[2] >= 0 else -1)
+        if n[2] < cos_max:
+            continue
+        offset = float(n @ a)
+        count = int((np.abs(points @ n - offset) <= cfg.plane_mm).sum())
+        if count > best_count:
+            best, best_count = (n, offset), count
+    if best is None:
+        return None
+    n, offset = best
+    near = np.abs(points @ n - offset) <= cfg.plane_mm
+    # least squares on the inliers, and the parts above it
+    centre = points[near].mean(axis=0)
+    _, _, vt = np.linalg.svd(points[near] - centre, full_matrices=False)
+    normal = vt[2] * (1 if vt[2][2] >= 0 else -1)
+    return normal, float(normal @ centre)

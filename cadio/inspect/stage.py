@@ -1,0 +1,313 @@
+"""The inspection stage: every assembly captured as built and checked against its design.
+
+For each assembly of the night (its mates table written): the parts' CAD surfaces and
+symmetries (``AssemblyModel``), the planted variants (``defects.plan_variants``), each captured
+at real size by the inspection camera (``InspectConfig``: a D435 at 0.6 m, farther where the
+assembly needs it to fit, a few views around it) into ``captures/inspect-<assembly>-<variant>
+.mcap``: frames, cameras and instance ids only, never the parts' names or poses, which go to
+``inspect/<capture>.json`` for the scores alone. Each capture is then inspected as a recording
+would be (``routes.by_design`` on all its views and on one view alone), and the intact one
+also by ``routes.by_search``, whose poses the relations of the ``registered`` input read. The
+results are plain records; ``cadio.inspect.evaluate`` turns them into rows.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import math
+from collections.abc import Sequence
+from dataclasses import asdict, dataclass, field, replace
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pandas as pd
+
+from cadio.camera.noise import D435
+from cadio.camera.render import CaptureConfig, PlacedPart, render_views
+from cadio.catalog import read_catalog
+from cadio.inspect.asbuilt import Limits, MateAsBuilt, PartAsBuilt, assembly_as_built
+from cadio.inspect.defects import DefectPlan, Variant, plan_variants
+from cadio.inspect.routes import (
+    AssemblyModel,
+    Found,
+    RouteConfig,
+    alike_transforms,
+    by_design,
+    by_search,
+    expected_points,
+    shape_keys,
+    visible_share,
+)
+from cadio.inspect.scan import Scan, scan_of
+from cadio.inspect.surface import part_surface
+from cadio.inspect.symmetry import Symmetry, pose_error, symmetry_of
+from cadio.recordings.foxglove_mcap import DEPTH_M, DEPTH_MM, CaptureWriter
+from cadio.recordings.mcap_io import read_capture
+from cadio.records import FloatArray
+from cadio.tolerances import DEFAULT_TOLERANCES, Tolerances
+from cadio.workspace import Workspace, atomic_write, read_mesh
+
+log = logging.getLogger(__name__)
+
+PREFIX = "inspect-"
+ALL_VIEWS = "all"
+
+
+@dataclass(frozen=True)
+class InspectConfig:
+    """Knobs of the inspection stage."""
+
+    views: int = 4  # cameras around the assembly, a quarter turn apart
+    distance_m: float = 0.6  # the D435's working range; farther where the assembly needs it
+    fill: float = 0.7  # the assembly's extent takes at most this share of the narrower view
+    noise: bool = True  # the D435 model (``cadio.camera.noise.D435``)
+    single_view: int | None = 0  # this view is also inspected alone (None: all views only)
+    defects: DefectPlan = field(default_factory=DefectPlan)
+    route: RouteConfig = field(default_factory=RouteConfig)
+    search: bool = True  # the search route on the intact capture (the registered relations)
+    tolerances: Tolerances = DEFAULT_TOLERANCES
+    # The deviation image's tolerance: about twice the sensor's noise at 0.6 m (1.4 mm rms).
+    deviation_mm: float = 3.0
+
+    def camera(self, extent_mm: float) -> CaptureConfig:
+        """The capture config: real size, the sensor model, a distance that fits the
+        assembly (its extent at most ``fill`` of the vertical field of view)."""
+        base = CaptureConfig(target_size_m=None, noise=D435 if self.noise else None)
+        vfov = 2 * math.atan(math.tan(math.radians(base.hfov_deg) / 2) * base.height /
+                             base.width)
+        needed = extent_mm / 1000 / (2 * math.tan(vfov / 2) * self.fill)
+        step = 360.0 / self.views
+        return CaptureConfig(target_size_m=None, noise=base.noise,
+                             distance_m=max(self.distance_m, needed), n_views=self.views,
+                             step_deg=step)
+
+
+def assembly_model(assembly: str, ws: Workspace) -> AssemblyModel:
+    """The assembly's parts (by index, their meshes in the assembly frame) as registration
+    reads them.
+
+    Raises:
+        ValueError: the catalog has no ok part of the assembly.
+    """
+    parts = tuple(part_surface(p, read_mesh(ws.mesh(p))) for p in part_ids(assembly, ws))
+    symmetries = tuple(_symmetry(ws, p) for p in parts)
+    shapes = shape_keys(parts, symmetries)
+    return AssemblyModel(assembly, parts, tuple(np.eye(4) for _ in parts), symmetries, shapes,
+                         alike_transforms(parts, shapes))
+
+
+def part_ids(assembly: str, ws: Workspace) -> list[str]:
+    """The catalog's part ids of an assembly's solids, by index.
+
+    Raises:
+        ValueError: the catalog has no ok part of the assembly, or misses one.
+    """
+    catalog = read_catalog(ws.catalog)
+    rows = catalog[(catalog["status"] == "ok") & (catalog["n_solids"] > 1)
+                   & (catalog["source"].map(lambda s: Path(str(s)).stem) == assembly)]
+    if rows.empty:
+        raise ValueError(f"{assembly}: no part in the catalog")
+    rows = rows.sort_values("solid_index")
+    if list(rows["solid_index"]) != list(range(len(rows))):
+        raise ValueError(f"{assembly}: parts {list(rows['solid_index'])} are not 0..n-1")
+    return [str(p) for p in rows["part_id"]]
+
+
+def _symmetry(ws: Workspace, part: Any) -> Symmetry:
+    """The part's symmetry, kept in ``inspect/symmetry/<part_id>.json`` once found."""
+    path = ws.root / "inspect" / "symmetry" / f"{part.part_id}.json"
+    if path.is_file():
+        return Symmetry.from_dict(json.loads(path.read_text()))
+    found = symmetry_of(part.samples)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    with atomic_write(path, "w") as fh:
+        fh.write(json.dumps(found.to_dict()))
+    return found
+
+
+def variants_of(model: AssemblyModel, mates: pd.DataFrame, cfg: InspectConfig) -> list[Variant]:
+    """The intact assembly and its planted variants (parts the design shows enough of)."""
+    if not any(cfg.defects.kinds()):
+        return [Variant(model.name, "intact")]
+    centres = [d[:3, :3] @ p.centre + d[:3, 3] for p, d in zip(model.parts, model.design,
+                                                             strict=True)]
+    cameras = _design_cameras(model, cfg)
+    expected = expected_points(model, np.eye(4), Scan(np.zeros((0, 3)), np.zeros(0, np.int64),
+                                                      cameras), cfg.route)
+    eligible = [i for i, n in expected.items() if n >= cfg.route.missing_min_points]
+    return plan_variants(model.name, mates, model.symmetries, centres, eligible, cfg.defects)
+
+
+def _design_cameras(model: AssemblyModel, cfg: InspectConfig) -> tuple[Any, ...]:
+    from cadio.camera.render import camera_intrinsics, camera_pose
+    from cadio.inspect.surface import camera_of
+
+    capture = cfg.camera(_extent(model))
+    centre = _centre(model) / 1000
+    return tuple(camera_of(camera_intrinsics(capture), camera_pose(capture, v, centre))
+                 for v in range(cfg.views))
+
+
+def _extent(model: AssemblyModel) -> float:
+    lo, hi = _box(model)
+    return float(np.linalg.norm(hi - lo))
+
+
+def _centre(model: AssemblyModel) -> FloatArray:
+    lo, hi = _box(model)
+    centre: FloatArray = (lo + hi) / 2
+    return centre
+
+
+def _box(model: AssemblyModel) -> tuple[FloatArray, FloatArray]:
+    verts = np.concatenate([p.mesh.vertices @ d[:3, :3].T + d[:3, 3]
+                            for p, d in zip(model.parts, model.design, strict=True)])
+    return verts.min(axis=0), verts.max(axis=0)
+
+
+def capture_variant(model: AssemblyModel, variant: Variant, ws: Workspace,
+                    cfg: InspectConfig) -> Path:
+    """Render the variant as the inspection camera sees it into ``captures/<name>.mcap``
+    (frames, cameras, instance ids; no scene description) and write what was planted and
+    where every part stands to ``inspect/<name>.json``, for the scores alone."""
+    name = capture_name(variant)
+    poses = variant.poses(model.design, [p.centre for p in model.parts])
+    path = record(model, poses, ws.capture(name), cfg)
+    truth = {"assembly": model.name, "variant": variant.name,
+             "defects": [asdict(d) for d in variant.defects],
+             "instances": {str(i + 1): i for i in sorted(poses)},
+             "poses": {str(i): pose.tolist() for i, pose in poses.items()}}
+    folder = ws.root / "inspect"
+    folder.mkdir(parents=True, exist_ok=True)
+    with atomic_write(folder / f"{name}.json", "w") as fh:
+        fh.write(json.dumps(truth))
+    return path
+
+
+def record(model: AssemblyModel, poses: dict[int, FloatArray], path: Path, cfg: InspectConfig,
+           instance_ids: bool = True) -> Path:
+    """Render the parts at ``poses`` (part -> assembly, mm) on a table, as the inspection
+    camera sees them, into an MCAP file: frames and cameras, and the renderer's instance ids
+    where ``instance_ids`` (as a simulation's masks); never a scene description or a part's
+    name. Without ids it is a recording as a RealSense driver writes one."""
+    parts = [PlacedPart(instance_id=i + 1, mesh=model.parts[i].mesh, pose=pose,
+                        colour="#b4b4b4", part_id=model.parts[i].part_id, label=str(i))
+             for i, pose in sorted(poses.items())]
+    capture = cfg.camera(_extent(model))
+    # the sensor publishes millimetre steps (16UC1), as a D435's driver does; without the
+    # sensor model the exact depth is written (32FC1 metres), or the steps would be its error
+    with CaptureWriter(path, depth_encoding=DEPTH_MM if cfg.noise else DEPTH_M) as writer:
+        for frame in render_views(parts, capture, list(range(cfg.views))):
+            writer.write_frame(frame if instance_ids else replace(frame, instance=None))
+    return path
+
+
+def capture_name(variant: Variant) -> str:
+    return f"{PREFIX}{variant.assembly}-{variant.name}"
+
+
+@dataclass(frozen=True)
+class Inspected:
+    """One capture inspected with one set of its views (``views``: "all" or a view index).
+
+    nominal: (4, 4) assembly -> world of the alignment; parts: each part as built (design
+    route); mates: each face mate as built (design route), and as the ``design`` baseline
+    (every part where the aligned design puts it); found: the search route's segments
+    (intact captures); seconds: wall time per route.
+    """
+
+    capture: str
+    views: str
+    nominal: FloatArray
+    parts: dict[int, PartAsBuilt]
+    mates: list[MateAsBuilt]
+    baseline: list[MateAsBuilt]
+    found: list[Found] = field(default_factory=list)
+    seconds: dict[str, float] = field(default_factory=dict)
+    fits: dict[int, Any] = field(default_factory=dict)
+
+
+def inspect_capture(model: AssemblyModel, path: Path, mates: pd.DataFrame, cfg: InspectConfig,
+                    search: bool = False, fixture: FloatArray | None = None
+                    ) -> list[Inspected]:
+    """Inspect a capture as a recording: all its views together, and ``single_view`` alone;
+    the search route too where ``search``. ``fixture``: where the cell holds the assembly
+    (assembly -> world, mm), the design route's start; None: searched for."""
+    import time
+
+    frames = list(read_capture(path))
+    whole = scan_of(frames)
+    sets = [(ALL_VIEWS, whole)]
+    if cfg.single_view is not None and cfg.single_view < len(frames):
+        sets.append((str(cfg.single_view), whole.of_views([cfg.single_view])))
+    rows = mates.to_dict("records")
+    limits = Limits.of(cfg.tolerances)
+    out = []
+    for views, scan in sets:
+        clock = time.perf_counter()
+        nominal, parts, fits = by_design(model, scan, cfg.route, fixture)
+        design_s = time.perf_counter() - clock
+        designed = {i: nominal @ model.design[i] for i in range(len(model.parts))}
+        # the baseline returns the design pose of every part it can see, and says nothing more
+        baseline_parts = {i: PartAsBuilt(i, designed[i], parts[i].uncertainty,
+                                         "" if parts[i].problem == "missing" else
+                                         parts[i].problem) for i in parts}
+        mates_built = assembly_as_built(rows, parts, dict(enumerate(model.design)), limits)
+        baseline = assembly_as_built(rows, baseline_parts, dict(enumerate(model.design)), limits)
+        found: list[Found] = []
+        clock = time.perf_counter()
+        if search and scan.segments:
+            found = by_search(model, scan, cfg.route)
+        out.append(Inspected(path.stem, views, nominal, parts, mates_built, baseline, found,
+                             {"design": design_s, "search": time.perf_counter() - clock},
+                             fits))
+    return out
+
+
+def read_truth(ws: Workspace, capture: str) -> dict[str, Any]:
+    """What was planted in a capture and where every part stood (the scores' only source)."""
+    data: dict[str, Any] = json.loads((ws.root / "inspect" / f"{capture}.json").read_text())
+    return data
+
+
+def pose_rows(model: AssemblyModel, inspected: Inspected, truth: dict[str, Any]
+              ) -> list[dict[str, Any]]:
+    """Per registered part of a capture: its error against where it stood, least over its
+    symmetries, with its visible share and fit. The ``design`` route's parts are known by
+    index; a ``search`` segment is scored against the part that made it (its instance),
+    its pose read as that part's where the search named another of the same shape, and
+    whether it named it right (``named``)."""
+    poses = {int(i): np.array(p) for i, p in truth["poses"].items()}
+    made_by = {int(k): int(v) for k, v in truth["instances"].items()}
+    found: list[tuple[str, int, FloatArray, bool]] = [
+        ("design", i, p.pose, True) for i, p in sorted(inspected.parts.items())
+        if p.pose is not None]
+    for f in inspected.found:
+        true = made_by.get(f.segment, f.index)
+        as_first = f.fit.pose @ np.linalg.inv(model.alike[f.index]) if model.alike else \
+            f.fit.pose
+        found.append(("search", true, model.as_part(true, as_first), true == f.index))
+    rows = []
+    for route, i, pose, named in found:
+        if i not in poses:
+            continue
+        mm, deg = pose_error(pose, poses[i], model.symmetries[i])
+        rows.append({"capture": inspected.capture, "views": inspected.views, "route": route,
+                     "index": i, "part_id": model.parts[i].part_id,
+                     "diameter_mm": model.parts[i].diameter, "error_mm": mm,
+                     "error_deg": deg, "named": named})
+    return rows
+
+
+def shares(model: AssemblyModel, path: Path, truth: dict[str, Any],
+           views: Sequence[int] | None = None) -> dict[int, float]:
+    """Per part, the share of its surface the capture's cameras (or ``views`` of them) see
+    where it truly stands (the other parts hiding it)."""
+    frames = list(read_capture(path))
+    scan = scan_of(frames)
+    if views is not None:
+        scan = scan.of_views(views)
+    poses = {int(i): np.array(p) for i, p in truth["poses"].items()}
+    return visible_share(model, poses, scan)

@@ -1,0 +1,242 @@
+"""The inspection's pieces on exact geometry: symmetries and pose errors, what a fit's points
+constrain, a mate's residuals and status, registration from a seed and from nothing."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from cadio.inspect.asbuilt import (
+    BROKEN,
+    HOLDS,
+    NOT_INSPECTABLE,
+    NOT_OBSERVABLE,
+    Limits,
+    PartAsBuilt,
+    mate_as_built,
+    verdict,
+)
+from cadio.inspect.register import RegisterConfig, global_search, refine
+from cadio.inspect.surface import Camera, part_surface, visible
+from cadio.inspect.symmetry import Symmetry, pose_error, symmetry_of
+from cadio.inspect.uncertainty import pose_uncertainty
+from cadio.records import CameraIntrinsics, Mesh
+
+
+def _box_mesh(sx: float, sy: float, sz: float) -> Mesh:
+    """A closed box centred on the origin, outward triangles (mm)."""
+    v = np.array([[x, y, z] for x in (-sx / 2, sx / 2) for y in (-sy / 2, sy / 2)
+                  for z in (-sz / 2, sz / 2)])
+    quads = [(0, 1, 3, 2), (4, 6, 7, 5), (0, 4, 5, 1), (2, 3, 7, 6), (0, 2, 6, 4),
+             (1, 5, 7, 3)]
+    tris = [t for a, b, c, d in quads for t in ((a, b, c), (a, c, d))]
+    return Mesh(v.astype(np.float64), np.array(tris, dtype=np.int64))
+
+
+def _cylinder_mesh(radius: float, height: float, n: int = 96) -> Mesh:
+    """A closed cylinder on Z centred on the origin, outward triangles (mm)."""
+    a = np.linspace(0, 2 * math.pi, n, endpoint=False)
+    ring = np.column_stack([radius * np.cos(a), radius * np.sin(a)])
+    v = np.vstack([np.column_stack([ring, np.full(n, -height / 2)]),
+                   np.column_stack([ring, np.full(n, height / 2)]),
+                   [[0, 0, -height / 2], [0, 0, height / 2]]])
+    tris = []
+    for i in range(n):
+        j = (i + 1) % n
+        tris += [(i, j, n + j), (i, n + j, n + i), (2 * n, j, i), (2 * n + 1, n + i, n + j)]
+    return Mesh(v, np.array(tris, dtype=np.int64))
+
+
+def _l_mesh() -> Mesh:
+    """An L of two boxes, its arms 30 and 20 mm long (no symmetry but a mirror, which is no
+    motion)."""
+    a, b = _box_mesh(40, 10, 10), _box_mesh(10, 20, 10)
+    va = a.vertices
+    vb = b.vertices + np.array([15.0, 15.0, 0.0])
+    return Mesh(np.vstack([va, vb]), np.vstack([a.triangles, b.triangles + len(va)]))
+
+
+def _pose(deg: float, axis: tuple[float, float, float], shift: tuple[float, float, float]
+          ) -> np.ndarray:
+    k = np.array(axis, dtype=np.float64) / np.linalg.norm(axis)
+    kx = np.array([[0, -k[2], k[1]], [k[2], 0, -k[0]], [-k[1], k[0], 0]])
+    t = math.radians(deg)
+    out = np.eye(4)
+    out[:3, :3] = np.eye(3) + math.sin(t) * kx + (1 - math.cos(t)) * kx @ kx
+    out[:3, 3] = shift
+    return out
+
+
+def _camera(at_mm: tuple[float, float, float] = (0.0, -300.0, 200.0)) -> Camera:
+    """A 640 x 480 camera looking at the origin from ``at_mm``."""
+    eye = np.array(at_mm, dtype=np.float64)
+    forward = -eye / np.linalg.norm(eye)
+    right = np.cross(forward, [0, 0, 1.0])
+    right /= np.linalg.norm(right)
+    down = np.cross(forward, right)
+    rot = np.vstack([right, down, forward])
+    w2c = np.eye(4)
+    w2c[:3, :3] = rot
+    w2c[:3, 3] = -rot @ eye
+    return Camera(CameraIntrinsics(width=640, height=480, fx=600.0, fy=600.0, cx=320.0,
+                                   cy=240.0), w2c)
+
+
+# ---------------------------------------------------------------- symmetry
+
+
+def test_a_cylinder_is_revolved_and_flips_a_box_turns_half_an_l_not_at_all() -> None:
+    cylinder = symmetry_of(part_surface("c", _cylinder_mesh(10, 40)).samples)
+    assert cylinder.continuous and cylinder.axis is not None
+    assert abs(abs(cylinder.axis[2]) - 1) < 1e-3 and cylinder.flip is not None
+    box = symmetry_of(part_surface("b", _box_mesh(60, 30, 10)).samples)
+    assert box.order == 2 and box.flip is not None
+    ell = symmetry_of(part_surface("l", _l_mesh()).samples)
+    assert ell.axis is None and ell.flip is None
+
+
+def test_a_pose_error_is_the_least_over_the_part_s_symmetries() -> None:
+    surface = part_surface("c", _cylinder_mesh(10, 40))
+    sym = symmetry_of(surface.samples)
+    truth = _pose(20, (1, 0, 0), (5, 6, 7))
+    turned = truth @ _pose(73, (0, 0, 1), (0, 0, 0))  # a turn about its own axis
+    mm, deg = pose_error(turned, truth, sym)
+    assert mm < 0.05 and deg < 0.1  # (the axis is fitted to a 96-sided prism's samples)
+    none = Symmetry(tuple(surface.centre))  # type: ignore[arg-type]
+    assert pose_error(turned, truth, none)[1] == pytest.approx(73, abs=0.1)
+    shifted = _pose(0, (0, 0, 1), (0.3, 0, 0)) @ truth
+    mm, deg = pose_error(shifted, truth, sym)
+    assert mm == pytest.approx(0.3, abs=0.02) and deg < 0.01
+
+
+def test_a_symmetry_survives_its_record() -> None:
+    sym = symmetry_of(part_surface("b", _box_mesh(60, 30, 10)).samples)
+    assert Symmetry.from_dict(sym.to_dict()) == sym
+
+
+# ---------------------------------------------------------------- uncertainty
+
+
+def test_a_plate_seen_face_on_does_not_constrain_its_slide_in_its_plane() -> None:
+    rng = np.random.default_rng(0)
+    points = np.column_stack([rng.uniform(-30, 30, 500), rng.uniform(-30, 30, 500),
+                              np.zeros(500)])
+    normals = np.tile([0, 0, 1.0], (500, 1))
+    jac = np.hstack([np.cross(points, normals), normals])
+    u = pose_uncertainty(jac.T @ jac, 0.5, 500, np.zeros(3), 30.0)
+    along_normal = u.sigma_along(np.array([0, 0, 0, 0, 0, 1.0]))
+    assert 0 < along_normal < 0.5
+    assert math.isinf(u.sigma_along(np.array([0, 0, 0, 1.0, 0, 0])))  # slide in the plane
+    assert math.isinf(u.sigma_along(np.array([0, 0, 1.0, 0, 0, 0])))  # turn about the normal
+    # more noise, more uncertainty
+    noisier = pose_uncertainty(jac.T @ jac, 1.0, 500, np.zeros(3), 30.0)
+    assert noisier.sigma_along(np.array([0, 0, 0, 0, 0, 1.0])) > along_normal
+
+
+# ---------------------------------------------------------------- a mate as built
+
+
+def _firm(index: int, pose: np.ndarray, sigma_mm: float = 0.01) -> PartAsBuilt:
+    """A part seen all round: every direction observed, ``sigma_mm`` of error."""
+    u = pose_uncertainty(np.eye(6) * (1e4 / 25), sigma_mm * 10, 1, pose[:3, 3], 5.0, 1.0)
+    return PartAsBuilt(index, pose, u)
+
+
+COINCIDENT = {"index_a": 0, "index_b": 1, "face_a": 3, "face_b": 7, "relation": "coincident",
+              "level": "face", "axis": [0, 0, 1.0], "origin": [0, 0, 10.0]}
+CONCENTRIC = {**COINCIDENT, "relation": "concentric", "axis": [0, 0, 1.0], "origin": [0, 0, 0]}
+
+
+def test_a_mate_holds_as_designed_and_wherever_the_whole_assembly_stands() -> None:
+    design = {0: _pose(0, (0, 0, 1), (0, 0, 15)), 1: np.eye(4)}
+    moved = _pose(30, (1, 1, 0), (100, -50, 20))  # the whole assembly elsewhere
+    parts = {i: _firm(i, moved @ d) for i, d in design.items()}
+    for row in (COINCIDENT, CONCENTRIC):
+        mate = mate_as_built(row, parts, design, Limits.of())
+        assert mate.status == HOLDS, mate
+        assert all(r.value < 1e-6 for r in mate.residuals)
+
+
+def test_a_part_lifted_off_its_face_breaks_the_coincident_mate_not_a_slide() -> None:
+    design = {0: _pose(0, (0, 0, 1), (0, 0, 15)), 1: np.eye(4)}
+    lifted = {0: _firm(0, _pose(0, (0, 0, 1), (0, 0, 1.0)) @ design[0]), 1: _firm(1, np.eye(4))}
+    mate = mate_as_built(COINCIDENT, lifted, design, Limits.of())
+    assert mate.status == BROKEN
+    assert dict((r.name, r.value) for r in mate.residuals)["plane_offset_mm"] == \
+        pytest.approx(1.0)
+    slid = {0: _firm(0, _pose(0, (0, 0, 1), (3.0, 0, 0)) @ design[0]), 1: _firm(1, np.eye(4))}
+    assert mate_as_built(COINCIDENT, slid, design, Limits.of()).status == HOLDS
+    # the same slide moves a concentric mate's axis off
+    off_axis = mate_as_built(CONCENTRIC, slid, design, Limits.of())
+    assert off_axis.status == BROKEN
+    assert off_axis.row()["axis_distance_mm"] == pytest.approx(3.0)
+    assert off_axis.row()["axis_distance_mm_threshold"] < 3.0
+
+
+def test_a_pose_s_uncertainty_widens_the_threshold() -> None:
+    design = {0: _pose(0, (0, 0, 1), (0, 0, 15)), 1: np.eye(4)}
+    lift = _pose(0, (0, 0, 1), (0, 0, 1.0)) @ design[0]
+    sure = mate_as_built(COINCIDENT, {0: _firm(0, lift), 1: _firm(1, np.eye(4))}, design,
+                         Limits.of())
+    unsure = mate_as_built(COINCIDENT, {0: _firm(0, lift, 0.5), 1: _firm(1, np.eye(4), 0.5)},
+                           design, Limits.of())
+    assert sure.status == BROKEN and unsure.status == HOLDS
+    assert unsure.row()["plane_offset_mm_threshold"] > 1.0
+
+
+def test_an_unconstrained_direction_is_not_observable_never_a_pass() -> None:
+    design = {0: _pose(0, (0, 0, 1), (0, 0, 15)), 1: np.eye(4)}
+    rng = np.random.default_rng(0)
+    points = np.column_stack([rng.uniform(-30, 30, 400), rng.uniform(-30, 30, 400),
+                              np.zeros(400)])
+    side = np.tile([1.0, 0, 0], (400, 1))  # a's points all face X: its Z is not seen
+    jac = np.hstack([np.cross(points, side), side])
+    blind = PartAsBuilt(0, design[0], pose_uncertainty(jac.T @ jac, 0.1, 400, np.zeros(3),
+                                                       30.0))
+    mate = mate_as_built(COINCIDENT, {0: blind, 1: _firm(1, np.eye(4))}, design, Limits.of())
+    assert mate.status == NOT_OBSERVABLE
+
+
+def test_a_missing_part_breaks_its_mates_and_a_hidden_one_is_not_inspectable() -> None:
+    design = {0: np.eye(4), 1: np.eye(4)}
+    firm = _firm(1, np.eye(4))
+    missing = mate_as_built(COINCIDENT, {0: PartAsBuilt(0, None, None, "missing"), 1: firm},
+                            design, Limits.of())
+    hidden = mate_as_built(COINCIDENT, {0: PartAsBuilt(0, None, None, "too little of it "
+                                                       "visible"), 1: firm}, design,
+                           Limits.of())
+    assert missing.status == BROKEN and hidden.status == NOT_INSPECTABLE
+    assert verdict([missing, hidden]) == "1 mate broken"
+    assert verdict([hidden]) == NOT_INSPECTABLE
+
+
+# ---------------------------------------------------------------- registration
+
+
+def _seen(surface: object, pose: np.ndarray, cameras: list[Camera]) -> np.ndarray:
+    points, _ = visible(surface, pose, cameras)  # type: ignore[arg-type]
+    return points
+
+
+def test_refine_brings_a_part_back_from_a_few_millimetres_and_degrees() -> None:
+    surface = part_surface("l", _l_mesh())
+    cameras = [_camera(), _camera((250.0, 150.0, 200.0))]
+    truth = _pose(15, (0, 1, 1), (4, -3, 2))
+    scan = _seen(surface, truth, cameras)
+    start = _pose(3, (1, 0, 0), (1.5, -1.0, 1.0)) @ truth
+    fit = refine(surface, scan, start, cameras)
+    mm, deg = pose_error(fit.pose, truth, Symmetry(tuple(surface.centre)))  # type: ignore[arg-type]
+    assert mm < 0.05 and deg < 0.05
+    assert fit.fitness > 0.95 and fit.coverage > 0.9
+
+
+def test_global_search_finds_a_part_without_any_prior_pose() -> None:
+    surface = part_surface("l", _l_mesh())
+    cameras = [_camera()]
+    truth = _pose(130, (1, 2, 0.5), (10, 5, -5))
+    scan = _seen(surface, truth, cameras)
+    best = global_search(surface, scan, cameras, RegisterConfig(seed=1))[0]
+    mm, deg = pose_error(best.pose, truth, symmetry_of(surface.samples))
+    assert mm < 0.2 and deg < 0.2, (mm, deg, best.seed)
