@@ -12,7 +12,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 import pytest
-from sandbox_targets import process_or_crash
+from sandbox_targets import process_on_a_full_disk, process_or_crash
 
 from cadio.cad.ingest import IngestConfig, discover, ingest, largest_first
 from cadio.catalog import read_catalog
@@ -197,3 +197,18 @@ def test_a_library_csv_names_files_and_categories(box_step: Path, tmp_path: Path
     bad.write_text("file,kind\nx.step,a\n")
     with pytest.raises(InputFileError, match=r"bad\.csv.*path and category"):
         discover(bad)
+
+
+def test_a_full_disk_is_no_failed_file_and_the_next_ingest_reads_every_file(
+        tmp_path: Path, box_step: Path) -> None:
+    from cadio.errors import MachineError
+
+    lib = tmp_path / "lib" / "fasteners"
+    lib.mkdir(parents=True)
+    shutil.copy(box_step, lib / "box.step")
+    ws = tmp_path / "ws"
+    with pytest.raises(MachineError, match="No space left on device"):
+        ingest(lib.parent, ws, replace(FAST, worker=process_on_a_full_disk))
+    assert read_catalog(ws / "catalog.parquet").empty  # no row says the file is bad
+    catalog = ingest(lib.parent, ws, FAST)  # the disk freed: the file is read again
+    assert list(catalog["status"]) == ["ok"] and not catalog["cached"].any()

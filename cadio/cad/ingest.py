@@ -27,7 +27,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, TypeVar
 
 from cadio.catalog import CatalogRow, catalog_rows, read_catalog, to_frame, write_catalog
-from cadio.errors import GeometryError, InputFileError, WorkerError
+from cadio.errors import GeometryError, InputFileError, MachineError, WorkerError
 from cadio.inputs import kind, open_regular, read_text
 from cadio.sandbox import Job, Limits, run_isolated
 from cadio.tolerances import DEFAULT_TOLERANCES, Tolerances
@@ -201,6 +201,8 @@ def ingest(root: Path, workspace: Path, cfg: IngestConfig | None = None,
 
     Raises:
         InputFileError: ``root`` is not a folder.
+        MachineError: the workspace cannot be written (no space, no permission); no row of
+            the files is kept as failed.
     """
     cfg = cfg or IngestConfig()
     ws = Workspace(Path(workspace))
@@ -365,6 +367,8 @@ def process_file(job: IngestJob) -> list[CatalogRow]:
 
     Raises:
         StepReadError: the file cannot be read into solids.
+        MachineError: its artefacts cannot be written to the workspace (no space, no
+            permission): the machine's fault, never the file's row.
     """
     from cadio.cad.solid_props import InstanceIntegrals
     from cadio.cad.step import read_step
@@ -387,6 +391,8 @@ def _process_solid(solid: StepSolid, base: CatalogRow, job: IngestJob,
                   placement=tuple(info.placement.ravel().tolist()))
     try:
         row = _geometry(solid, row, job, integrate)
+    except MachineError:  # the workspace's fault, not the solid's: never a failed row
+        raise
     except Exception as exc:  # an OCCT failure on one solid must not lose the file's others
         row = replace(row, error=f"solid {info.index} ({info.name}): {type(exc).__name__}: {exc}")
     return replace(row, seconds=time.perf_counter() - start)
