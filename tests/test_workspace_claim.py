@@ -1,0 +1,73 @@
+"""One night at a time per workspace, and only in a folder that is a workspace."""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from cadio.workspace_claim import (
+    LOCK,
+    MARKER,
+    WorkspaceBusyError,
+    claim_workspace,
+    workspace_problem,
+)
+
+ROOT = Path(__file__).resolve().parents[1]
+_HOLD = """
+import sys, time
+from pathlib import Path
+from cadio.workspace_claim import claim_workspace
+with claim_workspace(Path(sys.argv[1]), {"what": "mateqa nightly", "flow_run": "mini-chital"}):
+    print("held", flush=True)
+    time.sleep(600)
+"""
+
+
+@pytest.mark.parametrize("folder", ["/", "/usr", "/tmp", "/etc/", "~"])
+def test_the_root_a_system_folder_or_the_home_is_never_a_workspace(folder: str) -> None:
+    problem = workspace_problem(Path(folder).expanduser())
+    assert problem is not None and ("filesystem root" in problem or "system folder" in problem)
+
+
+def test_a_workspace_is_new_empty_or_one_already(tmp_path: Path) -> None:
+    assert workspace_problem(tmp_path / "new") is None
+    assert workspace_problem(tmp_path) is None  # empty
+    (tmp_path / "runs").mkdir()
+    (tmp_path / "catalog.parquet").write_bytes(b"")
+    (tmp_path / ".epoch").write_text("x")
+    assert workspace_problem(tmp_path) is None  # one an earlier version made: no marker yet
+    (tmp_path / "thesis.tex").write_text("mine")
+    assert "not empty and not a mateqa workspace (it holds thesis.tex)" in str(
+        workspace_problem(tmp_path))
+    (tmp_path / MARKER).write_text("")
+    assert workspace_problem(tmp_path) is None  # marked: whatever else it holds
+    (tmp_path / "runs" / "latest").mkdir()
+    assert "runs/latest is not the link" in str(workspace_problem(tmp_path))
+
+
+def test_a_second_claim_is_refused_naming_the_holder_until_it_dies(tmp_path: Path) -> None:
+    ws = tmp_path / "ws"
+    holder = subprocess.Popen([sys.executable, "-c", _HOLD, str(ws)], cwd=ROOT,
+                              stdout=subprocess.PIPE, text=True)
+    try:
+        assert holder.stdout is not None and holder.stdout.readline() == "held\n"
+        with pytest.raises(WorkspaceBusyError) as err, claim_workspace(ws, {"what": "x"}):
+            pass
+        assert err.value.holder["pid"] == holder.pid
+        assert f"in use by mateqa nightly (flow run 'mini-chital', pid {holder.pid} on " in \
+            str(err.value)
+    finally:
+        holder.send_signal(signal.SIGKILL)  # no chance to let go: the kernel does
+        holder.wait()
+    with claim_workspace(ws, {"what": "mateqa ingest"}) as record:
+        assert record["pid"] == os.getpid()
+        assert json.loads((ws / LOCK).read_text())["what"] == "mateqa ingest"
+    assert (ws / LOCK).read_text() == "" and (ws / MARKER).is_file()
+
