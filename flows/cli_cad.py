@@ -36,6 +36,8 @@ def progress(description: str, total: int | None) -> Iterator[Callable[[str], No
 
 def cmd_ingest(args: argparse.Namespace) -> int:
     from cadio.cad.ingest import discover, ingest
+    from cadio.errors import MachineError
+    from cadio.workspace_claim import WorkspaceBusyError, claim_workspace
     from flows.settings import Settings, ingest_config
     from reports.render import build_ingest_report
 
@@ -45,11 +47,16 @@ def cmd_ingest(args: argparse.Namespace) -> int:
                         default_workers=os.cpu_count() or 1)
     try:
         total = len(discover(args.library))
-        with progress("ingest", total) as advance:
+        with claim_workspace(args.workspace, {"what": "mateqa ingest"}), \
+                progress("ingest", total) as advance:
             catalog = ingest(args.library, args.workspace, cfg, on_file=advance)
-    except InputFileError as exc:
+    except (InputFileError, WorkspaceBusyError) as exc:
         print(f"mateqa ingest: {exc}", file=sys.stderr)
         return 2
+    except MachineError as exc:
+        print(f"mateqa ingest: the machine stopped the ingest, not a file: {exc}",
+              file=sys.stderr)
+        return 1
     print(build_ingest_report(catalog).markdown())
     print(f"catalog: {Path(args.workspace) / 'catalog.parquet'}")
     return 0

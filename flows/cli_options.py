@@ -116,11 +116,18 @@ def check_inputs(args: argparse.Namespace) -> list[str]:
         ValueError: every problem, each naming the option and the path.
     """
     from flows.config import ConfigError
-    from flows.preflight import check_finished_run, check_night, check_workspace
+    from flows.preflight import (
+        check_finished_run,
+        check_night,
+        check_own_workspace,
+        check_workspace,
+    )
 
     problems: list[tuple[str, str]] = []
     if hasattr(args, "workspace") and args.command != "export":
         check_workspace(args.workspace, "--workspace", problems)
+    if args.command in ("ingest", "mates", "capture") and not problems:  # a night's: below
+        check_own_workspace(args.workspace, "--workspace", problems)
     if getattr(args, "out", None) is not None:
         check_workspace(args.out, "OUT" if args.command == "samples" else "--out", problems)
     if args.command == "mates":

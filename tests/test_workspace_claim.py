@@ -4,13 +4,18 @@ from __future__ import annotations
 
 import json
 import os
+import shutil
 import signal
 import subprocess
 import sys
+import time
 from pathlib import Path
 
+import pandas as pd
 import pytest
+from conftest import finish_night, start_night
 
+from cadio.catalog import read_catalog
 from cadio.workspace_claim import (
     LOCK,
     MARKER,
@@ -71,3 +76,33 @@ def test_a_second_claim_is_refused_naming_the_holder_until_it_dies(tmp_path: Pat
         assert json.loads((ws / LOCK).read_text())["what"] == "mateqa ingest"
     assert (ws / LOCK).read_text() == "" and (ws / MARKER).is_file()
 
+
+@pytest.mark.server
+def test_two_nights_on_one_workspace_never_mix(
+        small_library: Path, prefect_api: dict[str, str], tmp_path: Path,
+        monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]) -> None:
+    from flows.cli import main
+
+    other = tmp_path / "other-library" / "wheels"
+    other.mkdir(parents=True)
+    for step in (small_library / "couplings").iterdir():
+        shutil.copy(step, other)
+    ws = tmp_path / "ws"
+    first = start_night(small_library, ws, prefect_api)
+    lock = ws / LOCK
+    deadline = time.monotonic() + 600
+    while not (lock.is_file() and lock.read_text()):  # the first night holds the workspace
+        assert first.poll() is None, first.log.read_text()[-3000:]
+        assert time.monotonic() < deadline, "the first night never started"
+        time.sleep(0.2)
+    monkeypatch.setenv("PREFECT_API_URL", prefect_api["PREFECT_API_URL"])
+    capsys.readouterr()
+    code = main(["nightly", "--library", str(other.parent), "--workspace", str(ws),
+                 "--views-per-scene", "1", "--pairs-per-relation", "1"])
+    err = capsys.readouterr().err
+    assert code == 2, err[-3000:]
+    assert f"{ws} is in use by mateqa nightly (flow run '" in err and "Traceback" not in err
+    finish_night(first)
+    categories = pd.read_csv(ws / "runs" / "latest" / "categories.csv")["category"]
+    assert not categories.str.contains("wheels").any()  # none of the other library's
+    assert "wheels" not in set(read_catalog(ws / "catalog.parquet")["category"])
