@@ -345,7 +345,8 @@ def stop_port(port: int, home: Path | None = None) -> int | None:
     busy = runs_using(port)
     if busy:
         raise RuntimeError(f"the Prefect server on port {port} is not stopped: {busy}; stop "
-                           "it once they end")
+                           "it once they end (a run that a killed night of an earlier mateqa left "
+                           "Running can be set Crashed in the UI)")
     stop_pid(proc.pid)
     if home is not None and _marked_pid(home) == proc.pid:
         (home / PID_FILE).unlink(missing_ok=True)

@@ -324,14 +324,14 @@ def _screen(item: Found, cfg: IngestConfig) -> tuple[CatalogRow | None, str]:
 
 def _folder_row(base: CatalogRow, path: Path) -> CatalogRow:
     """The row of a folder ``discover`` did not search: one it could not read, or a link back
-    to a folder the search came through (it can be read: ``discover`` reports no other)."""
+    to a folder above it (it can be read: ``discover`` reports no other)."""
     try:
         os.scandir(path).close()
     except OSError as exc:
         return _row(base, "failed", f"folder cannot be read ({exc.strerror or exc}): its STEP "
                     "files are left out")
-    return _row(base, "skipped", f"is a link to {path.resolve()}, a folder the search came "
-                "through (a loop): searched once")
+    return _row(base, "skipped", f"is a link to {path.resolve()}, a folder above it (a loop): "
+                "searched once")
 
 
 def printable(text: str) -> str:
