@@ -2,7 +2,9 @@
 
 from __future__ import annotations
 
+import errno
 from pathlib import Path
+from typing import Any
 
 
 class CadioError(Exception):
@@ -68,3 +70,44 @@ class CaptureTruncatedError(CaptureError):
 class ExportError(InputFileError):
     """An assembly's predicted mates could not be exported (its inputs are missing or changed,
     or a file could not be written)."""
+
+
+# What the machine, not an input, is at fault for: the disk or the quota is full, the
+# filesystem is read-only or failing, or the workspace cannot be written by this user.
+MACHINE_ERRNOS = frozenset({errno.ENOSPC, errno.EDQUOT, errno.EROFS, errno.EIO, errno.EACCES,
+                            errno.EPERM})
+
+
+class MachineError(CadioError):
+    """The machine stopped the work on ``path``, not the input being worked on: the disk is
+    full, the workspace cannot be written, an I/O error. Never cached or reported as a bad
+    input: the night that meets one fails, and the next one does the work again."""
+
+    def __init__(self, path: Path | str, reason: str) -> None:
+        self.path = str(path)
+        self.reason = reason
+        super().__init__(f"{self.path}: {reason}")
+
+    def __reduce__(self) -> tuple[type[MachineError], tuple[Any, ...]]:
+        return MachineError, (self.path, self.reason)  # pickles with its fields (task results)
+
+    @staticmethod
+    def of(exc: OSError, path: Path | str) -> MachineError | None:
+        """The machine's error behind ``exc`` met while writing ``path``; None when ``exc``
+        is no fault of the machine (a file that does not exist, a name too long)."""
+        if exc.errno not in MACHINE_ERRNOS:
+            return None
+        return MachineError(path, f"{exc.strerror or exc} (errno {exc.errno})")
+
+
+class DiskSpaceError(MachineError):
+    """Less space is free under ``path`` than a stage needs (checked before it starts):
+    ``free_mb``, ``need_mb``, and ``what`` needs it."""
+
+    def __init__(self, path: Path | str, free_mb: float, need_mb: float, what: str) -> None:
+        self.free_mb, self.need_mb, self.what = free_mb, need_mb, what
+        super().__init__(path, f"{free_mb:,.0f} MB free, but {what} need about "
+                               f"{need_mb:,.0f} MB")
+
+    def __reduce__(self) -> tuple[type[MachineError], tuple[Any, ...]]:
+        return DiskSpaceError, (self.path, self.free_mb, self.need_mb, self.what)

@@ -40,7 +40,7 @@ from dataclasses import dataclass
 from multiprocessing.connection import Connection, wait
 from typing import Any, Generic, TypeVar
 
-from cadio.errors import CadioError, InputFileError, WorkerError
+from cadio.errors import CadioError, InputFileError, MachineError, WorkerError
 
 log = logging.getLogger(__name__)
 
@@ -98,6 +98,9 @@ def run_isolated(
         One ``Outcome`` per job, as jobs finish.
 
     Raises:
+        MachineError: a job met a fault of the machine (``fn`` raised it: a full disk, a
+            workspace it cannot write); the other jobs are stopped, since none would fare
+            better, and no job's outcome stands for an input that failed.
         ValueError: ``fn`` is defined in ``__main__`` or is no module-level function.
     """
     name = f"{getattr(fn, '__module__', '__main__')}.{getattr(fn, '__qualname__', '')}"
@@ -284,6 +287,8 @@ class _Pool(Generic[P, R]):
                 worker.job = None
                 if status == "ok":
                     return Outcome(job, result=value, seconds=elapsed)
+                if status == "machine":
+                    raise value
                 return Outcome(job, error=_rebuild_error(job.key, value), seconds=elapsed)
         if worker.conn in ready or not worker.alive():  # its socket closed: it died
             worker.reap(5)
@@ -381,6 +386,8 @@ def _serve(fn: Callable[[Any], Any], payload: Any, memory_mb: int) -> tuple[str,
         return "ok", fn(payload)
     except MemoryError:
         return "error", ("memory", f"memory limit of {memory_mb} MB exceeded")
+    except MachineError as exc:  # the machine's, not the input's: the supervisor raises it
+        return "machine", exc
     except InputFileError as exc:
         return "error", ("input", exc.reason)
     except CadioError as exc:

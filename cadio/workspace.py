@@ -6,7 +6,10 @@ Layout (see DESIGN.md): ``catalog.parquet``, ``meshes/<part_id>.ply``,
 ``runs/<run_id>/``, ``library/`` (the generated sample library).
 Every write goes to a temporary file in the same folder and is renamed into place, so a crash
 never leaves a half-written artefact that a rerun would trust; files get the mode the umask
-gives, so a shared workspace is readable by whom the umask allows.
+gives, so a shared workspace is readable by whom the umask allows. A write the machine stops
+(no space left, a folder this user cannot write, an I/O error) raises ``MachineError``, which
+no stage turns into a failed input: the stages catch ``OSError`` of their inputs, and this is
+none of theirs.
 """
 
 from __future__ import annotations
@@ -22,6 +25,7 @@ from typing import IO, Any
 
 import numpy as np
 
+from cadio.errors import MachineError
 from cadio.records import Features, Mesh, VoxelGrid
 
 
@@ -77,7 +81,11 @@ class Workspace:
         tmp = self.latest.with_name(f".latest.{os.getpid()}")
         tmp.unlink(missing_ok=True)
         tmp.symlink_to(run_id, target_is_directory=True)
-        os.replace(tmp, self.latest)
+        try:
+            os.replace(tmp, self.latest)
+        except OSError:  # e.g. a folder of that name: no stray link is left beside it
+            tmp.unlink(missing_ok=True)
+            raise
 
     @property
     def library(self) -> Path:
@@ -102,31 +110,50 @@ def create_beside(path: Path, suffix: str = ".tmp") -> tuple[int, str]:
 
 
 @contextmanager
-def atomic_write(path: Path, mode: str = "wb") -> Iterator[IO[Any]]:
-    """Open a temporary file next to ``path``; rename it onto ``path`` only on success."""
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = create_beside(path)
+def machine_faults(path: Path) -> Iterator[None]:
+    """Within: an ``OSError`` of the machine (``MachineError.of``) met while writing ``path``
+    is raised as ``MachineError`` naming ``path``; any other goes on as it is."""
     try:
-        with os.fdopen(fd, mode) as fh:
-            yield fh
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
+        yield
+    except OSError as exc:
+        fault = MachineError.of(exc, path)
+        if fault is None:
+            raise
+        raise fault from exc
+
+
+@contextmanager
+def atomic_write(path: Path, mode: str = "wb") -> Iterator[IO[Any]]:
+    """Open a temporary file next to ``path``; rename it onto ``path`` only on success.
+
+    Raises:
+        MachineError: the machine stopped the write (no space, no permission, I/O).
+    """
+    with machine_faults(path):
+        path.parent.mkdir(parents=True, exist_ok=True)
+        fd, tmp = create_beside(path)
+        try:
+            with os.fdopen(fd, mode) as fh:
+                yield fh
+            os.replace(tmp, path)
+        except BaseException:
+            Path(tmp).unlink(missing_ok=True)
+            raise
 
 
 @contextmanager
 def atomic_path(path: Path) -> Iterator[Path]:
     """Like ``atomic_write`` but yields a temporary path for libraries that want a filename."""
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = create_beside(path, path.suffix)  # libraries that check the suffix see it
-    os.close(fd)
-    try:
-        yield Path(tmp)
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
+    with machine_faults(path):
+        path.parent.mkdir(parents=True, exist_ok=True)
+        fd, tmp = create_beside(path, path.suffix)  # libraries that check the suffix see it
+        os.close(fd)
+        try:
+            yield Path(tmp)
+            os.replace(tmp, path)
+        except BaseException:
+            Path(tmp).unlink(missing_ok=True)
+            raise
 
 
 def write_json(path: Path, data: Any) -> None:

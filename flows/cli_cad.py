@@ -36,6 +36,8 @@ def progress(description: str, total: int | None) -> Iterator[Callable[[str], No
 
 def cmd_ingest(args: argparse.Namespace) -> int:
     from cadio.cad.ingest import discover, ingest
+    from cadio.errors import MachineError
+    from cadio.workspace_claim import WorkspaceBusyError, claim_workspace
     from flows.settings import ingest_config, runtime_settings
     from reports.render import build_ingest_report
 
@@ -47,12 +49,17 @@ def cmd_ingest(args: argparse.Namespace) -> int:
     try:
         categories = config.library.categories
         found = [f for f in discover(library) if not categories or f.category in categories]
-        with progress("ingest", len(found)) as advance:
+        with claim_workspace(workspace, {"what": "mateqa ingest"}), \
+                progress("ingest", len(found)) as advance:
             catalog = ingest(library, workspace, cfg, on_file=advance,
                              categories=categories)
-    except InputFileError as exc:
+    except (InputFileError, WorkspaceBusyError) as exc:
         print(f"mateqa ingest: {exc}", file=sys.stderr)
         return 2
+    except MachineError as exc:
+        print(f"mateqa ingest: the machine stopped the ingest, not a file: {exc}",
+              file=sys.stderr)
+        return 1
     print(build_ingest_report(catalog).markdown())
     print(f"catalog: {workspace / 'catalog.parquet'}")
     return 0

@@ -19,14 +19,17 @@ _PREFECT_QUIET = {"PREFECT_LOGGING_LOGGERS_PREFECT_TASK_RUNS_LEVEL": "WARNING"}
 
 
 def cmd_nightly(args: argparse.Namespace) -> int:
-    from flows.server import server_env, start_server, stop_server
+    from flows.server import server_env, start_server, stop_unless_used
     from flows.settings import load_settings
 
     settings = load_settings()
     proc = None
     for key, value in _PREFECT_QUIET.items():
         os.environ.setdefault(key, value)
-    if "PREFECT_API_URL" not in os.environ:
+    if "PREFECT_API_URL" in os.environ:
+        if not _api_answers(os.environ["PREFECT_API_URL"]):
+            return 2
+    else:
         home = settings.prefect_home
         os.environ.update(server_env(home, settings.server_port))
         print(f"starting a local Prefect server on SQLite in {home} ...", flush=True)
@@ -39,8 +42,25 @@ def cmd_nightly(args: argparse.Namespace) -> int:
     try:
         return _run_nightly(args)
     finally:
-        if args.stop_server:
-            stop_server(proc)
+        busy = stop_unless_used(proc) if args.stop_server else None
+        if busy:  # another night's runs: stopping the server would fail them
+            port = settings.server_port
+            print(f"mateqa nightly: left the Prefect server on port {port} running: {busy}; "
+                  f"`mateqa serve --stop{'' if port == 4200 else f' --port {port}'}` stops it "
+                  "once they end", file=sys.stderr)
+
+
+def _api_answers(url: str) -> bool:
+    """Whether a Prefect API answers at the ``PREFECT_API_URL`` given; a line when not (the
+    night would otherwise fail at its first call, with a page of traceback)."""
+    from flows.server import api_problem
+
+    problem = api_problem(url)
+    if problem:
+        print(f"mateqa nightly: no Prefect API answers at {url} (PREFECT_API_URL): {problem}; "
+              "start one (`mateqa serve`), or unset PREFECT_API_URL for a local server the "
+              "night starts itself", file=sys.stderr)
+    return problem is None
 
 
 def _server_lines(server: LocalServer, left_running: bool) -> str:
@@ -133,6 +153,8 @@ def _stop_serve(port: int, home: Path) -> int:
 
 
 def _run_nightly(args: argparse.Namespace) -> int:
+    from cadio.errors import MachineError
+    from cadio.workspace_claim import WorkspaceBusyError
     from flows.config import ConfigError
     from flows.nightly import ThresholdFailure, nightly
 
@@ -143,9 +165,12 @@ def _run_nightly(args: argparse.Namespace) -> int:
             _print_verdict(Path(failure.run_dir), args.json)
             print(f"mateqa nightly: {failure}", file=sys.stderr)
             return 3
-        if isinstance(failure, ConfigError):  # found once the inputs were read (recordings)
+        if isinstance(failure, (ConfigError, WorkspaceBusyError)):  # inputs read, or a busy ws
             print(f"mateqa nightly: {failure}", file=sys.stderr)
             return 2
+        if isinstance(failure, MachineError):  # the run failed, for a reason it names
+            print(f"mateqa nightly: {state.message}", file=sys.stderr)
+            return 1
         print(f"mateqa nightly: the run failed: {state.message}", file=sys.stderr)
         return 1
     _print_verdict(Path(state.result().run_dir), args.json)

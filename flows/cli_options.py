@@ -280,23 +280,25 @@ def check_inputs(args: argparse.Namespace) -> list[str]:
         ValueError: every problem, each naming the option and the path.
     """
     from flows.config import ConfigError
-    from flows.preflight import check_finished_run, check_night, check_workspace
+    from flows.preflight import (
+        check_finished_run,
+        check_night,
+        check_own_workspace,
+        check_workspace,
+    )
 
     problems: list[tuple[str, str]] = []
     config = args.config
     workspace = _workspace(args)
     if workspace is not None and args.command != "export":
         check_workspace(workspace, _workspace_option(args.command), problems)
+    if workspace is not None and args.command in ("ingest", "mates", "capture") and \
+            not problems:  # a night's: below
+        check_own_workspace(workspace, _workspace_option(args.command), problems)
     out = _out(args)
     if out is not None:
         check_workspace(out, "OUT" if args.command == "samples" else "--out", problems)
-    if args.command == "mates":
-        _regular_file(args.step, "STEP", problems)
-    if args.command == "inspect":
-        _regular_file(args.step, "ASSEMBLY.step", problems)
-        _regular_file(args.recording, "RECORDING.mcap", problems)
-    if args.command == "capture" and not 1 <= args.views <= CIRCLE_VIEWS:
-        problems.append(("--views", f"must be 1 to {CIRCLE_VIEWS}, got {args.views}"))
+    _arguments(args, problems)
     if args.command == "export":
         found: list[tuple[str, str]] = []
         check_finished_run(config.runtime.workspace, config.run, found)
@@ -310,6 +312,17 @@ def check_inputs(args: argparse.Namespace) -> list[str]:
     if problems:
         raise ValueError("; ".join(f"{where}: {reason}" for where, reason in problems))
     return warnings
+
+
+def _arguments(args: argparse.Namespace, problems: list[tuple[str, str]]) -> None:
+    """A command's own arguments: the files it reads, the views it renders."""
+    if args.command == "mates":
+        _regular_file(args.step, "STEP", problems)
+    if args.command == "inspect":
+        _regular_file(args.step, "ASSEMBLY.step", problems)
+        _regular_file(args.recording, "RECORDING.mcap", problems)
+    if args.command == "capture" and not 1 <= args.views <= CIRCLE_VIEWS:
+        problems.append(("--views", f"must be 1 to {CIRCLE_VIEWS}, got {args.views}"))
 
 
 def _workspace(args: argparse.Namespace) -> str | Path | None:

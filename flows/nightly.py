@@ -23,21 +23,24 @@ from prefect.artifacts import (
     create_markdown_artifact,
     create_table_artifact,
 )
-from prefect.states import Failed
+from prefect.states import Failed, State
 from prefect.task_runners import ThreadPoolTaskRunner
 
 from cadio.capture.coverage import ingested_parts
 from cadio.capture.scan import ScanConfig
 from cadio.catalog import read_catalog
 from cadio.contracts import CaptureSummary, MatesSummary
+from cadio.errors import DiskSpaceError, MachineError
 from cadio.export.job import model_digests
 from cadio.inspect.evaluate import AssemblyInspection
 from cadio.truth.scene_config import night_scene_config
 from cadio.truth.scenes import read_scenes
 from cadio.workspace import Workspace, write_json
+from cadio.workspace_claim import WorkspaceBusyError, claim_workspace
 from flows.config import DEFAULT_NIGHT, ConfigError, NightConfig
 from flows.preflight import check_night
 from flows.settings import ingest_config, load_settings, runtime_settings
+from flows.stale_runs import crash_dead_runs, label_flow_run
 from flows.stopping import stop_on_signal
 from flows.tasks import (
     Run,
@@ -236,28 +239,56 @@ def nightly(config: NightConfig = DEFAULT_NIGHT) -> NightlySummary:
         ConfigError: the configuration names files that cannot be used, or a night that
             would check nothing (no file, no category, no model); raised before any work,
             or after the captures when not one of the recordings could be used.
+        WorkspaceBusyError: another night holds the workspace (``cadio.workspace_claim``):
+            refused at once, naming it.
+        MachineError: the machine stopped the night (no space left, a workspace folder it
+            cannot write, an I/O error); returned as a Failed state whose message names it,
+            with nothing of it cached as a failed input.
         ThresholdFailure: a threshold failed (with ``fail_on_threshold``); the run's report
             and ``summary.json`` are complete, and the flow run ends Failed (a returned state
             whose data is the failure, so that no traceback is logged).
     """
     with stop_on_signal():
+        log = get_run_logger()
         for warning in check_night(config):
-            get_run_logger().warning("%s", warning)
-        address = config.runtime.dask_address
-        address = load_settings().dask_address if address is None else address
-        stages = run_stages if not address else run_stages.with_options(
-            task_runner=_dask_runner(address))
-        state = stages(config, return_state=True)
-        if not state.is_completed():  # the recordings named no part: the reason, no traceback
+            log.warning("%s", warning)
+        label_flow_run()
+        for name in crash_dead_runs():
+            log.warning("flow run %r was left running by a night whose process is gone: "
+                        "marked Crashed", name)
+        try:
+            with claim_workspace(Path(config.runtime.workspace), _holder(config)):
+                state = _stages(config)
+        except WorkspaceBusyError as busy:  # another night's workspace: named, no traceback
+            return Failed(message=str(busy), data=busy)  # type: ignore[return-value]
+        if not state.is_completed():  # the recordings named no part, or the machine failed
             failure = state.result(raise_on_failure=False)
-            if isinstance(failure, ConfigError):
-                return Failed(message=str(failure), data=failure)  # type: ignore[return-value]
+            if isinstance(failure, (ConfigError, MachineError)):  # the reason, no traceback
+                return Failed(message=state.message, data=failure)  # type: ignore[return-value]
         summary = state.result()
     if config.thresholds.fail_on_threshold and summary.failed_checks:
         # a returned Failed state, not a raised error: no crash's traceback on the console
         failure = ThresholdFailure(summary.run_dir, summary.failed_checks)
         return Failed(message=str(failure), data=failure)  # type: ignore[return-value]
     return summary
+
+
+def _holder(config: NightConfig) -> dict[str, str]:
+    """What the workspace's lock says of this night to another one."""
+    from prefect.runtime import flow_run
+
+    return {"what": "mateqa nightly", "flow_run": str(flow_run.name or ""),
+            "library": config.library.path or "the built-in samples"}
+
+
+def _stages(config: NightConfig) -> State[NightlySummary]:
+    """The stages' subflow run, on the Dask cluster of the configuration or the
+    environment when there is one."""
+    address = config.runtime.dask_address
+    address = load_settings().dask_address if address is None else address
+    stages = run_stages if not address else run_stages.with_options(
+        task_runner=_dask_runner(address))
+    return stages(config, return_state=True)
 
 
 def _dask_runner(address: str) -> Any:
@@ -272,10 +303,28 @@ def run_stages(config: NightConfig) -> NightlySummary:
     """Every stage of the nightly in order (one log line each): a subflow, so that its task
     runner can be a Dask cluster's while the code stays the same."""
     with stop_on_signal():
+        label_flow_run()
         try:
             return stages_of(config)
         except ConfigError as err:  # an input's fault, answered by name (returned, not raised)
             return Failed(message=str(err), data=err)  # type: ignore[return-value]
+        except (MachineError, OSError) as exc:  # the machine's: named, never a bad input
+            fault = exc if isinstance(exc, MachineError) else MachineError.of(
+                exc, exc.filename or config.runtime.workspace)
+            if fault is None:
+                raise
+            return Failed(message=machine_failure(fault), data=fault)  # type: ignore[return-value]
+
+
+def machine_failure(fault: MachineError) -> str:
+    """What a night the machine stopped says: where, why, and that nothing was kept."""
+    if isinstance(fault, DiskSpaceError):  # found before the stage started
+        return (f"not enough free disk for the night: {fault}. Free space or give a workspace "
+                "on a larger disk, then run the night again (the work finished before is "
+                "reused)")
+    return (f"the machine stopped the night, not an input: {fault}. No input was recorded as "
+            "failed for it: free space or make the workspace writable, then run the night "
+            "again (the work finished before is reused)")
 
 
 def stages_of(config: NightConfig) -> NightlySummary:

@@ -1,6 +1,7 @@
 """What a night's configuration must hold before any work starts, beyond its schema.
 
-``check_night`` looks at the files a ``NightConfig`` names: the workspace can be a folder, the
+``check_night`` looks at the files a ``NightConfig`` names: the workspace can be a folder and
+is one mateqa may fill (new, empty or a workspace already; never ``/`` or a system folder), the
 library has STEP files and every category asked for, the recordings folder holds recordings,
 each model folder holds checkpoints that load (weights only), and the thresholds file reads.
 A night that would check nothing (no file, no category, no model) fails here with that reason
@@ -17,6 +18,7 @@ from pathlib import Path
 from cadio.cad.ingest import STEP_SUFFIXES, discover
 from cadio.errors import InputFileError
 from cadio.records import Category
+from cadio.workspace_claim import workspace_problem
 from flows.config import ConfigError, NightConfig
 
 # The folders of the built-in sample library (cadio.samples.library, not imported: it loads
@@ -35,6 +37,7 @@ def check_night(cfg: NightConfig) -> list[str]:
     problems: Problems = []
     warnings: list[str] = []
     check_workspace(cfg.runtime.workspace, "runtime.workspace", problems)
+    check_own_workspace(cfg.runtime.workspace, "runtime.workspace", problems)
     warnings += _check_library(cfg, problems)
     _check_recordings(cfg.capture.recordings, problems)
     _check_thresholds(cfg.thresholds.file, problems)
@@ -59,6 +62,15 @@ def check_workspace(workspace: str | Path, field: str, problems: Problems) -> No
         problems.append((field, f"{path} cannot be made: {parent} is not a folder"))
     elif not os.access(parent, os.W_OK | os.X_OK):
         problems.append((field, f"{path}: {parent} is not writable"))
+
+
+def check_own_workspace(workspace: str | Path, field: str, problems: Problems) -> None:
+    """A folder mateqa may fill: new, empty or a workspace already, never the filesystem's
+    root or a system folder, and no folder where ``runs/latest`` should link
+    (``cadio.workspace_claim.workspace_problem``)."""
+    problem = workspace_problem(workspace)
+    if problem:
+        problems.append((field, problem))
 
 
 def check_finished_run(workspace: str | Path, run: str, problems: Problems) -> None:

@@ -5,7 +5,9 @@ One server story: a server mateqa starts (for a night or for ``serve``) has its 
 "View at" links of the runs open; a night leaves it running for the UI and later nights, and
 ``mateqa serve`` takes it over (Ctrl-C then stops it). A headless Prefect server found on the
 port (one an older version left) is replaced by one with the UI, unless a flow run is in flight
-on it. ``mateqa serve --stop`` stops whatever Prefect server answers on the port.
+on it. ``mateqa serve --stop`` stops whatever Prefect server answers on the port, and a night's
+``--stop-server`` the one it started, unless flow runs are in flight on it (``runs_using``:
+another night's, which would fail without it).
 
 Prefect migrates a new home's empty SQLite database on its first start (about 25 s of CPU here). The
 first migrated database of a Prefect version is kept (``template_database``) and a later new
@@ -26,6 +28,7 @@ import sqlite3
 import subprocess
 import sys
 import time
+import urllib.error
 import urllib.request
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -82,6 +85,18 @@ def is_healthy(url: str) -> bool:
             return bool(resp.status == 200)
     except OSError:
         return False
+
+
+def api_problem(url: str) -> str | None:
+    """Why no Prefect API answers at ``url`` (refused, unreachable, timed out), or None when
+    one does (with any HTTP status: a server that asks for credentials answers)."""
+    try:
+        with urllib.request.urlopen(f"{url.rstrip('/')}/health", timeout=10):
+            return None
+    except urllib.error.HTTPError:
+        return None
+    except OSError as exc:
+        return str(getattr(exc, "reason", None) or exc)
 
 
 def ui_answers(port: int) -> bool:
@@ -268,6 +283,30 @@ def stop_server(server: LocalServer | None) -> None:
         _stop_and_unmark(server)
 
 
+def stop_unless_used(server: LocalServer | None) -> str | None:
+    """``stop_server``, unless flow runs are in flight on the server (another night's, which
+    would fail without it): then why it was left running (``runs_using``)."""
+    busy = runs_using(server.port) if server is not None and server.started else None
+    if not busy:
+        stop_server(server)
+    return busy
+
+
+def runs_using(port: int) -> str | None:
+    """The flow runs in flight on the server at ``port`` (after marking Crashed those of
+    nights whose process is gone: ``flows.stale_runs``), in words; None when there are none
+    or no server answers."""
+    from flows.stale_runs import runs_in_flight
+
+    if not is_healthy(api_url(port)):
+        return None
+    names = runs_in_flight(api_url(port))
+    if not names:
+        return None
+    return (f"{len(names)} flow run(s) in flight on it ({', '.join(names[:5])}"
+            f"{' ...' if len(names) > 5 else ''})")
+
+
 def stop_owned(server: LocalServer) -> None:
     """Stop the server when mateqa started it, now or for an earlier night (``serve``'s exit)."""
     if (server.started or server.left_by_mateqa) and server.pid is not None:
@@ -292,7 +331,7 @@ def stop_port(port: int, home: Path | None = None) -> int | None:
 
     Raises:
         RuntimeError: the port is held by a process that is no Prefect server, or one that
-            cannot be seen.
+            cannot be seen, or flow runs are in flight on the server (``runs_using``).
     """
     proc = listener(port)
     if proc is None:
@@ -303,6 +342,11 @@ def stop_port(port: int, home: Path | None = None) -> int | None:
     if not is_prefect_server(proc):
         raise RuntimeError(f"port {port} is held by process {proc.pid} "
                            f"({' '.join(proc.cmdline())[:80]}), not a Prefect server")
+    busy = runs_using(port)
+    if busy:
+        raise RuntimeError(f"the Prefect server on port {port} is not stopped: {busy}; stop "
+                           "it once they end (a run that a killed night of an earlier mateqa left "
+                           "Running can be set Crashed in the UI)")
     stop_pid(proc.pid)
     if home is not None and _marked_pid(home) == proc.pid:
         (home / PID_FILE).unlink(missing_ok=True)

@@ -24,6 +24,7 @@ from typing import Any
 from uuid import UUID
 
 from cadio.sandbox import kill_workers
+from flows.logs import run_logger
 
 log = logging.getLogger(__name__)
 
@@ -62,10 +63,13 @@ def _stop(signum: int, frame: FrameType | None) -> None:
         signal.signal(sig, signal.SIG_IGN)
     name = signal.Signals(signum).name
     reason = f"stopped by {name}: the night ended at once (rerun to resume from its cache)"
-    _logger().warning("%s: marking %d flow run(s) Crashed and stopping the CAD workers", name,
-                      len(_RUNS))
+    run_logger(__name__).warning("%s: marking %d flow run(s) Crashed and stopping the CAD "
+                                 "workers", name, len(_RUNS))
     try:
-        _mark_crashed(list(_RUNS), reason)
+        from prefect.client.orchestration import get_client
+
+        with get_client(sync_client=True) as client:
+            mark_crashed(client, list(_RUNS), reason)
     except Exception as exc:  # the server may be what is going away: stop all the same
         log.error("could not mark the flow runs: %s", exc)
     _flush_logs()
@@ -73,18 +77,9 @@ def _stop(signum: int, frame: FrameType | None) -> None:
     os._exit(128 + signum)
 
 
-def _logger() -> Any:
-    from prefect import get_run_logger
-
-    try:
-        return get_run_logger()
-    except Exception:  # no run context in this thread: the module's logger will do
-        return log
-
-
-def _mark_crashed(runs: list[UUID], reason: str) -> None:
-    """Set each flow run, and its task runs still running, to Crashed."""
-    from prefect.client.orchestration import get_client
+def mark_crashed(client: Any, runs: list[UUID], reason: str) -> None:
+    """Set each flow run, and its task runs still running, to Crashed (``client``: Prefect's
+    synchronous client)."""
     from prefect.client.schemas.filters import (
         FlowRunFilter,
         FlowRunFilterId,
@@ -95,15 +90,14 @@ def _mark_crashed(runs: list[UUID], reason: str) -> None:
     from prefect.client.schemas.objects import StateType
     from prefect.states import Crashed
 
-    with get_client(sync_client=True) as client:
-        for run_id in reversed(runs):  # innermost first, as Prefect itself ends them
-            tasks = client.read_task_runs(
-                flow_run_filter=FlowRunFilter(id=FlowRunFilterId(any_=[run_id])),
-                task_run_filter=TaskRunFilter(state=TaskRunFilterState(
-                    type=TaskRunFilterStateType(any_=[StateType.RUNNING, StateType.PENDING]))))
-            for task_run in tasks:
-                client.set_task_run_state(task_run.id, Crashed(message=reason), force=True)
-            client.set_flow_run_state(run_id, Crashed(message=reason), force=True)
+    for run_id in reversed(runs):  # innermost first, as Prefect itself ends them
+        tasks = client.read_task_runs(
+            flow_run_filter=FlowRunFilter(id=FlowRunFilterId(any_=[run_id])),
+            task_run_filter=TaskRunFilter(state=TaskRunFilterState(
+                type=TaskRunFilterStateType(any_=[StateType.RUNNING, StateType.PENDING]))))
+        for task_run in tasks:
+            client.set_task_run_state(task_run.id, Crashed(message=reason), force=True)
+        client.set_flow_run_state(run_id, Crashed(message=reason), force=True)
 
 
 def _flush_logs() -> None:

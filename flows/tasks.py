@@ -23,6 +23,7 @@ from datetime import UTC, datetime
 from pathlib import Path
 from typing import Any
 
+import pandas as pd
 from prefect import task
 from prefect.context import TaskRunContext
 
@@ -38,6 +39,7 @@ from cadio.capture.coverage import (
     Plan,
     alone_id,
     capture_parts_alone,
+    ingested_parts,
     is_alone,
     placements,
     scoring_plan,
@@ -52,6 +54,7 @@ from cadio.capture.scan import (
 )
 from cadio.catalog import CatalogRow, read_catalog, to_frame, write_catalog
 from cadio.contracts import CaptureSummary, ExportSummary, MatesSummary, ScenesSummary
+from cadio.disk_space import capture_need_mb, check_free_space, ingest_need_mb
 from cadio.evidence.pair_features import evidence_digest
 from cadio.export.job import ExportJob, export_assemblies, run_jobs, write_index
 from cadio.inspect.defects import DefectPlan
@@ -69,6 +72,7 @@ from cadio.truth.scene_config import SceneConfig
 from cadio.truth.scenes import build_scenes, read_scenes
 from cadio.workspace import Workspace, atomic_path
 from flows.config import InspectionOptions
+from flows.logs import run_logger
 from models.completions import COMPLETIONS
 from models.evaluate import Scores, complete_parts, part_inputs
 from models.relate import RelateBatch, load_relation_models, relate_batch, relate_inspection
@@ -288,8 +292,13 @@ def batches(items: list[Any], size: int) -> list[list[Any]]:
 def ingest_stage(library: str, run: Run, cfg: IngestConfig, batch_size: int,
                  categories: list[str] | None = None) -> str:
     """Every STEP file of the library (of ``categories`` only, when given) in batches of
-    ``batch_size``; the catalog's path."""
+    ``batch_size``; the catalog's path. Stops first when the disk cannot hold what the files
+    not yet ingested would write (``DiskSpaceError``)."""
     found = [f for f in discover(Path(library)) if not categories or f.category in categories]
+    done = set(read_catalog(Workspace(Path(run.workspace)).catalog).query("status == 'ok'")
+               ["source"].astype(str))
+    todo = [f.path for f in found if str(f.path) not in done]
+    _require_space(run, ingest_need_mb(todo), f"the {len(todo)} new STEP file(s) to ingest")
     futures = [ingest_batch_task.submit([str(f.path) for f in b], [f.category for f in b],
                                         run.workspace, run.epoch, cfg, cfg.key())
                for b in batches(found, batch_size)]
@@ -310,11 +319,32 @@ def render_stage(catalog: str, scenes: ScenesSummary, mates: list[MatesSummary],
     context that places it (``cadio.capture.coverage.scoring_plan``), then alone every part
     that none of them scored."""
     jobs = captured_assemblies(catalog, mates, run)
-    plan = scoring_plan(placements(read_scenes(Path(scenes.path)), jobs))
+    placed = placements(read_scenes(Path(scenes.path)), jobs)
+    _require_capture_space(run, placed, read_catalog(Path(catalog)), cfg)
+    plan = scoring_plan(placed)
     captured = capture_stage(scenes, run, cfg, None, plan)
     captured += assembly_stage(jobs, run, cfg, plan)
     return captured + alone_stage(unscored_parts(read_catalog(Path(catalog)), captured), run,
                                   cfg)
+
+
+def _require_capture_space(run: Run, placed: dict[str, list[str]], catalog: pd.DataFrame,
+                           cfg: ScanConfig) -> None:
+    """Stop before the captures when the disk cannot hold the ones not yet on disk: the
+    scenes, the assemblies, and alone every part neither places (more may follow, for parts
+    hidden in every view)."""
+    ws = Workspace(Path(run.workspace))
+    shown = {p for parts in placed.values() for p in parts}
+    alone = [alone_id(p) for p in ingested_parts(catalog)["part_id"] if p not in shown]
+    todo = [c for c in [*placed, *alone] if not ws.capture(c).is_file()]
+    _require_space(run, capture_need_mb(len(todo), cfg.views_per_scene, cfg.noise),
+                   f"the {len(todo)} new capture(s) of {cfg.views_per_scene} view(s)")
+
+
+def _require_space(run: Run, need_mb: float, what: str) -> None:
+    """Check the workspace's disk for ``what`` (``check_free_space``) and log the figures."""
+    free = check_free_space(Path(run.workspace), need_mb, what)
+    run_logger(__name__).info("disk: %s need about %.0f MB; %.0f MB free", what, need_mb, free)
 
 
 def capture_stage(scenes: ScenesSummary, run: Run, cfg: ScanConfig, captures: str | None,

@@ -210,7 +210,7 @@ def local_night(small_library: Path, prefect_api: dict[str, str],
 # Test files that share the session's Prefect server or its uninterrupted night: the test run
 # (`pytest -n 2`) gives them to one worker together, so that each is started once.
 SERVER_GROUP = {"test_bad_inputs", "test_calibrate", "test_dask", "test_docker", "test_export",
-                "test_resume", "test_verdict"}
+                "test_resume", "test_verdict", "test_workspace_claim"}
 
 
 # The heaviest scopes of the run (a test file, or "server" for SERVER_GROUP), heaviest first:

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import ctypes
+import errno
 import os
 import time
 from pathlib import Path
@@ -29,6 +30,11 @@ def misbehave(payload: str) -> str:
         raise ValueError("bad payload")
     if payload == "pid":
         return str(os.getpid())
+    if payload == "full-disk":  # a write the disk refuses, as a full one does
+        from cadio.workspace import atomic_write
+
+        with atomic_write(Path(os.environ.get("TMPDIR", "/tmp")) / "never-written"):
+            raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
     return payload.removeprefix("ok:")
 
 
@@ -39,6 +45,19 @@ def process_or_crash(job: IngestJob) -> list[CatalogRow]:
     if "segfault" in Path(job.path).name:
         ctypes.string_at(0)
     return process_file(job)
+
+
+def process_on_a_full_disk(job: IngestJob) -> list[CatalogRow]:
+    """The real per-file ingest job, on a disk that refuses every write as a full one does."""
+    from unittest import mock
+
+    from cadio.cad.ingest import process_file
+
+    def full(*args: object, **kwargs: object) -> None:
+        raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
+
+    with mock.patch("cadio.workspace.create_beside", full):
+        return process_file(job)
 
 
 def run_in_daemon(payloads: list[str], limits: Limits, out: Queue) -> None:

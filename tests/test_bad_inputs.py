@@ -61,6 +61,7 @@ def inputs(tmp_path: Path, box_step: Path) -> Path:
     (tmp_path / "random-completion").mkdir()
     (tmp_path / "random-completion" / "completion-gan_lstm-observed.pt").write_bytes(
         np.random.default_rng(0).bytes(4096))
+    (tmp_path / "ws-latest" / "runs" / "latest").mkdir(parents=True)  # a folder, not the link
     runs = tmp_path / "ws-runs" / "runs"
     (runs / "20260101T000000000000Z").mkdir(parents=True)  # killed: no summary.json
     (runs / "20260102T000000000000Z").mkdir()
@@ -123,6 +124,15 @@ OPTION_CASES: dict[str, tuple[list[str], list[str]]] = {
     "--timeout 0": ([*INGEST, "--timeout", "0"], ["--timeout", "> 0"]),
     "--memory-mb 1": ([*INGEST, "--memory-mb", "1"], ["--memory-mb", "2048"]),
     "--max-file-mb -1": ([*INGEST, "--max-file-mb", "-1"], ["--max-file-mb", "> 0"]),
+    "--workspace /": (["nightly", "--library", "{d}/lib", "--workspace", "/"],
+                      ["--workspace (runtime.workspace)", "/ is the filesystem root"]),
+    "--workspace a folder of other files": (["ingest", "{d}/lib", "--workspace", "{d}"],
+                                            ["--workspace", "not empty and not a mateqa "
+                                             "workspace", "a-file"]),
+    "a folder at runs/latest": (["nightly", "--library", "{d}/lib", "--workspace",
+                                 "{d}/ws-latest"], ["ws-latest/runs/latest is not the link"]),
+    "PREFECT_API_URL where no server answers": (NIGHT, ["no Prefect API answers at "
+                                                        f"{NO_SERVER} (PREFECT_API_URL)"]),
 }
 
 

@@ -178,6 +178,14 @@ def test_a_night_whose_recordings_are_all_unusable_fails_naming_them(
     assert summary.verdict == "UNCHECKED"  # one part, one file: too few to check, not a PASS
 
 
+def _two_parts(tmp_path: Path, box_step: Path, pin_step: Path) -> Path:
+    lib = tmp_path / "lib" / "fasteners"
+    lib.mkdir(parents=True)
+    shutil.copy(box_step, lib / "box.step")
+    shutil.copy(pin_step, lib / "pin.step")
+    return lib.parent
+
+
 def test_a_method_registered_in_one_module_reaches_the_night_s_tables(
         harness: object, tmp_path: Path, box_step: Path, pin_step: Path) -> None:
     """A completion method and a relation method, each registered as its own module would
@@ -194,11 +202,8 @@ def test_a_method_registered_in_one_module_reaches_the_night_s_tables(
                             __name__, solid=lambda example: np.ones_like(example.visible))
     never = RelationMethod("never", "no relation ever holds", Role.BASELINE, 9, __name__,
                            decide=lambda points, *rest: np.zeros((len(points), 10), bool))
-    lib = tmp_path / "lib" / "fasteners"
-    lib.mkdir(parents=True)
-    shutil.copy(box_step, lib / "box.step")
-    shutil.copy(pin_step, lib / "pin.step")
-    config = night_config({"library": {"path": str(lib.parent), "voxel_sizes": [16]},
+    config = night_config({"library": {"path": str(_two_parts(tmp_path, box_step, pin_step)),
+                                      "voxel_sizes": [16]},
                            "runtime": {"workspace": str(tmp_path / "ws")},
                            "capture": {"views_per_scene": 1, "pairs_per_relation": 1},
                            "thresholds": {"fail_on_threshold": False}})
@@ -216,3 +221,74 @@ def test_a_method_registered_in_one_module_reaches_the_night_s_tables(
     summary = pd.read_csv(run / "relations_summary.csv")
     assert "never" in set(summary["method"])
     assert "fill" not in COMPLETIONS and "never" not in RELATION_METHODS
+
+
+def test_a_disk_full_during_the_captures_fails_the_night_and_the_next_captures_all(
+        harness: object, tmp_path: Path, box_step: Path, pin_step: Path,
+        monkeypatch: pytest.MonkeyPatch) -> None:
+    import errno
+    import os
+
+    from cadio.errors import MachineError
+    from cadio.recordings.foxglove_mcap import CaptureWriter
+    from flows.config import night_config
+    from flows.nightly import nightly
+
+    config = night_config({"library": {"path": str(_two_parts(tmp_path, box_step, pin_step)),
+                                       "voxel_sizes": [16]},
+                           "runtime": {"workspace": str(tmp_path / "ws")},
+                           "capture": {"views_per_scene": 1, "pairs_per_relation": 1}})
+    written = CaptureWriter.write_frame
+    calls = []
+
+    def every_other(self: CaptureWriter, frame: object) -> None:  # the disk fills, is freed...
+        calls.append(self.path)
+        if len(calls) % 2 == 0:
+            raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
+        written(self, frame)  # type: ignore[arg-type]
+
+    monkeypatch.setattr(CaptureWriter, "write_frame", every_other)
+    with pytest.raises(MachineError, match="No space left on device"):
+        nightly(config)
+    assert not list((tmp_path / "ws").glob("runs/*/summary.json"))  # no PASS of a broken night
+    monkeypatch.undo()
+    summary = nightly(config)  # the disk freed: nothing of the first night is kept as failed
+    assert summary.stages.captures_failed == 0 and summary.stages.captures > 0
+    assert set(read_catalog(tmp_path / "ws" / "catalog.parquet")["status"]) == {"ok"}
+
+
+def test_a_night_stops_before_ingest_when_the_disk_cannot_hold_it(
+        harness: object, tmp_path: Path, box_step: Path, pin_step: Path,
+        monkeypatch: pytest.MonkeyPatch) -> None:
+    from collections import namedtuple
+
+    from cadio.errors import DiskSpaceError
+    from flows.config import night_config
+    from flows.nightly import nightly
+
+    usage = namedtuple("usage", "total used free")
+    monkeypatch.setattr(shutil, "disk_usage", lambda path: usage(10**9, 10**9 - 10**7, 10**7))
+    config = night_config({"library": {"path": str(_two_parts(tmp_path, box_step, pin_step))},
+                           "runtime": {"workspace": str(tmp_path / "ws")}})
+    with pytest.raises(DiskSpaceError, match=r"10 MB free, but the 2 new STEP file\(s\) to "
+                                             r"ingest need about 5\d MB"):
+        nightly(config)
+    assert not (tmp_path / "ws" / "catalog.parquet").exists()
+
+
+def test_a_deployment_run_into_a_folder_that_is_no_workspace_fails_before_any_work(
+        harness: object, tmp_path: Path, box_step: Path, pin_step: Path) -> None:
+    """A night given someone's folder (a home, a project) as its workspace writes nothing
+    there; ``/`` and the system folders are refused the same way (``test_workspace_claim``)."""
+    from flows.config import ConfigError, night_config
+    from flows.nightly import nightly
+
+    home = tmp_path / "home"
+    home.mkdir()
+    (home / "notes.txt").write_text("mine")
+    config = night_config({"library": {"path": str(_two_parts(tmp_path, box_step, pin_step))},
+                           "runtime": {"workspace": str(home)}})
+    with pytest.raises(ConfigError, match=r"runtime.workspace: .*home is not empty and not a "
+                                          r"mateqa workspace \(it holds notes.txt\)"):
+        nightly(config)
+    assert [p.name for p in home.iterdir()] == ["notes.txt"]

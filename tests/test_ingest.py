@@ -12,7 +12,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 import pytest
-from sandbox_targets import process_or_crash
+from sandbox_targets import process_on_a_full_disk, process_or_crash
 
 from cadio.cad.ingest import IngestConfig, discover, ingest, largest_first
 from cadio.catalog import read_catalog
@@ -197,3 +197,68 @@ def test_a_library_csv_names_files_and_categories(box_step: Path, tmp_path: Path
     bad.write_text("file,kind\nx.step,a\n")
     with pytest.raises(InputFileError, match=r"bad\.csv.*path and category"):
         discover(bad)
+
+
+def test_a_linked_category_folder_is_searched_and_a_link_loop_searched_once(
+        tmp_path: Path, box_step: Path) -> None:
+    lib, elsewhere = tmp_path / "lib", tmp_path / "elsewhere" / "couplings"
+    (lib / "fasteners" / "sub").mkdir(parents=True)
+    elsewhere.mkdir(parents=True)
+    shutil.copy(box_step, lib / "fasteners" / "box.step")
+    (elsewhere / "pin.step").write_bytes(box_step.read_bytes().replace(b"box", b"pin"))
+    (lib / "couplings").symlink_to(elsewhere, target_is_directory=True)
+    (lib / "fasteners" / "sub" / "up").symlink_to("..", target_is_directory=True)
+    (lib / "fasteners" / "root").symlink_to("/", target_is_directory=True)
+    catalog = ingest(lib, tmp_path / "ws", FAST)
+    linked = _row(catalog, "couplings/pin.step")
+    assert linked["status"] == "ok" and linked["category"] == "couplings"
+    assert _row(catalog, "fasteners/box.step")["status"] == "ok"
+    for loop in ("sub/up", "fasteners/root"):
+        row = _row(catalog, loop)
+        assert row["status"] == "skipped" and "searched once" in row["error"], row["error"]
+    assert len(catalog) == 4  # every path found is accounted for, each once
+
+
+def test_a_folder_that_cannot_be_read_is_a_failed_row(tmp_path: Path, box_step: Path,
+                                                      monkeypatch: pytest.MonkeyPatch) -> None:
+    lib = tmp_path / "lib"
+    (lib / "fasteners").mkdir(parents=True)
+    (lib / "couplings").mkdir()
+    shutil.copy(box_step, lib / "fasteners" / "box.step")
+    shutil.copy(box_step, lib / "couplings" / "hidden.step")
+    locked = lib / "couplings"
+    locked.chmod(0)
+    if os.geteuid() == 0:  # root reads any folder: refuse this one as the kernel would
+        import cadio.cad.ingest as module
+
+        real = os.scandir
+
+        def scandir(path: object) -> object:
+            if Path(str(path)) == locked:
+                raise PermissionError(13, "Permission denied", str(path))
+            return real(path)  # type: ignore[arg-type]
+
+        monkeypatch.setattr(module.os, "scandir", scandir)
+    try:
+        catalog = ingest(lib, tmp_path / "ws", FAST)
+    finally:
+        locked.chmod(0o755)
+    row = _row(catalog, "couplings")
+    assert row["status"] == "failed" and row["category"] == "couplings"
+    assert "folder cannot be read (Permission denied)" in row["error"]
+    assert _row(catalog, "box.step")["status"] == "ok"
+
+
+def test_a_full_disk_is_no_failed_file_and_the_next_ingest_reads_every_file(
+        tmp_path: Path, box_step: Path) -> None:
+    from cadio.errors import MachineError
+
+    lib = tmp_path / "lib" / "fasteners"
+    lib.mkdir(parents=True)
+    shutil.copy(box_step, lib / "box.step")
+    ws = tmp_path / "ws"
+    with pytest.raises(MachineError, match="No space left on device"):
+        ingest(lib.parent, ws, replace(FAST, worker=process_on_a_full_disk))
+    assert read_catalog(ws / "catalog.parquet").empty  # no row says the file is bad
+    catalog = ingest(lib.parent, ws, FAST)  # the disk freed: the file is read again
+    assert list(catalog["status"]) == ["ok"] and not catalog["cached"].any()

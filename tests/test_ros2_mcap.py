@@ -431,6 +431,16 @@ def test_capture_read_prints_what_was_read(tmp_path: Path, frames: list[RgbdFram
     assert summarise_capture(path).frames == len(frames)
 
 
+def recordings_of_the_pair(tmp_path: Path) -> tuple[Workspace, Path]:
+    """A workspace that knows the parts of ``pair()``, and an empty folder for recordings."""
+    ws = Workspace(tmp_path / "ws")
+    for part in pair():
+        write_mesh(ws.mesh(part.part_id), part.mesh)
+    folder = tmp_path / "recordings"
+    folder.mkdir()
+    return ws, folder
+
+
 def test_the_nightly_capture_stage_reads_ros2_recordings(tmp_path: Path,
                                                         frames: list[RgbdFrame],
                                                         meta: dict) -> None:
@@ -438,11 +448,7 @@ def test_the_nightly_capture_stage_reads_ros2_recordings(tmp_path: Path,
     gives each part's observed points; a real one (no ids, no scene, no tf) gives its frames
     and clusters but no part to score, with its warnings; a bad one is reported and the others
     go on."""
-    ws = Workspace(tmp_path / "ws")
-    for part in pair():
-        write_mesh(ws.mesh(part.part_id), part.mesh)
-    folder = tmp_path / "recordings"
-    folder.mkdir()
+    ws, folder = recordings_of_the_pair(tmp_path)
     write_ros2_capture(folder / "sim.mcap", frames, scene=meta)
     colour = stamped(list(render_views(pair(), replace(SMALL, width=424, hfov_deg=69.4))))
     _realsense_bag(folder / "real.mcap", frames, colour)
@@ -473,3 +479,113 @@ def _world_box(meta: dict, part_id: str, vertices: np.ndarray) -> tuple[np.ndarr
     pose = np.asarray(part["pose_mm"])
     world = (vertices @ pose[:3, :3].T + pose[:3, 3]) * scale
     return world.min(axis=0), world.max(axis=0)
+
+
+# ---------------------------------------------------------------- recordings the stages cannot use
+
+
+def _frames_with(frames: list[RgbdFrame], **changes: object) -> list[RgbdFrame]:
+    return [replace(f, **changes) for f in frames]  # type: ignore[arg-type]
+
+
+def _nan_pose(path: Path, frames: list[RgbdFrame], meta: dict) -> None:
+    """Our own dialect, with NaN in the camera's transform."""
+    import cadio.recordings.foxglove_mcap as foxglove
+
+    whole = foxglove._transform
+
+    def nan(stamp: object, world_to_camera: np.ndarray) -> object:
+        msg = whole(stamp, world_to_camera)  # type: ignore[arg-type]
+        msg.translation.x = float("nan")
+        return msg
+
+    foxglove._transform = nan  # type: ignore[assignment]
+    try:
+        write_capture(path, frames, meta)
+    finally:
+        foxglove._transform = whole
+
+
+def _png_bomb(path: Path, frames: list[RgbdFrame], meta: dict) -> None:
+    """Colour as a PNG that declares 20000 x 20000 pixels (a few kB on disk)."""
+    buf = io.BytesIO()
+    Image.new("L", (20000, 20000)).save(buf, format="PNG")
+    with ros2_recording(path) as rec:
+        for f in frames:
+            ns = f.timestamp_ns
+            rec.put("/camera/camera_info", "sensor_msgs/msg/CameraInfo", camera_info(ns, "c", f),
+                    ns)
+            rec.put("/camera/depth/image_raw", "sensor_msgs/msg/Image",
+                    image(ns, "c", np.round(f.depth * 1000).astype("<u2"), "16UC1"), ns)
+            rec.put("/camera/color/image_raw/compressed", "sensor_msgs/msg/CompressedImage",
+                    {"header": header(ns, "c"), "format": "png", "data": buf.getvalue()}, ns)
+
+
+def _one_pixel(frame: RgbdFrame) -> RgbdFrame:
+    k = replace(frame.intrinsics, width=1, height=1, cx=0.0, cy=0.0)
+    return replace(frame, intrinsics=k, colour=frame.colour[:1, :1].copy(),
+                   depth=frame.depth[:1, :1].copy(), instance=None)
+
+
+# (how the bad recording is written, the words its error must hold)
+BAD_RECORDINGS: dict[str, tuple[Callable[[Path, list[RgbdFrame], dict], None], list[str]]] = {
+    "a focal length of 0": (lambda p, fs, m: write_ros2_capture(p, _frames_with(
+        fs, intrinsics=replace(fs[0].intrinsics, fx=0.0)), scene=m),
+        ["camera_info", "fx=0", "focal lengths above 0"]),
+    "NaN in the camera pose": (_nan_pose, ["camera pose", "not finite"]),
+    "a PNG declaring 20000x20000 pixels": (_png_bomb, ["compressed", "more pixels"]),
+    "all-zero depth": (lambda p, fs, m: write_ros2_capture(p, _frames_with(
+        fs, depth=np.zeros_like(fs[0].depth)), scene=m), ["depth images are empty"]),
+    "1x1 images": (lambda p, fs, m: write_capture(p, [_one_pixel(f) for f in fs], m),
+                   ["1x1 pixels", "32 to 16384 pixels a side"]),
+    "an MCAP header and nothing else": (lambda p, fs, m: p.write_bytes(
+        b"\x89MCAP0\r\n\x01" + struct.pack("<QII", 8, 0, 0)), ["ends after 25 bytes"]),
+}
+
+
+@pytest.mark.parametrize("case", BAD_RECORDINGS)
+def test_one_bad_recording_is_named_and_the_good_one_beside_it_is_scored(
+        tmp_path: Path, frames: list[RgbdFrame], meta: dict, case: str) -> None:
+    write, named = BAD_RECORDINGS[case]
+    ws, folder = recordings_of_the_pair(tmp_path)
+    write_ros2_capture(folder / "good.mcap", frames, scene=meta)
+    write(folder / "bad.mcap", frames, meta)
+    cfg = ScanConfig(views_per_scene=8, n_in=32, n_out=32, lengths=(2,))
+    got = {s.scene_id: s for s in read_captures(folder, ws, cfg)}
+    assert got["good"].error == "" and got["good"].input_parts == 2
+    for word in named:
+        assert word in got["bad"].error, got["bad"].error
+    assert "Errno" not in got["bad"].error
+
+
+def test_a_depth_image_without_a_measured_pixel_is_skipped_with_a_warning(
+        tmp_path: Path, frames: list[RgbdFrame], meta: dict) -> None:
+    """A sensor starting up sends empty depth first: those frames go, the others are read."""
+    path = tmp_path / "warming-up.mcap"
+    write_capture(path, [replace(frames[0], depth=np.zeros_like(frames[0].depth)), *frames[1:]],
+                  meta)
+    back = list(read_capture(path))
+    assert len(back) == len(frames) - 1
+    assert any("without a measured pixel" in w for w in back[-1].meta["warnings"])
+
+
+def test_whatever_else_breaks_a_recording_is_named_and_the_night_goes_on(
+        tmp_path: Path, frames: list[RgbdFrame], meta: dict,
+        monkeypatch: pytest.MonkeyPatch) -> None:
+    import cadio.capture.scan as scan
+
+    ws, folder = recordings_of_the_pair(tmp_path)
+    for name in ("a", "b"):
+        write_ros2_capture(folder / f"{name}.mcap", frames, scene=meta)
+    scanned = scan.scan_inputs
+
+    def fragile(path: Path, *args: object, **kwargs: object) -> object:
+        if path.stem == "a":  # a check the reader has not thought of yet
+            raise IndexError("index 2 is out of bounds for axis 0 with size 0")
+        return scanned(path, *args, **kwargs)  # type: ignore[arg-type]
+
+    monkeypatch.setattr(scan, "scan_inputs", fragile)
+    cfg = ScanConfig(views_per_scene=8, n_in=32, n_out=32, lengths=(2,))
+    got = {s.scene_id: s for s in read_captures(folder, ws, cfg)}
+    assert got["a"].error == "IndexError: index 2 is out of bounds for axis 0 with size 0"
+    assert got["b"].error == "" and got["b"].input_parts == 2

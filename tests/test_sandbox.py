@@ -59,6 +59,17 @@ def test_exceptions_are_reported_and_workers_run_in_parallel() -> None:
     assert [out[f"ok:{i}"] for i in range(6)] == [str(i) for i in range(6)]
 
 
+def test_a_fault_of_the_machine_is_raised_never_an_input_error() -> None:
+    """A job that meets a full disk ends the batch with that error: no outcome stands for a
+    failed input, which would be reported (and kept) as the input's fault."""
+    from cadio.errors import MachineError
+
+    with pytest.raises(MachineError, match="No space left on device") as err:
+        _run(["ok:a", "full-disk", "ok:b"], Limits(seconds=60, workers=1))
+    assert err.value.path.endswith("never-written")
+    assert "errno 28" in err.value.reason
+
+
 def test_the_sandbox_runs_inside_a_daemonic_process() -> None:
     """A ``dask worker`` process is daemonic, and multiprocessing gives such a process no
     children: the sandbox's workers are plain subprocesses, with the same limits there."""

@@ -5,11 +5,15 @@ one; `serve --stop` stops the server on the port. Real servers on free loopback 
 from __future__ import annotations
 
 import contextlib
+import os
 import re
+import shutil
+import signal
 import socket
 import sqlite3
 import subprocess
 import sys
+import time
 import urllib.error
 import urllib.request
 from pathlib import Path
@@ -140,3 +144,99 @@ def test_stop_port_leaves_a_port_that_another_program_holds(tmp_path: Path) -> N
         port = sock.getsockname()[1]
         with pytest.raises(RuntimeError, match=f"port {port} is held by process"):
             stop_port(port)
+
+
+# A stand-in for a night: a flow run labelled as a night labels its runs, running until its
+# marker file is removed.
+_NIGHT_STAND_IN = """
+import sys, time
+from pathlib import Path
+from prefect import flow
+from flows.stale_runs import label_flow_run
+
+@flow(name="stand-in")
+def stand_in(marker: str) -> None:
+    label_flow_run()
+    Path(marker).write_text("running")
+    while Path(marker).exists():
+        time.sleep(0.2)
+
+stand_in(sys.argv[1])
+"""
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def _running_stand_in(home: Path, port: int, marker: Path) -> subprocess.Popen[bytes]:
+    proc = subprocess.Popen([sys.executable, "-c", _NIGHT_STAND_IN, str(marker)], cwd=ROOT,
+                            env=server_env(home, port), stdout=subprocess.DEVNULL,
+                            stderr=subprocess.DEVNULL)
+    deadline = time.monotonic() + 300
+    while not marker.exists():
+        assert proc.poll() is None and time.monotonic() < deadline, "the flow never ran"
+        time.sleep(0.2)
+    return proc
+
+
+def test_a_server_in_use_is_not_stopped_and_a_killed_runs_are_marked_crashed(
+        tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    from prefect.client.orchestration import get_client
+    from prefect.settings import PREFECT_API_URL, temporary_settings
+
+    from flows.cli import main
+    from flows.stale_runs import crash_dead_runs, runs_in_flight
+
+    home, port = tmp_path / "prefect", free_port()
+    server = start_server(home, port, timeout_s=600)
+    try:
+        stand_in = _running_stand_in(home, port, tmp_path / "running")
+        (name,) = runs_in_flight(api_url(port))
+        stop = ["serve", "--stop", "--port", str(port), "--home", str(home)]
+        assert main(stop) == 1
+        assert f"not stopped: 1 flow run(s) in flight on it ({name})" in capsys.readouterr().err
+        assert is_healthy(api_url(port))
+        stand_in.send_signal(signal.SIGKILL)  # as the OOM killer does: it cannot mark itself
+        stand_in.wait()
+        assert crash_dead_runs(api_url(port)) == [name]
+        with temporary_settings({PREFECT_API_URL: api_url(port)}), \
+                get_client(sync_client=True) as client:
+            (run,) = client.read_flow_runs()
+        assert run.state is not None and run.state.name == "Crashed"
+        assert f"(pid {stand_in.pid} on " in str(run.state.message) and "is gone" in str(
+            run.state.message)
+        assert main(stop) == 0 and not is_healthy(api_url(port))
+    finally:
+        stop_server(server)
+
+
+def test_stop_server_leaves_the_server_to_a_night_that_uses_it(
+        tmp_path: Path, box_step: Path, pin_step: Path) -> None:
+    lib = tmp_path / "lib" / "fasteners"
+    lib.mkdir(parents=True)
+    shutil.copy(box_step, lib)
+    shutil.copy(pin_step, lib)
+    home, port = tmp_path / "prefect", free_port()
+    env = {k: v for k, v in os.environ.items() if k != "PREFECT_API_URL"}
+    night = subprocess.Popen(
+        [sys.executable, "-m", "flows.cli", "nightly", "--library", str(lib.parent),
+         "--workspace", str(tmp_path / "ws"), "--voxel-sizes", "16", "--views-per-scene", "1",
+         "--pairs-per-relation", "1", "--stop-server"], cwd=ROOT, stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE, text=True,
+        env={**env, "MATEQA_SERVER_PORT": str(port), "MATEQA_PREFECT_HOME": str(home),
+             "OMP_NUM_THREADS": "1"})
+    marker = tmp_path / "running"
+    try:
+        deadline = time.monotonic() + 600
+        while not is_healthy(api_url(port)):  # the night starts the server
+            assert night.poll() is None and time.monotonic() < deadline, night.communicate()
+            time.sleep(0.5)
+        other = _running_stand_in(home, port, marker)  # another night uses it meanwhile
+        _, err = night.communicate(timeout=900)
+        assert night.returncode == 0, err[-3000:]
+        assert f"left the Prefect server on port {port} running: 1 flow run(s) in flight" in err
+        assert is_healthy(api_url(port))
+        marker.unlink()  # the other night ends, on a server that stayed up
+        assert other.wait(120) == 0
+    finally:
+        marker.unlink(missing_ok=True)
+        night.kill()
+        stop_port(port)

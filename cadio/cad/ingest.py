@@ -27,7 +27,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, TypeVar
 
 from cadio.catalog import CatalogRow, catalog_rows, read_catalog, to_frame, write_catalog
-from cadio.errors import GeometryError, InputFileError, WorkerError
+from cadio.errors import GeometryError, InputFileError, MachineError, WorkerError
 from cadio.inputs import kind, open_regular, read_text
 from cadio.sandbox import Job, Limits, run_isolated
 from cadio.tolerances import DEFAULT_TOLERANCES, Tolerances
@@ -100,8 +100,11 @@ def discover(root: Path) -> list[Found]:
     ``root`` is a ``.csv`` file, the files it lists (see ``read_library_csv``).
 
     Directories and broken links with such names are returned too, so that they are reported
-    rather than silently ignored. The category is the first folder below ``root``; files lying
-    directly in ``root`` take its own name (so pointing at one category folder works).
+    rather than silently ignored; so are the folders that cannot be searched: one that cannot
+    be read, and a link back to a folder above it (a loop, searched once). Links to folders
+    are followed: a category folder may live elsewhere. The category is the first folder
+    below ``root``; files lying directly in ``root`` take its own name (so pointing at one
+    category folder works).
 
     Raises:
         InputFileError: ``root`` is neither a folder nor a readable library CSV.
@@ -111,12 +114,44 @@ def discover(root: Path) -> list[Found]:
         return read_library_csv(root)
     if not root.is_dir():
         raise InputFileError(root, "library folder does not exist or is not a folder")
-    found = []
-    for path in sorted(root.rglob("*")):
+    found: list[Found] = []
+    _search(root, root, [root.resolve()], found)
+    return sorted(found, key=lambda f: f.path)
+
+
+def _search(folder: Path, root: Path, above: list[Path], found: list[Found]) -> None:
+    """The STEP paths under ``folder`` into ``found``, and the folders that cannot be searched
+    (``above``: the real paths of the folders the search came through)."""
+    try:
+        entries = sorted(os.scandir(folder), key=lambda e: e.name)
+    except OSError:  # unreadable: a row of its own, whose reason ``_screen`` gives
+        found.append(Found(folder, _category(folder, root)))
+        return
+    for entry in entries:
+        path = Path(entry.path)
         if path.suffix.lower() in STEP_SUFFIXES:
-            rel = path.relative_to(root).parts
-            found.append(Found(path, rel[0] if len(rel) > 1 else root.resolve().name))
-    return found
+            found.append(Found(path, _category(path, root)))
+        if not _is_folder(entry):
+            continue
+        real = path.resolve()
+        if real in above or real in above[-1].parents:  # a link back up: searched once
+            found.append(Found(path, _category(path, root)))
+        else:
+            _search(path, root, [*above, real], found)
+
+
+def _is_folder(entry: os.DirEntry[str]) -> bool:
+    try:
+        return entry.is_dir()  # links followed
+    except OSError:
+        return False
+
+
+def _category(path: Path, root: Path) -> str:
+    """The first folder below ``root`` on the way to ``path``; ``root``'s name for a file
+    lying in it."""
+    rel = path.relative_to(root).parts
+    return rel[0] if len(rel) > 1 or path.is_dir() else root.resolve().name
 
 
 def read_library_csv(path: Path) -> list[Found]:
@@ -203,6 +238,8 @@ def ingest(root: Path, workspace: Path, cfg: IngestConfig | None = None,
 
     Raises:
         InputFileError: ``root`` is not a folder.
+        MachineError: the workspace cannot be written (no space, no permission); no row of
+            the files is kept as failed.
     """
     cfg = cfg or IngestConfig()
     ws = Workspace(Path(workspace))
@@ -268,6 +305,8 @@ def _screen(item: Found, cfg: IngestConfig) -> tuple[CatalogRow | None, str]:
         info = path.stat()
     except OSError as exc:
         return _row(base, "failed", f"cannot be read: {exc.strerror or exc}"), ""
+    if stat.S_ISDIR(info.st_mode) and path.suffix.lower() not in STEP_SUFFIXES:
+        return _folder_row(base, path), ""  # a folder discover could not search
     if stat.S_ISDIR(info.st_mode):
         return _row(base, "skipped", "is a directory, not a STEP file"), ""
     if not stat.S_ISREG(info.st_mode):
@@ -284,6 +323,18 @@ def _screen(item: Found, cfg: IngestConfig) -> tuple[CatalogRow | None, str]:
     except OSError as exc:
         return _row(base, "failed", f"cannot be read: {exc.strerror or exc}"), ""
     return None, sha
+
+
+def _folder_row(base: CatalogRow, path: Path) -> CatalogRow:
+    """The row of a folder ``discover`` did not search: one it could not read, or a link back
+    to a folder above it (it can be read: ``discover`` reports no other)."""
+    try:
+        os.scandir(path).close()
+    except OSError as exc:
+        return _row(base, "failed", f"folder cannot be read ({exc.strerror or exc}): its STEP "
+                    "files are left out")
+    return _row(base, "skipped", f"is a link to {path.resolve()}, a folder above it (a loop): "
+                "searched once")
 
 
 def printable(text: str) -> str:
@@ -368,6 +419,8 @@ def process_file(job: IngestJob) -> list[CatalogRow]:
 
     Raises:
         StepReadError: the file cannot be read into solids.
+        MachineError: its artefacts cannot be written to the workspace (no space, no
+            permission): the machine's fault, never the file's row.
     """
     from cadio.cad.solid_props import InstanceIntegrals
     from cadio.cad.step import read_step
@@ -390,6 +443,8 @@ def _process_solid(solid: StepSolid, base: CatalogRow, job: IngestJob,
                   placement=tuple(info.placement.ravel().tolist()))
     try:
         row = _geometry(solid, row, job, integrate)
+    except MachineError:  # the workspace's fault, not the solid's: never a failed row
+        raise
     except Exception as exc:  # an OCCT failure on one solid must not lose the file's others
         row = replace(row, error=f"solid {info.index} ({info.name}): {type(exc).__name__}: {exc}")
     return replace(row, seconds=time.perf_counter() - start)

@@ -45,7 +45,7 @@ from cadio.capture.pointcloud import sample_points
 from cadio.capture.segment import segment_clusters, segmentation_score
 from cadio.catalog import read_catalog
 from cadio.contracts import CaptureSummary
-from cadio.errors import CaptureError, InputFileError
+from cadio.errors import CaptureError, InputFileError, MachineError
 from cadio.recordings.mcap_io import CaptureWriter, read_capture, read_scene_meta
 from cadio.records import FloatArray, Mesh, Relation
 from cadio.tolerances import DEFAULT_TOLERANCES, Tolerances
@@ -237,7 +237,13 @@ def read_captures(captures_dir: Path, ws: Workspace, cfg: ScanConfig) -> list[Ca
     """Learning inputs of every recording made elsewhere (``*.mcap`` under the folder, in
     either MCAP dialect: ``cadio.recordings.mcap_io``). A recording that cannot be used (no
     regular file: a folder or a pipe so named) gets its reason in the summary's ``error`` and
-    the others go on."""
+    the others go on. The reader refuses what it can tell is wrong (``read_capture``: sizes,
+    intrinsics, poses, empty depth); whatever else a recording's content breaks in its scan is
+    that recording's error too, named, and never the night's.
+
+    Raises:
+        MachineError: its inputs cannot be written into the workspace (the machine's fault).
+    """
     out = []
     for path in sorted(Path(captures_dir).rglob("*.mcap")):
         summary = CaptureSummary(scene_id=path.stem, path=str(path))
@@ -248,8 +254,10 @@ def read_captures(captures_dir: Path, ws: Workspace, cfg: ScanConfig) -> list[Ca
         summary = replace(summary, bytes=path.stat().st_size)
         try:
             out.append(with_inputs(summary, ws, cfg))
-        except ValueError as exc:  # e.g. a camera looking straight down
-            log.warning("%s: %s", path, exc)
+        except MachineError:
+            raise
+        except Exception as exc:  # e.g. a camera looking straight down: this file's error
+            log.warning("%s: %s: %s", path, type(exc).__name__, exc)
             out.append(replace(summary, error=f"{type(exc).__name__}: {exc}"))
     return out
 

@@ -30,6 +30,7 @@ the complete frames before the damage).
 
 from __future__ import annotations
 
+import errno
 import json
 import logging
 import struct
@@ -40,7 +41,7 @@ from typing import IO, Any, cast
 
 import numpy as np
 import zstandard
-from mcap.exceptions import McapError
+from mcap.exceptions import EndOfFile, McapError
 from mcap.reader import NonSeekingReader, SeekingReader
 from mcap.records import Channel, Schema
 from mcap.stream_reader import StreamReader
@@ -69,6 +70,7 @@ from cadio.recordings.pairing import (
     registered,
 )
 from cadio.recordings.recording import (
+    SIDES,
     CalibrationMsg,
     ImageMsg,
     PixelError,
@@ -77,6 +79,8 @@ from cadio.recordings.recording import (
     colour_pixels,
     depth_metres,
     instance_ids,
+    intrinsics_problem,
+    size_problem,
 )
 from cadio.recordings.ros2_mcap import ROS2, STRING
 from cadio.recordings.tf_tree import LEVEL_ROOTS, Lookup
@@ -127,6 +131,8 @@ def _stream(path: Path, fh: IO[bytes]) -> Iterator[tuple[Any, Any, Any]]:
             yield item
     except _DAMAGE as exc:
         detail = f"{type(exc).__name__}: {exc}" if str(exc) else type(exc).__name__
+        if isinstance(exc, EndOfFile):
+            detail = f"the file ends after {fh.tell()} bytes"
         raise CaptureTruncatedError(path, count, detail) from exc
 
 
@@ -136,6 +142,10 @@ def _summary(fh: IO[bytes]) -> Any:
         return SeekingReader(fh).get_summary()
     except _DAMAGE:
         return None  # e.g. truncated: callers scan the stream instead
+    except OSError as exc:  # shorter than a footer: the reader seeks before the file's start
+        if exc.errno != errno.EINVAL:
+            raise
+        return None
     finally:
         fh.seek(0)
 
@@ -173,6 +183,7 @@ class _Reader:
         self.level: FloatArray | None = None  # the world's rotation to Z up, once decided
         self.gravity = ""
         self.frames_out = 0
+        self.empty = 0  # depth images without a measured pixel, skipped
 
     def frames(self) -> Iterator[RgbdFrame]:
         with self.path.open("rb") as fh:
@@ -204,20 +215,34 @@ class _Reader:
 
     def _emit(self, now: int | None) -> Iterator[RgbdFrame]:
         for pair in self.pairer.settled(now):
-            self.frames_out += 1
-            yield self._frame(pair)
+            frame = self._frame(pair)
+            if frame is not None:
+                self.frames_out += 1
+                yield frame
 
     def _warn(self, message: str) -> None:
         if message not in self.warnings:
             self.warnings.append(message)
             log.warning("%s: %s", self.path, message)
 
-    def _frame(self, pair: Pair) -> RgbdFrame:
+    def _frame(self, pair: Pair) -> RgbdFrame | None:
+        """The frame of a pair; None for a depth image without a measured pixel (a sensor
+        starting up), which is skipped with a warning."""
         d, k = pair.depth, pair.depth_calibration.intrinsics()
+        _check_pair(self.path, pair)
         depth = _pixels(self.path, d, lambda: depth_metres(d, self.opts.depth_scale_m))
+        if not np.any(depth > 0):
+            self.empty += 1
+            self._warn(f"depth images of {d.topic} without a measured pixel are skipped")
+            return None
         look = (self.pairer.tree.lookup(d.frame_id, d.stamp_ns, self.opts.fixed_frame)
                 if self.pairer.tree else None)
         world_to_camera = self._pose(pair, depth, look)
+        if not np.all(np.isfinite(world_to_camera)):
+            raise CaptureTopicError(self.path, None, f"the camera pose of the depth image at "
+                                    f"{d.stamp_ns} ns is not finite (NaN or infinity in "
+                                    f"{'its transforms' if look else 'the pose given'})",
+                                    "finite transforms")
         rgb, colour_mode = self._colour(pair, depth)
         inst = pair.instance
         ids = (None if inst is None or (inst.width, inst.height) != (d.width, d.height)
@@ -298,6 +323,24 @@ class _Reader:
         for role in ("depth", "colour"):
             if getattr(self.channels, f"{role}_topic") is None:
                 raise self.channels.missing(role)
+        if self.frames_out == 0 and self.empty:
+            raise CaptureTopicError(self.path, self.channels.depth_topic, f"all {self.empty} "
+                                    "depth images are empty (no pixel with a depth)",
+                                    "depth images with measured pixels")
+
+
+def _check_pair(path: Path, pair: Pair) -> None:
+    """Refuse what would crash or mislead the stages downstream: an image of a size no camera
+    gives (``recording.size_problem``), camera info that cannot back-project."""
+    for img in (pair.depth, *([pair.colour] if pair.colour is not None else [])):
+        size = size_problem(img)
+        if size is not None:
+            raise CaptureTopicError(path, img.topic, f"image of {size}", f"images of {SIDES}")
+    for cal in (pair.depth_calibration, pair.colour_calibration):
+        bad = None if cal is None else intrinsics_problem(cal.intrinsics())
+        if cal is not None and bad is not None:
+            raise CaptureTopicError(path, cal.topic, f"camera info with {bad}",
+                                    "finite focal lengths above 0 and a finite principal point")
 
 
 def _pixels(path: Path, img: ImageMsg, decode: Any) -> Any:

@@ -16,6 +16,7 @@ header, then a 16-bit PNG of millimetres or of quantised inverse depth for 32FC1
 from __future__ import annotations
 
 import io
+import math
 import struct
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass
@@ -111,6 +112,28 @@ class PixelError(ValueError):
     """An image's bytes do not hold what its header says (the reader adds file and topic)."""
 
 
+# Image sides a recording may hold: below 32 pixels no part can be told from the table; above
+# 16384 no camera's (its decoded pixels alone would take gigabytes).
+MIN_SIDE, MAX_SIDE = 32, 16384
+SIDES = f"{MIN_SIDE} to {MAX_SIDE} pixels a side"
+
+
+def size_problem(img: ImageMsg) -> str | None:
+    """What is wrong with an image's size (``MIN_SIDE``, ``MAX_SIDE``), or None."""
+    if MIN_SIDE <= img.width <= MAX_SIDE and MIN_SIDE <= img.height <= MAX_SIDE:
+        return None
+    return f"{img.width}x{img.height} pixels"
+
+
+def intrinsics_problem(k: CameraIntrinsics) -> str | None:
+    """What is wrong with a camera's intrinsics (a focal length that is not a finite number
+    above 0, a principal point that is not finite), or None: back-projection divides by the
+    focal lengths."""
+    if all(math.isfinite(v) for v in (k.fx, k.fy, k.cx, k.cy)) and k.fx > 0 and k.fy > 0:
+        return None
+    return f"fx={k.fx:g}, fy={k.fy:g}, cx={k.cx:g}, cy={k.cy:g}"
+
+
 def compressed_encoding(fmt: str) -> tuple[str, str]:
     """(pixel encoding, payload) of a CompressedImage ``format`` string: "16UC1;
     compressedDepth png" -> ("16UC1", "compressedDepth"), "rgb8; jpeg compressed bgr8" ->
@@ -137,6 +160,9 @@ def compressed_size(fmt: str, data: bytes) -> tuple[int, int]:
     try:
         with Image.open(io.BytesIO(body)) as img:
             return int(img.width), int(img.height)
+    except Image.DecompressionBombError as exc:  # declares billions of pixels: never decoded
+        raise PixelError(f"{fmt} image declares more pixels than any camera gives ({exc})"
+                         ) from exc
     except (UnidentifiedImageError, OSError) as exc:
         raise PixelError(f"{fmt} payload is not an image ({exc})") from exc
 
@@ -149,7 +175,7 @@ def _decompressed(img: ImageMsg) -> npt.NDArray[np.generic]:
     try:
         with Image.open(io.BytesIO(body)) as pil:
             pixels = np.asarray(pil)
-    except (UnidentifiedImageError, OSError, ValueError) as exc:
+    except (UnidentifiedImageError, OSError, ValueError, Image.DecompressionBombError) as exc:
         raise PixelError(f"cannot decode {img.compressed} image ({exc})") from exc
     if pixels.shape[:2] != (img.height, img.width):
         raise PixelError(f"{img.compressed} image is {pixels.shape[1]}x{pixels.shape[0]}, its "
