@@ -211,3 +211,52 @@ def test_a_deployment_run_writes_the_report_and_a_second_night_only_reports(
     assert second != run
     pd.testing.assert_frame_equal(pd.read_csv(second / "relations_summary.csv"),
                                   pd.read_csv(run / "relations_summary.csv"))
+
+
+def _schedule(env: dict[str, str], cwd: Path, *argv: str) -> str:
+    """``mateqa schedule ...`` in ``cwd``; its output (it must succeed)."""
+    done = subprocess.run([str(Path(sys.executable).with_name("mateqa")), "schedule", *argv],
+                          cwd=cwd, env=env, capture_output=True, text=True, timeout=300)
+    assert done.returncode == 0, done.stdout + done.stderr
+    return done.stdout
+
+
+def test_a_schedule_runs_its_library_s_night_from_its_cron_beside_another(
+        served: dict[str, str], small_library: Path, shared_step_dir: Path,
+        tmp_path: Path) -> None:
+    tiny = tmp_path / "tiny-library" / "fasteners"
+    tiny.mkdir(parents=True)
+    (tiny / "washer.step").write_bytes((shared_step_dir / "fasteners/kcl_washer.step").read_bytes())
+    _schedule(served, tmp_path, "add", "every-minute", "--library", str(tiny.parent), "--cron",
+              "* * * * *", "--views-per-scene", "1", "--pairs-per-relation", "1",
+              "--no-fail-on-threshold")
+    _schedule(served, tmp_path, "add", "nights", "--library", str(small_library), "--cron",
+              "0 2 * * *", "--timezone", "Europe/Berlin", "--categories", "fasteners")
+    listed = _schedule(served, tmp_path, "list")
+    assert "every-minute" in listed and "Europe/Berlin" in listed, listed
+    latest = tmp_path / "every-minute" / "runs" / "latest"  # its own workspace, named after it
+    deadline = time.monotonic() + 420
+    while not (latest / "summary.json").is_file():  # the scheduler starts it within a minute
+        assert time.monotonic() < deadline, _schedule(served, tmp_path, "show", "every-minute")
+        time.sleep(3)
+
+    async def runs_of(client: Any) -> list[Any]:
+        from prefect.client.schemas.filters import DeploymentFilter, DeploymentFilterName
+
+        return list(await client.read_flow_runs(deployment_filter=DeploymentFilter(
+            name=DeploymentFilterName(any_=["every-minute"]))))
+
+    ran = [r for r in _client_call(served, runs_of) if r.state.name == "Completed"]
+    assert ran and all(r.auto_scheduled for r in ran)  # from the cron, not by hand
+    assert ran[0].parameters["config"]["runtime"]["workspace"] == str(tmp_path / "every-minute")
+    assert json.loads((latest / "summary.json").read_text())["ingest"]["files"] == 1
+
+    _schedule(served, tmp_path, "set", "every-minute", "--no-active")
+    _schedule(served, tmp_path, "set", "nights", "--cron", "30 1 * * *")
+    shown = _schedule(served, tmp_path, "show", "nights")
+    assert "30 1 * * * (Europe/Berlin)" in shown and '"fasteners"' in shown, shown
+    assert "paused" in _schedule(served, tmp_path, "show", "every-minute")
+    _schedule(served, tmp_path, "remove", "every-minute")
+    listed = _schedule(served, tmp_path, "list")
+    assert "every-minute" not in listed and "nights" in listed, listed
+    assert latest.is_dir()  # a removed schedule's workspace and reports stay
