@@ -12,6 +12,7 @@ from __future__ import annotations
 
 from typing import Any
 
+import numba
 import numpy as np
 import numpy.typing as npt
 
@@ -95,10 +96,30 @@ def sample_points(points: FloatArray, k: int = 600, seed: int = 0,
         return np.concatenate([pts, pts[extra]])
     if method == "random":
         return pts[np.sort(rng.choice(len(pts), k, replace=False))]
+    return pts[_farthest(np.ascontiguousarray(pts), k, int(rng.integers(len(pts))))]
+
+
+@numba.njit(nogil=True, cache=True)
+def _farthest(pts: FloatArray, k: int, start: int) -> npt.NDArray[np.int64]:  # pragma: no cover
+    """Farthest point sampling from ``start``: k indices. One compiled pass over the cloud per
+    point chosen (numpy made three temporaries of it each time: the relation inputs of a night
+    spent seconds here); the same sums in the same order as numpy's, so the same choice."""
+    n = len(pts)
     chosen = np.empty(k, dtype=np.int64)
-    chosen[0] = rng.integers(len(pts))
-    dist = np.sum((pts - pts[chosen[0]]) ** 2, axis=1)
+    chosen[0] = start
+    dist = np.empty(n, dtype=np.float64)
+    for j in range(n):
+        dx, dy, dz = pts[j, 0] - pts[start, 0], pts[j, 1] - pts[start, 1], pts[j, 2] - pts[
+            start, 2]
+        dist[j] = dx * dx + dy * dy + dz * dz
     for i in range(1, k):
-        chosen[i] = int(np.argmax(dist))
-        dist = np.minimum(dist, np.sum((pts - pts[chosen[i]]) ** 2, axis=1))
-    return pts[chosen]
+        best = 0
+        for j in range(1, n):
+            if dist[j] > dist[best]:  # the first of equal maxima, as np.argmax
+                best = j
+        chosen[i] = best
+        for j in range(n):
+            dx, dy, dz = pts[j, 0] - pts[best, 0], pts[j, 1] - pts[best, 1], pts[j, 2] - pts[
+                best, 2]
+            dist[j] = min(dist[j], dx * dx + dy * dy + dz * dz)
+    return chosen
