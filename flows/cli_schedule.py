@@ -16,7 +16,7 @@ import sys
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from flows.cli_options import add_config_options
+from flows.cli_options import add_config_options, dest
 
 if TYPE_CHECKING:
     from flows.schedules import Schedule
@@ -33,6 +33,10 @@ def add_schedule_parser(sub: argparse._SubParsersAction, tolerances: Any) -> Non
                                "`mateqa nightly` is taken; the workspace defaults to a folder "
                                "NAME in the current one. Paths are made absolute.")
         add_config_options(q, f"schedule {action}")
+        for option in q._actions:  # a schedule's workspace is its own unless given
+            if option.dest == dest("runtime.workspace"):
+                option.help = ("the workspace folder, the schedule's own (default: a folder "
+                               "NAME in the current one; set: unchanged)")
         tolerances(q)
         q.set_defaults(func=cmd_schedule, command=f"schedule {action}")
     q = actions.add_parser("list", help="the schedules: cron, next and last run, workspace")
