@@ -149,3 +149,9 @@ def test_farthest_point_sampling_picks_what_the_plain_loop_picks() -> None:
     rng = np.random.default_rng(3)
     for pts in (rng.normal(size=(2000, 3)), np.round(rng.normal(size=(900, 3)), 1)):
         assert np.array_equal(sample_points(pts, 600), reference(pts, 600))
+
+
+def test_a_stride_keeps_every_stride_th_point(clean: RgbdFrame) -> None:
+    assert clean.instance is not None
+    table = clean.instance == 0
+    assert np.array_equal(backproject(clean, table, stride=8), backproject(clean, table)[::8])

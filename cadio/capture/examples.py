@@ -141,7 +141,7 @@ def support_plane(frame: RgbdFrame,
                   labels: npt.NDArray[np.int32]) -> tuple[FloatArray, float] | None:
     """The support plane under the parts (normal up, offset), fitted to the pixels of no part
     (label 0: table and background returns), or None when too few of them have depth."""
-    rest = backproject(frame, labels == 0)[::SUPPORT_STRIDE]
+    rest = backproject(frame, labels == 0, SUPPORT_STRIDE)
     if len(rest) < 100:
         return None
     normal, offset = fit_plane(rest, SegmentConfig())

@@ -26,14 +26,17 @@ def valid_depth(frame: RgbdFrame) -> npt.NDArray[np.bool_]:
     return np.isfinite(frame.depth) & (frame.depth > 0)
 
 
-def backproject(frame: RgbdFrame, mask: npt.NDArray[np.bool_] | None = None) -> FloatArray:
-    """Points seen by the pixels of ``mask`` (and with valid depth), in world metres.
+def backproject(frame: RgbdFrame, mask: npt.NDArray[np.bool_] | None = None,
+                stride: int = 1) -> FloatArray:
+    """Points seen by the pixels of ``mask`` (and with valid depth), in world metres; with
+    ``stride``, every stride-th of them only (the same points as ``[::stride]`` of all, at a
+    stride-th of the cost: a support plane is fitted to a sample of the table's returns).
 
     Returns:
         (n, 3) float64 metres, world frame, in row-major pixel order of ``mask & valid``.
     """
     keep = valid_depth(frame) if mask is None else valid_depth(frame) & mask
-    v, u = np.nonzero(keep)
+    v, u = (axis[::stride] for axis in np.nonzero(keep))
     k = frame.intrinsics
     z = frame.depth[v, u].astype(np.float64)
     cam = np.column_stack([(u - k.cx) / k.fx * z, (v - k.cy) / k.fy * z, z])
