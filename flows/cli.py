@@ -39,6 +39,7 @@ from flows.cli_options import (
     config_of,
     tolerances_of,
 )
+from flows.cli_schedule import add_schedule_parser
 from flows.cli_thresholds import add_thresholds_parser
 from flows.cli_train import cmd_ship, cmd_train
 
@@ -97,6 +98,7 @@ def _parser() -> argparse.ArgumentParser:
     _ingest_command(sub)
     _nightly_command(sub)
     _serve_command(sub, settings)
+    add_schedule_parser(sub, _tolerances)
     _mates_command(sub, settings)
     _capture_command(sub, settings)
     _train_command(sub)

@@ -84,7 +84,13 @@ COMMANDS = {
     # ``--steps``, ``--methods`` and ``--out`` of ``train STAGE`` are the stage's (``STAGED``)
     "train": CommandOptions("models.training.config:TrainConfig",
                             {"relation_inputs": "--inputs"}, skip=frozenset({"stages"})),
+    # a schedule is a night's options and when it runs; ``set`` changes the fields given
+    **{f"schedule {action}": CommandOptions("flows.config:ScheduledNight", NIGHT_FLAGS,
+                                            positional={"schedule.name": "NAME"})
+       for action in ("add", "set")},
 }
+# The commands whose configuration is a night's (``nightly`` runs it, ``schedule`` keeps it).
+NIGHTS = ("nightly", "schedule add", "schedule set")
 # train's options that mean the field of the stage given: ``train relations --steps 2000``.
 STAGED = {"steps": "{stage}_steps", "methods": "{stage}_methods", "out": "{stage}_out"}
 
@@ -194,6 +200,8 @@ def config_of(args: argparse.Namespace) -> Any:
 
     values: dict[str, Any] = {}
     for path, _ in leaf_fields(spec.kind()):
+        if path in spec.skip:  # set from other options (``_extra``)
+            continue
         value = getattr(args, dest(path), None)
         if value is not None:
             _put(values, path, str(value) if isinstance(value, Path) else value)
@@ -211,9 +219,10 @@ def _extra(args: argparse.Namespace) -> dict[str, Any]:
     stage's options, and a night's workers (0: one per task, which already run side by
     side)."""
     out: dict[str, Any] = {}
-    if args.command in ("nightly", "ingest"):
-        out[TOLERANCES] = args.tolerances
-    if args.command == "nightly" and getattr(args, dest("runtime.workers"), None) == 0:
+    if args.command in ("nightly", "ingest") or (
+            args.command in NIGHTS and (args.tol or args.tolerances_file)):
+        out[TOLERANCES] = args.tolerances  # a schedule keeps only tolerances it was given
+    if args.command in NIGHTS and getattr(args, dest("runtime.workers"), None) == 0:
         out["runtime.workers"] = 1
     if args.command == "train":
         out["stages"] = [args.stage]

@@ -206,6 +206,63 @@ class NightConfig(_Group):
     _finite = field_validator("tolerances")(_finite_tolerances)
 
 
+# A schedule's name is its deployment's (``nightly/<name>``) and its default workspace folder.
+ScheduleName = Annotated[str, Field(min_length=1, max_length=64,
+                                    pattern=r"^[A-Za-z0-9][A-Za-z0-9_.-]*$")]
+
+
+class ScheduleOptions(_Group):
+    """When a library's night runs: a Prefect deployment ``nightly/<name>`` on a cron."""
+
+    name: ScheduleName = Field(
+        description="the schedule's name: its deployment is nightly/<name> and its default "
+        "workspace a folder of that name (letters, digits, '.', '_', '-')")
+    # 02:00, as the shipped deployment: the night is done before the morning shift reads it.
+    cron: str = Field(
+        default="0 2 * * *", description="when the night starts: a cron of five fields "
+        "(minute hour day-of-month month day-of-week) in the schedule's time zone")
+    timezone: str = Field(default="UTC", description="the cron's time zone, an IANA name "
+                          "(e.g. Europe/Berlin)")
+    active: bool = Field(default=True, description="the schedule starts nights; off pauses it "
+                         "and keeps the deployment, its workspace and its history")
+
+    @field_validator("cron")
+    @classmethod
+    def _cron(cls, value: str) -> str:
+        from prefect.client.schemas.schedules import CronSchedule
+
+        try:  # Prefect's own check, as its scheduler reads the cron
+            ok = len(value.split()) == 5 and bool(CronSchedule(cron=value))
+        except ValueError:
+            ok = False
+        if not ok:
+            raise ValueError("not a cron of five fields (minute hour day-of-month month "
+                             "day-of-week)")
+        return value
+
+    @field_validator("timezone")
+    @classmethod
+    def _timezone(cls, value: str) -> str:
+        from zoneinfo import ZoneInfo, ZoneInfoNotFoundError
+
+        try:
+            ZoneInfo(value)
+        except (ZoneInfoNotFoundError, ValueError):
+            raise ValueError("not a time zone of the IANA database") from None
+        return value
+
+
+class ScheduledNight(NightConfig):
+    """A schedule and the night it runs (``mateqa schedule add``): the night's configuration
+    becomes the deployment's ``config`` parameter, the schedule its cron."""
+
+    schedule: ScheduleOptions = Field(description=ScheduleOptions.__doc__)
+
+    def night(self) -> NightConfig:
+        """The night this schedule runs."""
+        return NightConfig.model_validate(self.model_dump(exclude={"schedule"}))
+
+
 class _StageRun(_Group):
     """The runtime and the tolerances of a single-stage flow (its groups come first)."""
 

@@ -275,9 +275,22 @@ def capture_alone_task(part_ids: list[str], workspace: str, cfg: ScanConfig,
     return capture_parts_alone(part_ids, Workspace(Path(workspace)), cfg)
 
 
+def _one_kernel_thread() -> None:
+    """One thread for torch's kernels in a task that runs networks. The flow runs its tasks
+    side by side (two on two cores, as many as a Dask worker has threads), each its own core's
+    worth of work; torch's pool of a thread per core on top of that spun more than it worked
+    (a completion batch took 3-4x the CPU time with two threads on a loaded two-core machine).
+    The deployments' workers had ``OMP_NUM_THREADS=1`` already; a night from the command line
+    did not."""
+    import torch
+
+    torch.set_num_threads(1)
+
+
 @task(name="complete", **_CACHED)
 def complete_task(folders: list[str], models_dir: str, workspace: str, key: str) -> Scores:
     """Complete and score a batch of captured parts with every method."""
+    _one_kernel_thread()
     return complete_parts([Path(f) for f in folders], Path(models_dir), Workspace(Path(
         workspace)))
 
@@ -286,6 +299,7 @@ def complete_task(folders: list[str], models_dir: str, workspace: str, key: str)
 def relate_task(captures: list[str], workspace: str, relations_models: str,
                 completion_models: str, out: str, key: str) -> RelateBatch:
     """Relations of every pair view of a batch of captures, by every method and input."""
+    _one_kernel_thread()
     return relate_batch([Path(c) for c in captures], Workspace(Path(workspace)),
                         Path(relations_models), Path(completion_models), Path(out))
 
@@ -338,8 +352,10 @@ def render_stage(catalog: str, scenes: ScenesSummary, mates: list[MatesSummary],
     placed = placements(read_scenes(Path(scenes.path)), jobs)
     _require_capture_space(run, placed, read_catalog(Path(catalog)), cfg)
     plan = scoring_plan(placed)
-    captured = capture_stage(scenes, run, cfg, None, plan)
-    captured += assembly_stage(jobs, run, cfg, plan)
+    # the assemblies first and side by side with the scenes: they are the longest tasks, and
+    # a stage that waited for the scenes before starting them left a core idle at each end
+    assemblies = assembly_futures(jobs, run, cfg, plan)
+    captured = collect(scene_futures(scenes, run, cfg, plan)) + collect(assemblies)
     return captured + alone_stage(unscored_parts(read_catalog(Path(catalog)), captured), run,
                                   cfg)
 
@@ -363,12 +379,23 @@ def _require_space(run: Run, need_mb: float, what: str) -> None:
     run_logger(__name__).info("disk: %s need about %.0f MB; %.0f MB free", what, need_mb, free)
 
 
+def collect(futures: list[Any]) -> list[CaptureSummary]:
+    """The summaries of submitted capture tasks, in the order submitted."""
+    return [c for f in futures for c in f.result()]
+
+
 def capture_stage(scenes: ScenesSummary, run: Run, cfg: ScanConfig, captures: str | None,
                   plan: Plan | None = None) -> list[CaptureSummary]:
     """Render the scenes ten per task (examples of the parts ``plan`` scores in each; None:
     of all), or read the recordings of ``captures``."""
     if captures:
         return read_captures_task(captures, run.workspace, cfg)
+    return collect(scene_futures(scenes, run, cfg, plan))
+
+
+def scene_futures(scenes: ScenesSummary, run: Run, cfg: ScanConfig,
+                  plan: Plan | None = None) -> list[Any]:
+    """The scenes' capture tasks, ten scenes each, submitted."""
     ws = Workspace(Path(run.workspace))
     table = read_scenes(Path(scenes.path))
     colours = dict(zip(*(read_catalog(ws.catalog)[c].astype(str) for c in ("part_id", "colour")),
@@ -383,7 +410,7 @@ def capture_stage(scenes: ScenesSummary, run: Run, cfg: ScanConfig, captures: st
             cfg=cfg, epoch=run.epoch, version=CAPTURE_VERSION, plan=scored)
         futures.append(_refreshed(capture_task, _present(ws, ids)).submit(
             ids, run.workspace, cfg, key, scored))
-    return [c for f in futures for c in f.result()]
+    return futures
 
 
 def _present(ws: Workspace, scene_ids: list[str]) -> bool:
@@ -404,13 +431,13 @@ def captured_assemblies(catalog: str, mates: list[MatesSummary], run: Run) -> li
             if j.assembly in ok]
 
 
-def assembly_stage(jobs: list[AssemblyJob], run: Run, cfg: ScanConfig,
-                   plan: Plan | None = None) -> list[CaptureSummary]:
-    """Capture the assemblies, two per task (examples of the parts ``plan`` scores in each;
-    None: of all)."""
+def assembly_futures(jobs: list[AssemblyJob], run: Run, cfg: ScanConfig,
+                     plan: Plan | None = None) -> list[Any]:
+    """The assemblies' capture tasks, one assembly each (examples of the parts ``plan`` scores
+    in each; None: of all), submitted: an assembly of dozens of parts is a long task alone."""
     ws = Workspace(Path(run.workspace))
     futures = []
-    for b in batches(jobs, 2):
+    for b in batches(jobs, 1):
         ids = [ASSEMBLY_PREFIX + j.assembly for j in b]
         scored = None if plan is None else {i: plan[i] for i in ids if i in plan}
         files = [ws.mates(j.assembly) for j in b] + [ws.mesh(p) for j in b
@@ -419,17 +446,23 @@ def assembly_stage(jobs: list[AssemblyJob], run: Run, cfg: ScanConfig,
                              plan=scored)
         futures.append(_refreshed(capture_assemblies_task, _present(ws, ids)).submit(
             b, run.workspace, cfg, key, scored))
-    return [c for f in futures for c in f.result()]
+    return futures
+
+
+# Parts per task of the stages whose tasks cost about the same each: small enough that the
+# last round of two tasks does not leave a core idle for long, large enough that a task's own
+# cost (a few milliseconds, and loading the checkpoints) stays small beside its work.
+ALONE_BATCH, COMPLETION_BATCH = 4, 10
 
 
 def alone_stage(part_ids: list[str], run: Run, cfg: ScanConfig) -> list[CaptureSummary]:
-    """Capture each of the parts alone, ten per task."""
+    """Capture each of the parts alone, ``ALONE_BATCH`` per task."""
     ws = Workspace(Path(run.workspace))
     catalog = read_catalog(ws.catalog)
     colours = dict(zip(catalog["part_id"].astype(str), catalog["colour"].astype(str),
                        strict=True))
     futures = []
-    for b in batches(part_ids, 10):
+    for b in batches(part_ids, ALONE_BATCH):
         key = content_digest([ws.mesh(p) for p in b], parts=b, colours=[colours.get(p) for p in b],
                              cfg=cfg, epoch=run.epoch, version=CAPTURE_VERSION)
         present = _present(ws, [alone_id(p) for p in b])
@@ -440,13 +473,13 @@ def alone_stage(part_ids: list[str], run: Run, cfg: ScanConfig) -> list[CaptureS
 
 def complete_stage(captured: list[CaptureSummary], run: Run, models_dir: str) -> list[Scores]:
     """Every scored part completed and scored (once in each context it was seen in: in the
-    capture that scored it there), twenty parts per task."""
+    capture that scored it there), ``COMPLETION_BATCH`` parts per task."""
     ws = Workspace(Path(run.workspace))
     folders = part_inputs([ws.root / "inputs" / Path(c.path).stem for c in captured
                            if not c.error])
     labels = _categories_digest(ws)
     futures = []
-    for b in batches(folders, 20):
+    for b in batches(folders, COMPLETION_BATCH):
         key = content_digest([*_files_in(b), *_models(models_dir)], folders=b, labels=labels,
                              epoch=run.epoch, version=COMPLETION_VERSION,
                              methods=COMPLETIONS.digest())
@@ -454,16 +487,25 @@ def complete_stage(captured: list[CaptureSummary], run: Run, models_dir: str) ->
     return [f.result() for f in futures]
 
 
+def relate_batches(paths: list[Path]) -> list[list[Path]]:
+    """The relation stage's batches: each assembly capture on its own, first, then the scenes
+    ten at a time. An assembly holds most of a night's pair views (every pair of its parts in
+    every view), so assemblies batched together kept one task busy long after the others
+    had finished, with a core idle."""
+    whole = [p for p in paths if p.stem.startswith(ASSEMBLY_PREFIX)]
+    return [[p] for p in whole] + batches([p for p in paths if p not in whole], 10)
+
+
 def relate_stage(captured: list[CaptureSummary], run: Run, relations_models: str,
                  completion_models: str) -> list[RelateBatch]:
-    """Every capture's pair views related by every method, ten captures per task; each
-    batch's rows are written once under ``relations/<key>.parquet`` of the workspace."""
+    """Every capture's pair views related by every method (``relate_batches``); each batch's
+    rows are written once under ``relations/<key>.parquet`` of the workspace."""
     ws = Workspace(Path(run.workspace))
     paths = [Path(c.path) for c in captured
              if not c.error and c.path and not is_alone(c.scene_id)]  # a part alone: no pair
     labels = _categories_digest(ws)
     futures = []
-    for b in batches(paths, 10):
+    for b in relate_batches(paths):
         inputs = _files_in([ws.root / "inputs" / p.stem for p in b])
         mates = [ws.mates(p.stem[len(ASSEMBLY_PREFIX):]) for p in b
                  if p.stem.startswith(ASSEMBLY_PREFIX)]

@@ -36,7 +36,7 @@ from models.train import Model, predict
 from reports.completion import CompletionCase, parts_frame, write_completion
 from reports.coverage import part_coverage, write_part_coverage
 from reports.headline import headline_markdown, headline_table, write_headline
-from reports.metrics import surface_points
+from reports.metrics import Truth, surface_points
 from reports.shapes import GEOMETRY_COLUMNS
 from reports.tables import markdown_table
 
@@ -122,13 +122,14 @@ def score_example(example: Example, preds: Mapping[str, npt.NDArray[np.bool_]],
     """One ``completion_parts`` row per method for an example with a target."""
     if example.target is None:
         return []
+    truth = Truth(example.target, example.voxel_mm)  # prepared once for every method
     rows = []
     for method, pred in preds.items():
         case = CompletionCase(part_id=str(example.meta["part_id"]), category=category,
                               split=split, method=method, protocol=example.protocol,
                               n_views=len(example.views), view_deg=example.azimuths[0] % 360,
                               context=context_of(example.meta), coverage=example.coverage)
-        rows.append(case.score(pred, example.target, example.voxel_mm))
+        rows.append(case.score(pred, truth, example.voxel_mm))
     return rows
 
 

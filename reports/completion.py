@@ -43,7 +43,7 @@ from cadio.errors import InputFileError
 from cadio.records import Category
 from cadio.workspace import atomic_path, atomic_write
 from reports.methods import completion_order, method_labels
-from reports.metrics import METRICS, BoolGrid, part_metrics
+from reports.metrics import METRICS, BoolGrid, Truth, part_metrics
 from reports.tables import markdown_table
 
 PARTS_FILE = "completion_parts.parquet"
@@ -106,9 +106,12 @@ class CompletionCase:
         if self.n_views < 1:
             raise ValueError(f"n_views must be at least 1, got {self.n_views}")
 
-    def score(self, pred: BoolGrid, truth: BoolGrid, voxel_mm: float) -> dict[str, Any]:
-        """This case's row: its keys and ``reports.metrics.part_metrics``."""
-        return {**asdict(self), **part_metrics(pred, truth, voxel_mm)}
+    def score(self, pred: BoolGrid, truth: BoolGrid | Truth, voxel_mm: float) -> dict[str, Any]:
+        """This case's row: its keys and ``reports.metrics.part_metrics`` (``truth`` prepared
+        once as a ``reports.metrics.Truth`` where many predictions are scored against it)."""
+        scores = truth.metrics(pred) if isinstance(truth, Truth) else part_metrics(
+            pred, truth, voxel_mm)
+        return {**asdict(self), **scores}
 
 
 def parts_frame(rows: Iterable[Mapping[str, Any]]) -> pd.DataFrame:

@@ -77,14 +77,18 @@ def test_a_config_round_trips_through_json_as_a_deployment_passes_it() -> None:
 
 
 def _subparser(command: str) -> argparse.ArgumentParser:
-    sub = next(a for a in _parser()._subparsers._group_actions  # type: ignore[union-attr]
-               if isinstance(a, argparse._SubParsersAction))
-    parser: argparse.ArgumentParser = sub.choices[command]
+    """The parser of a command (``schedule add``: of an action of a command)."""
+    parser = _parser()
+    for word in command.split():
+        sub = next(a for a in parser._subparsers._group_actions  # type: ignore[union-attr]
+                   if isinstance(a, argparse._SubParsersAction))
+        parser = sub.choices[word]
     return parser
 
 
 # The least each command needs on its command line (positionals).
-REQUIRED = {"nightly": [], "ingest": ["lib"], "export": [], "train": ["completion"]}
+REQUIRED = {"nightly": [], "ingest": ["lib"], "export": [], "train": ["completion"],
+            "schedule add": ["lib"], "schedule set": ["lib"]}
 
 
 @pytest.mark.parametrize("command", sorted(COMMANDS))
@@ -106,12 +110,13 @@ def test_every_field_of_a_command_s_config_is_one_of_its_options(command: str) -
 def test_no_option_given_leaves_every_field_at_its_config_s_default(command: str) -> None:
     from flows.cli_options import config_of, tolerances_of
 
-    args = _parser().parse_args([command, *REQUIRED[command]])
+    args = _parser().parse_args([*command.split(), *REQUIRED[command]])
     args.tolerances = tolerances_of(args)
     config = config_of(args)
     kind = COMMANDS[command].kind()
     given = {"nightly": {}, "ingest": {"library": {"path": "lib"}}, "export": {},
-             "train": {"stages": ["completion"]}}[command]
+             "train": {"stages": ["completion"]}, "schedule add": {"schedule": {"name": "lib"}},
+             "schedule set": {"schedule": {"name": "lib"}}}[command]
     assert config == kind.model_validate(given)
 
 

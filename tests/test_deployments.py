@@ -42,7 +42,8 @@ def served(tmp_path_factory: pytest.TempPathFactory) -> Iterator[dict[str, str]]
         proc = subprocess.Popen([sys.executable, "-m", "flows.cli", "serve", "--port",
                                  str(port), "--home", str(home)], cwd=ROOT, stdout=out,
                                 stderr=subprocess.STDOUT, start_new_session=True,
-                                env={**os.environ, "PREFECT_WORKER_QUERY_SECONDS": "2"})
+                                env={**os.environ, "PREFECT_WORKER_QUERY_SECONDS": "2",
+                                      "PREFECT_SERVER_SERVICES_SCHEDULER_LOOP_SECONDS": "2"})
     deadline = time.monotonic() + 300
     while "Ctrl-C stops" not in log.read_text() and time.monotonic() < deadline:
         assert proc.poll() is None, log.read_text()
@@ -212,3 +213,74 @@ def test_a_deployment_run_writes_the_report_and_a_second_night_only_reports(
     assert second != run
     pd.testing.assert_frame_equal(pd.read_csv(second / "relations_summary.csv"),
                                   pd.read_csv(run / "relations_summary.csv"))
+
+
+def _schedule(env: dict[str, str], cwd: Path, *argv: str) -> str:
+    """``mateqa schedule ...`` in ``cwd``; its output (it must succeed)."""
+    done = subprocess.run([str(Path(sys.executable).with_name("mateqa")), "schedule", *argv],
+                          cwd=cwd, env=env, capture_output=True, text=True, timeout=300)
+    assert done.returncode == 0, done.stdout + done.stderr
+    return done.stdout
+
+
+def _planned(env: dict[str, str], name: str) -> list[Any]:
+    """The runs the server's scheduler planned for the deployment ``nightly/NAME``."""
+    async def runs_of(client: Any) -> list[Any]:
+        from prefect.client.schemas.filters import DeploymentFilter, DeploymentFilterName
+
+        return list(await client.read_flow_runs(deployment_filter=DeploymentFilter(
+            name=DeploymentFilterName(any_=[name]))))
+
+    return [r for r in _client_call(env, runs_of) if r.state and r.state.name == "Scheduled"]
+
+
+def _wait_planned(env: dict[str, str], name: str, hour: int, zone: str) -> list[Any]:
+    """The planned runs of ``nightly/NAME`` once the scheduler planned them at ``hour`` in
+    ``zone`` (it plans every couple of seconds in this server, every minute by default)."""
+    from zoneinfo import ZoneInfo
+
+    deadline = time.monotonic() + 120
+    while True:
+        runs = _planned(env, name)
+        hours = {r.expected_start_time.astimezone(ZoneInfo(zone)).hour for r in runs}
+        if runs and hours == {hour}:
+            return runs
+        assert time.monotonic() < deadline, (hours, _schedule(env, Path.cwd(), "show", name))
+        time.sleep(1)
+
+
+def test_a_schedule_plans_its_library_s_nights_from_its_cron_beside_another(
+        served: dict[str, str], small_library: Path, shared_step_dir: Path,
+        tmp_path: Path) -> None:
+    """What the server's scheduler plans from ``mateqa schedule``: auto-scheduled runs of the
+    shipped nightly, at the cron's hour in its time zone, with the library and the schedule's
+    own workspace as the night's config (a deployment run of that config is the night of
+    ``test_a_deployment_run_writes_the_report_and_a_second_night_only_reports``)."""
+    tiny = tmp_path / "tiny-library" / "fasteners"
+    tiny.mkdir(parents=True)
+    (tiny / "washer.step").write_bytes((shared_step_dir / "fasteners/kcl_washer.step").read_bytes())
+    _schedule(served, tmp_path, "add", "washers", "--library", str(tiny.parent), "--cron",
+              "0 3 * * *", "--views-per-scene", "1", "--no-fail-on-threshold")
+    _schedule(served, tmp_path, "add", "nights", "--library", str(small_library), "--cron",
+              "0 2 * * *", "--timezone", "Europe/Berlin", "--categories", "fasteners")
+    listed = _schedule(served, tmp_path, "list")
+    assert "washers" in listed and "Europe/Berlin" in listed, listed
+    planned = _wait_planned(served, "nights", 2, "Europe/Berlin")
+    assert all(r.auto_scheduled for r in planned)  # from the cron, not by hand
+    config = planned[0].parameters["config"]
+    assert config["runtime"]["workspace"] == str(tmp_path / "nights")  # its own, named after it
+    assert config["library"] == {"path": str(small_library), "categories": ["fasteners"]}
+    washers = _wait_planned(served, "washers", 3, "UTC")[0].parameters["config"]
+    assert washers["capture"] == {"views_per_scene": 1}  # only what was given
+    assert washers["thresholds"] == {"fail_on_threshold": False}
+
+    _schedule(served, tmp_path, "set", "nights", "--cron", "30 1 * * *")
+    shown = _schedule(served, tmp_path, "show", "nights")
+    assert "30 1 * * * (Europe/Berlin)" in shown and '"fasteners"' in shown, shown
+    _wait_planned(served, "nights", 1, "Europe/Berlin")  # the 02:00 runs gone, 01:30 planned
+    _schedule(served, tmp_path, "set", "washers", "--no-active")
+    assert "paused" in _schedule(served, tmp_path, "show", "washers")
+    assert not _planned(served, "washers")  # a paused schedule plans nothing
+    _schedule(served, tmp_path, "remove", "washers")
+    listed = _schedule(served, tmp_path, "list")
+    assert "washers" not in listed and "nights" in listed, listed

@@ -45,6 +45,8 @@ def test_the_compose_services_share_the_workspace_and_the_pool() -> None:
         assert env["MATEQA_WORKSPACE"] == "/app/workspace"
         assert env["MATEQA_DASK_ADDRESS"] == "tcp://dask-scheduler:8786"
         assert env["PREFECT_API_AUTH_STRING"] == "${PREFECT_API_AUTH_STRING:-}"
+    for name, service in services.items():  # back after a crash or a reboot
+        assert service["restart"] == "unless-stopped", name
     pool = deploy["deployments"][0]["work_pool"]["name"]
     assert f"--pool {pool}" in services["worker"]["command"][0]
     assert "prefect.yaml" in services["worker"]["command"][0]

@@ -335,3 +335,16 @@ def test_a_recording_in_an_assembly_s_folder_is_inspected_against_it(
     mine = as_built[as_built["capture"] == f"{name}/monday.mcap"]
     assert not mine.empty and (mine["status"] == "broken").any()
     assert set(mine[mine["status"] == "broken"][["index_a", "index_b"]].stack()) >= {1}
+
+
+def test_each_assembly_is_a_relation_batch_of_its_own_and_first() -> None:
+    """An assembly holds most of a night's pair views: batched with others it kept one task
+    busy while the other core idled."""
+    from flows.tasks import relate_batches
+
+    scenes = [Path(f"captures/s0-test-left-{i:05d}.mcap") for i in range(23)]
+    whole = [Path("captures/assembly-gearbox.mcap"), Path("captures/assembly-press.mcap")]
+    done = relate_batches(scenes[:12] + whole[:1] + scenes[12:] + whole[1:])
+    assert done[:2] == [[whole[0]], [whole[1]]]
+    assert [len(b) for b in done[2:]] == [10, 10, 3]
+    assert sorted(p for b in done for p in b) == sorted(scenes + whole)

@@ -26,6 +26,7 @@ from cadio.capture.observe import (
     FREE,
     SURFACE,
     CubeGrid,
+    PartGrids,
     camera_azimuth_deg,
     carve,
     depth_view,
@@ -231,3 +232,16 @@ def test_an_occluded_part_gets_room_where_its_neighbour_hides_it() -> None:
     ref = replace(example, grid=naive)
     naive_cov = with_truth(ref, back, to_world, SMALL).coverage
     assert example.coverage > naive_cov + 0.1 and example.coverage > 0.85
+
+
+def test_a_part_s_oracle_examples_share_their_projections_and_truth(box_views) -> None:  # type: ignore[no-untyped-def]
+    """Built with the part's ``PartGrids``, every oracle-box example is what it is alone."""
+    mesh, views, to_world = box_views
+    grids = PartGrids()
+    for seq in (views[:1], views[:2], views[1:2], views[:2]):
+        shared = with_truth(oracle_example(seq, mesh, to_world, SMALL, grids), mesh, to_world,
+                            SMALL, grids)
+        alone = with_truth(oracle_example(seq, mesh, to_world, SMALL), mesh, to_world, SMALL)
+        for field in ("inputs", "depth", "visible", "carve", "target"):
+            assert np.array_equal(getattr(shared, field), getattr(alone, field)), field
+    assert grids.oracle(mesh, to_world, SMALL.grid_margin) is shared.grid

@@ -133,3 +133,25 @@ def test_sample_points_gives_600_spread_points(clean: RgbdFrame) -> None:
     assert few.shape == (600, 3) and np.array_equal(few[:10], pts[:10])
     with pytest.raises(ValueError):
         sample_points(pts[:0])
+
+
+def test_farthest_point_sampling_picks_what_the_plain_loop_picks() -> None:
+    """The compiled sampler against the numpy loop it replaced, ties included."""
+    def reference(pts: np.ndarray, k: int) -> np.ndarray:
+        rng = np.random.default_rng(0)
+        chosen = [int(rng.integers(len(pts)))]
+        dist = np.sum((pts - pts[chosen[0]]) ** 2, axis=1)
+        for _ in range(1, k):
+            chosen.append(int(np.argmax(dist)))
+            dist = np.minimum(dist, np.sum((pts - pts[chosen[-1]]) ** 2, axis=1))
+        return pts[chosen]
+
+    rng = np.random.default_rng(3)
+    for pts in (rng.normal(size=(2000, 3)), np.round(rng.normal(size=(900, 3)), 1)):
+        assert np.array_equal(sample_points(pts, 600), reference(pts, 600))
+
+
+def test_a_stride_keeps_every_stride_th_point(clean: RgbdFrame) -> None:
+    assert clean.instance is not None
+    table = clean.instance == 0
+    assert np.array_equal(backproject(clean, table, stride=8), backproject(clean, table)[::8])

@@ -81,7 +81,8 @@ def run_flow(params: dict[str, Any]) -> dict[str, Any]:
     from flows.config import night_config
     from flows.nightly import nightly
 
-    return nightly(night_config(params)).stage_seconds
+    summary = nightly(night_config(params))
+    return {**summary.stage_seconds, "parts": summary.ingest.parts}
 
 
 def merged(config: dict[str, Any], **groups: dict[str, Any]) -> dict[str, Any]:
@@ -97,8 +98,11 @@ def child(mode: str, params: dict[str, Any]) -> None:
     logging.basicConfig(level=logging.WARNING)
     start = time.perf_counter()
     stages = (run_flow if mode == "flow" else run_direct)(params)
+    parts = stages.pop("parts", None)
+    used = [resource.getrusage(who) for who in (resource.RUSAGE_SELF, resource.RUSAGE_CHILDREN)]
     print(json.dumps({
         "mode": mode, "wall_s": round(time.perf_counter() - start, 1), "stages": stages,
+        "parts": parts, "cpu_s": round(sum(u.ru_utime + u.ru_stime for u in used), 1),
         "peak_rss_mb": round(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024),
         "peak_worker_rss_mb": round(resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss
                                     / 1024)}))
@@ -211,12 +215,14 @@ def scaling(args: argparse.Namespace, root: Path, base: dict[str, Any],
     print(f"library: {args.library or 'built-in samples'} "
           f"({', '.join(args.categories or ['all categories'])}); views {args.views}, "
           f"pairs/relation {args.pairs} x k")
-    print(f"{'runner':<8}{'k':>4}{'wall s':>9}{'x 1x':>8}{'/ k':>7}{'peak MB':>9}"
-          f"{'CAD MB':>8}{'Dask MB':>9}")
+    print(f"{'runner':<8}{'k':>4}{'parts':>7}{'wall s':>9}{'s/part':>8}{'CPU s':>8}{'x 1x':>8}"
+          f"{'/ k':>7}{'peak MB':>9}{'CAD MB':>8}{'Dask MB':>9}")
     for r in rows:
         one = next(x for x in rows if x["runner"] == r["runner"] and x["scale"] == args.scale[0])
         ratio = r["wall_s"] / one["wall_s"]
-        print(f"{r['runner']:<8}{r['scale']:>4}{r['wall_s']:>9.1f}{ratio:>8.2f}"
+        per_part = r["wall_s"] / r["parts"] if r.get("parts") else float("nan")
+        print(f"{r['runner']:<8}{r['scale']:>4}{r.get('parts') or '-':>7}{r['wall_s']:>9.1f}"
+              f"{per_part:>8.2f}{r.get('cpu_s', float('nan')):>8.1f}{ratio:>8.2f}"
               f"{ratio / (r['scale'] / args.scale[0]):>7.2f}{r['peak_rss_mb']:>9}"
               f"{r['peak_worker_rss_mb']:>8}{r.get('peak_dask_worker_mb', '-'):>9}")
 

@@ -35,6 +35,7 @@ from cadio.capture.observe import (
     SURFACE,
     CubeGrid,
     GridRule,
+    PartGrids,
     ViewEvidence,
     camera_azimuth_deg,
     depth_view,
@@ -140,7 +141,7 @@ def support_plane(frame: RgbdFrame,
                   labels: npt.NDArray[np.int32]) -> tuple[FloatArray, float] | None:
     """The support plane under the parts (normal up, offset), fitted to the pixels of no part
     (label 0: table and background returns), or None when too few of them have depth."""
-    rest = backproject(frame, labels == 0)[::SUPPORT_STRIDE]
+    rest = backproject(frame, labels == 0, SUPPORT_STRIDE)
     if len(rest) < 100:
         return None
     normal, offset = fit_plane(rest, SegmentConfig())
@@ -181,24 +182,27 @@ def view_input(view: PartView, cfg: ExampleConfig) -> Example:
 
 
 def oracle_example(views: Sequence[PartView], mesh: Mesh, part_to_world: FloatArray,
-                   cfg: ExampleConfig) -> Example:
+                   cfg: ExampleConfig, grids: PartGrids | None = None) -> Example:
     """The oracle-box protocol (the paper's setting): the part's truth grid, true pose."""
     if not views:
         raise ValueError("an example needs at least one view")
-    return _inputs(ORACLE, views, oracle_grid(mesh, part_to_world, cfg.grid_margin), cfg)
+    grid = (grids.oracle(mesh, part_to_world, cfg.grid_margin) if grids is not None
+            else oracle_grid(mesh, part_to_world, cfg.grid_margin))
+    return _inputs(ORACLE, views, grid, cfg, grids)
 
 
 def _inputs(protocol: str, views: Sequence[PartView], grid: CubeGrid,
-            cfg: ExampleConfig) -> Example:
+            cfg: ExampleConfig, grids: PartGrids | None = None) -> Example:
     points = np.concatenate([v.points for v in views])
     out, carved = states_and_carve([v.evidence for v in views], [v.points for v in views],
-                                   grid, cfg.n_out)
+                                   grid, cfg.n_out, grids)
     fine = out if cfg.n_out == cfg.d else [
-        view_states(v.evidence, v.points, grid, cfg.d) for v in views]
+        view_states(v.evidence, v.points, grid, cfg.d, grids) for v in views]
     return Example(
         protocol=protocol, views=tuple(v.view for v in views),
         azimuths=tuple(v.azimuth_deg for v in views), grid=grid,
-        inputs=np.stack([view_states(v.evidence, v.points, grid, cfg.n_in) for v in views]),
+        inputs=np.stack([view_states(v.evidence, v.points, grid, cfg.n_in, grids)
+                         for v in views]),
         depth=np.stack([depth_view(f[SURFACE]) for f in fine]),
         visible=union_states(np.stack(out))[SURFACE], carve=carved,
         points=_sample(points, POINTS_KEPT))
@@ -213,10 +217,11 @@ def _sample(points: FloatArray, k: int) -> FloatArray:
 
 
 def with_truth(example: Example, mesh: Mesh, part_to_world: FloatArray,
-               cfg: ExampleConfig) -> Example:
+               cfg: ExampleConfig, grids: PartGrids | None = None) -> Example:
     """The example with its target (the solid in the cube) and the share of the part's
     volume the cube holds (a cube placed from a view can cut a part the view barely saw)."""
-    target = truth_occupancy(mesh, part_to_world, example.grid, cfg.n_out)
+    target = (grids.truth(mesh, part_to_world, example.grid, cfg.n_out) if grids is not None
+              else truth_occupancy(mesh, part_to_world, example.grid, cfg.n_out))
     scale = float(np.cbrt(abs(np.linalg.det(np.asarray(part_to_world)[:3, :3]))))
     volume_m3 = _mesh_volume(mesh) * scale**3
     inside_m3 = float(target.sum()) * example.grid.voxel_m(cfg.n_out) ** 3

@@ -33,10 +33,11 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Any
 
+import numba
 import numpy as np
 import numpy.typing as npt
 
-from cadio.cad.voxels import occupancy_in, voxel_centres
+from cadio.cad.voxels import occupancy_in
 from cadio.records import CameraIntrinsics, FloatArray, Mesh
 from cadio.truth.relations import view_frame
 
@@ -249,7 +250,7 @@ class ViewEvidence:
 
 
 def view_states(view: ViewEvidence, points_world: FloatArray, grid: CubeGrid,
-                n: int) -> BoolGrid:
+                n: int, grids: PartGrids | None = None) -> BoolGrid:
     """(2, n, n, n) bool: the seen-surface and seen-free voxels of one view (``SURFACE``,
     ``FREE``); a voxel in neither is unknown.
 
@@ -259,41 +260,144 @@ def view_states(view: ViewEvidence, points_world: FloatArray, grid: CubeGrid,
     pixel is the part's and the return lies within half a diagonal of the centre, or when one
     of the part's observed points falls in it (a voxel smaller than a pixel is met by its
     centre's pixel alone; one larger than a pixel by the points). Surface wins over free.
+    ``grids``: where one part's examples are built, the projections they share.
     """
-    return _ViewCast(view, grid, n).states(points_world)
+    return _cast(view, grid, n, grids).states(points_world)
 
 
 class _ViewCast:
     """One view's projection of a grid's voxel centres: what ``view_states`` and ``carve``
-    read, computed once for both."""
+    read, computed once for both (``_cast_kernel``: one compiled pass over the centres)."""
 
     def __init__(self, view: ViewEvidence, grid: CubeGrid, n: int) -> None:
         self.view, self.grid, self.n = view, grid, n
-        self.centres = voxel_centres(grid.grid_to_world(n), n).reshape(-1, 3)
-        self.slack = np.float32(0.5 * np.sqrt(3.0) * grid.voxel_m(n))
-        self.depth_at, self.mask_at, self.z = _project(view, self.centres)
-        self.seen = self.depth_at > 0
-        self.front = self.z < self.depth_at - self.slack
-        self.free = self.seen & self.front
-        if view.support is not None:
-            self.free |= _below(view.support, self.centres, self.slack)
+        k = view.intrinsics
+        slack = np.float32(0.5 * np.sqrt(3.0) * grid.voxel_m(n))
+        normal, offset = view.support if view.support is not None else (np.zeros(3), np.nan)
+        plane = np.array([*normal, np.float32(offset) - slack], dtype=np.float32)
+        self.surface, self.free, self._behind = _cast_kernel(
+            np.asarray(grid.grid_to_world(n), dtype=np.float32), n,
+            np.ascontiguousarray(np.asarray(view.world_to_camera, dtype=np.float32)[:3]),
+            np.array([k.fx, k.fy, k.cx + 0.5, k.cy + 0.5], dtype=np.float32),
+            np.ascontiguousarray(view.depth, dtype=np.float32), np.ascontiguousarray(view.mask),
+            slack, plane)
+        self._states: tuple[FloatArray, BoolGrid] | None = None
 
     def states(self, points_world: FloatArray) -> BoolGrid:
+        if self._states is not None and self._states[0] is points_world:
+            return self._states[1]  # a view's own points, asked again: the same states
         n = self.n
-        surface = self.mask_at & self.seen & (np.abs(self.z - self.depth_at) <= self.slack)
-        surface = surface.reshape(n, n, n) | observed_occupancy(points_world, self.grid, n)
-        return np.stack([surface, self.free.reshape(n, n, n) & ~surface])
+        surface = self.surface.reshape(n, n, n) | observed_occupancy(points_world, self.grid, n)
+        out = np.stack([surface, self.free.reshape(n, n, n) & ~surface])
+        out.flags.writeable = False  # shared by every example that asks again
+        self._states = (points_world, out)
+        return out
 
     def behind(self) -> npt.NDArray[np.bool_]:
         """(n^3,) centres at or behind the part's surface on the part's own pixels."""
-        return self.mask_at & ~self.front
+        return self._behind
+
+
+@numba.njit(nogil=True, cache=True)
+def _cast_kernel(g2w: npt.NDArray[np.float32], n: int, cam: npt.NDArray[np.float32],
+                 pinhole: npt.NDArray[np.float32], depth: npt.NDArray[np.float32],
+                 mask: npt.NDArray[np.bool_], slack: np.float32, plane: npt.NDArray[np.float32]
+                 ) -> tuple[npt.NDArray[np.bool_], npt.NDArray[np.bool_],
+                            npt.NDArray[np.bool_]]:  # pragma: no cover
+    """Every voxel centre of an n^3 grid (``g2w``: index -> world) projected into one view
+    (``cam``: world -> camera, (3, 4); ``pinhole``: fx, fy, cx + 0.5, cy + 0.5).
+
+    Per centre, in float32 and in the order of the numpy passes it replaces (``voxel_centres``,
+    the camera transform, the pinhole): the pixel it falls on, the return there (0 outside the
+    image, for no return or NaN) and the part's mask there (``depth``, ``mask``: (h, w)).
+    Returns, (n^3,) each: *surface* (a return on the part's pixel within ``slack`` of the
+    centre), *free* (a return beyond the centre by more than ``slack``, or the centre under the
+    support plane n . p = d by more than ``slack``: ``plane`` is (n, d - slack), d NaN for no
+    plane) and *behind* (the part's pixel, the centre not in front of its return by more than
+    ``slack``). numpy made a dozen temporaries of 262k points per view and grid: the capture
+    stage spent most of its time in them.
+    """
+    height, width = depth.shape
+    total = n * n * n
+    surface = np.zeros(total, dtype=np.bool_)
+    free = np.zeros(total, dtype=np.bool_)
+    behind = np.zeros(total, dtype=np.bool_)
+    for idx in range(total):
+        fi = np.float32(idx // (n * n))
+        fj = np.float32((idx // n) % n)
+        fk = np.float32(idx % n)
+        c0 = g2w[0, 3] + fi * g2w[0, 0] + fj * g2w[0, 1] + fk * g2w[0, 2]
+        c1 = g2w[1, 3] + fi * g2w[1, 0] + fj * g2w[1, 1] + fk * g2w[1, 2]
+        c2 = g2w[2, 3] + fi * g2w[2, 0] + fj * g2w[2, 1] + fk * g2w[2, 2]
+        free[idx] = c0 * plane[0] + c1 * plane[1] + c2 * plane[2] < plane[3]
+        z = c0 * cam[2, 0] + c1 * cam[2, 1] + c2 * cam[2, 2] + cam[2, 3]
+        if not z > 1e-9:
+            continue
+        inv = np.float32(1.0) / z
+        x = c0 * cam[0, 0] + c1 * cam[0, 1] + c2 * cam[0, 2] + cam[0, 3]
+        y = c0 * cam[1, 0] + c1 * cam[1, 1] + c2 * cam[1, 2] + cam[1, 3]
+        u = math.floor(x * inv * pinhole[0] + pinhole[2])
+        v = math.floor(y * inv * pinhole[1] + pinhole[3])
+        if u < 0 or u >= width or v < 0 or v >= height:
+            continue
+        at = depth[v, u]
+        if not at == at:  # NaN: no return
+            at = np.float32(0.0)
+        front = z < at - slack
+        free[idx] = free[idx] or (at > 0 and front)
+        if mask[v, u]:
+            surface[idx] = at > 0 and abs(z - at) <= slack
+            behind[idx] = not front
+    return surface, free, behind
 
 
 def states_and_carve(views: Sequence[ViewEvidence], points: Sequence[FloatArray],
-                     grid: CubeGrid, n: int) -> tuple[list[BoolGrid], BoolGrid]:
+                     grid: CubeGrid, n: int, grids: PartGrids | None = None
+                     ) -> tuple[list[BoolGrid], BoolGrid]:
     """Each view's ``view_states`` and the views' ``carve``, from one projection per view."""
-    casts = [_ViewCast(v, grid, n) for v in views]
+    casts = [_cast(v, grid, n, grids) for v in views]
     return [c.states(p) for c, p in zip(casts, points, strict=True)], _carved(casts, n)
+
+
+class PartGrids:
+    """What one part's examples share, computed once while they are built: a view's
+    projection into a grid (and its states there), the oracle-box grid, and the truth in a grid.
+
+    Every oracle-box example of a part lies in the part's one truth grid, so each view is
+    projected into it once, not once per sequence that holds it, and the truth is voxelized
+    once, not once per example; the results are the same arrays. Keyed by the objects
+    themselves (kept here, so that their ids stay theirs): build one per part.
+    """
+
+    def __init__(self) -> None:
+        self._casts: dict[tuple[int, int, int], tuple[ViewEvidence, CubeGrid, _ViewCast]] = {}
+        self._oracle: CubeGrid | None = None
+        self._truths: dict[tuple[int, int], tuple[CubeGrid, BoolGrid]] = {}
+
+    def cast(self, view: ViewEvidence, grid: CubeGrid, n: int) -> _ViewCast:
+        key = (id(view), id(grid), n)
+        if key not in self._casts:
+            self._casts[key] = (view, grid, _ViewCast(view, grid, n))
+        return self._casts[key][2]
+
+    def oracle(self, mesh: Mesh, part_to_world: FloatArray, margin: float) -> CubeGrid:
+        """``oracle_grid`` of the part (one part per instance of this class)."""
+        if self._oracle is None:
+            self._oracle = oracle_grid(mesh, part_to_world, margin)
+        return self._oracle
+
+    def truth(self, mesh: Mesh, part_to_world: FloatArray, grid: CubeGrid, n: int) -> BoolGrid:
+        """``truth_occupancy`` of the part in ``grid`` (read-only: examples share it)."""
+        key = (id(grid), n)
+        if key not in self._truths:
+            target = truth_occupancy(mesh, part_to_world, grid, n)
+            target.flags.writeable = False
+            self._truths[key] = (grid, target)
+        return self._truths[key][1]
+
+
+def _cast(view: ViewEvidence, grid: CubeGrid, n: int, grids: PartGrids | None) -> _ViewCast:
+    return grids.cast(view, grid, n) if grids is not None else _ViewCast(view, grid, n)
 
 
 def union_states(states: BoolGrid) -> BoolGrid:
@@ -340,33 +444,6 @@ def _carved(casts: Sequence[_ViewCast], n: int) -> BoolGrid:
         free |= cast.free
         behind |= cast.behind()
     return (behind & ~free).reshape(n, n, n)
-
-
-def _below(support: tuple[FloatArray, float], points: npt.NDArray[np.float32],
-           slack: np.float32) -> npt.NDArray[np.bool_]:
-    """Points under the support plane by more than ``slack`` (nothing lies inside a table)."""
-    normal, offset = support
-    return points @ np.asarray(normal, dtype=np.float32) < np.float32(offset) - slack
-
-
-def _project(view: ViewEvidence, points: npt.NDArray[np.float32]) -> tuple[
-        npt.NDArray[np.float32], npt.NDArray[np.bool_], npt.NDArray[np.float32]]:
-    """(depth at the pixel (0 outside the image or without a return), the part's mask at the
-    pixel, camera z) of each world point (float32: this runs on 262k points per view)."""
-    w2c = np.asarray(view.world_to_camera, dtype=np.float32)
-    cam = points @ w2c[:3, :3].T + w2c[:3, 3]
-    k = view.intrinsics
-    z = cam[:, 2]
-    with np.errstate(divide="ignore", invalid="ignore"):
-        inv = np.where(z > 1e-9, np.float32(1.0) / z, np.float32(np.nan))
-        u = np.floor(cam[:, 0] * inv * np.float32(k.fx) + np.float32(k.cx + 0.5))
-        v = np.floor(cam[:, 1] * inv * np.float32(k.fy) + np.float32(k.cy + 0.5))
-        inside = (u >= 0) & (u < k.width) & (v >= 0) & (v < k.height)
-    flat = np.where(inside, v * k.width + u, 0).astype(np.int64)
-    depth = np.nan_to_num(view.depth.ravel()[flat].astype(np.float32), nan=0.0)
-    depth[~inside] = 0.0
-    mask = view.mask.ravel()[flat] & inside
-    return depth, mask, z
 
 
 def truth_occupancy(mesh: Mesh, part_to_world: FloatArray, grid: CubeGrid, n: int) -> BoolGrid:

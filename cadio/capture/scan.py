@@ -41,6 +41,7 @@ from cadio.capture.examples import (
     with_truth,
     write_example,
 )
+from cadio.capture.observe import PartGrids
 from cadio.capture.pointcloud import sample_points
 from cadio.capture.segment import segment_clusters, segmentation_score
 from cadio.catalog import read_catalog
@@ -377,14 +378,15 @@ def part_examples(views: list[PartView], mesh: Mesh, to_world: FloatArray,
     truth) place the oracle-box grid and voxelize the targets.
     """
     ecfg = cfg.example_config()
+    grids = PartGrids()  # the oracle-box examples share one grid: each view projected once
     out = {}
     for chosen in view_sets(len(views), len(views), cfg.lengths):
         seq = [views[i] for i in chosen]
         for protocol in cfg.protocols:
             example = (observed_example(seq, ecfg) if protocol == OBSERVED
-                       else oracle_example(seq, mesh, to_world, ecfg))
+                       else oracle_example(seq, mesh, to_world, ecfg, grids))
             name = f"{protocol}-{'-'.join(str(v.view) for v in seq)}"
-            out[name] = with_truth(example, mesh, to_world, ecfg)
+            out[name] = with_truth(example, mesh, to_world, ecfg, grids)
     return out
 
 
