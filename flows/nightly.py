@@ -33,6 +33,7 @@ from cadio.contracts import CaptureSummary, MatesSummary
 from cadio.errors import DiskSpaceError, MachineError
 from cadio.export.job import model_digests
 from cadio.inspect.evaluate import AssemblyInspection
+from cadio.inspect.recording import assembly_recordings
 from cadio.truth.scene_config import night_scene_config
 from cadio.truth.scenes import read_scenes
 from cadio.workspace import Workspace, write_json
@@ -379,7 +380,11 @@ def _capture_stages(config: NightConfig, run: Run, cad: _Cad, clock: _Stopwatch
     # recordings stand on their own; a rendered night captures the assemblies and every part
     captured = (capture_stage(cad.scenes, run, scan_cfg, cap.recordings) if cap.recordings
                 else render_stage(cad.catalog, cad.scenes, cad.mates, run, scan_cfg))
-    if cap.recordings and all(c.error for c in captured):  # each reason is in the report
+    inspected = (assembly_recordings(Path(cap.recordings), {m.assembly for m in cad.mates
+                                                            if m.ok})
+                 if cap.recordings and config.inspection.enabled else [])
+    if cap.recordings and all(c.error for c in captured) and not inspected:
+        # each reason is in the report; an assembly's own recordings are the inspection's
         raise ConfigError([("capture.recordings", f"none of the {len(captured)} recording(s) "
                             "could be used, the night would check nothing: " + "; ".join(
                                 f"{c.path}: {c.error}" for c in captured[:3]))])
@@ -427,7 +432,7 @@ def _inspection_stage(config: NightConfig, run: Run, cad: _Cad, learned: _Learne
     if not config.inspection.enabled:
         return [], []
     inspected, relations = inspect_stage(cad.mates, run, config.inspection, config.tolerances,
-                                         learned.relations_dir)
+                                         learned.relations_dir, config.capture.recordings)
     get_run_logger().info(
         "inspection: %d assemblies, %d failed, %d captures, %d mates checked (%.1f s)",
         len(inspected), sum(bool(i.error) for i in inspected),

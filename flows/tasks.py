@@ -58,7 +58,13 @@ from cadio.disk_space import capture_need_mb, check_free_space, ingest_need_mb
 from cadio.evidence.pair_features import evidence_digest
 from cadio.export.job import ExportJob, export_assemblies, run_jobs, write_index
 from cadio.inspect.defects import DefectPlan
-from cadio.inspect.evaluate import AssemblyInspection, inspect_assembly, inspection_digest
+from cadio.inspect.evaluate import (
+    AssemblyInspection,
+    inspect_assembly,
+    inspect_recording_rows,
+    inspection_digest,
+)
+from cadio.inspect.recording import assembly_recordings
 from cadio.inspect.stage import InspectConfig
 from cadio.sandbox import Limits
 from cadio.tolerances import Tolerances, write_tolerances
@@ -237,8 +243,18 @@ def capture_task(scene_ids: list[str], workspace: str, cfg: ScanConfig, key: str
 
 @task(name="read-captures", **_RETRY)
 def read_captures_task(captures: str, workspace: str, cfg: ScanConfig) -> list[CaptureSummary]:
-    """Learning inputs of captures recorded elsewhere (real logs)."""
-    return read_captures(Path(captures), Workspace(Path(workspace)), cfg)
+    """Learning inputs of captures recorded elsewhere (real logs), but the recordings of an
+    assembly's own folder (the inspection reads those)."""
+    ws = Workspace(Path(workspace))
+    own = [p for _, p in assembly_recordings(Path(captures), library_assemblies(ws))]
+    return read_captures(Path(captures), ws, cfg, skip=own)
+
+
+def library_assemblies(ws: Workspace) -> set[str]:
+    """The names of the library's assemblies (its files with several solids read)."""
+    catalog = read_catalog(ws.catalog)
+    ok = catalog[(catalog["status"] == "ok") & (catalog["n_solids"] > 1)]
+    return {Path(str(s)).stem for s in ok["source"]}
 
 
 @task(name="capture-assemblies", **_CACHED)
@@ -513,12 +529,22 @@ def relate_inspection_task(folder: str, workspace: str, relations_models: str,
     return str(out)
 
 
+@task(name="inspect-recording", **_CACHED)
+def inspect_recording_task(assembly: str, recording: str, workspace: str, cfg: InspectConfig,
+                           key: str) -> AssemblyInspection:
+    """One recording made elsewhere checked against its assembly's design."""
+    return inspect_recording_rows(assembly, Path(recording), Workspace(Path(workspace)), cfg,
+                                  key)
+
+
 def inspect_stage(mates: list[MatesSummary], run: Run, options: InspectionOptions,
-                  tolerances: Tolerances, relations_models: str
+                  tolerances: Tolerances, relations_models: str, recordings: str | None = None
                   ) -> tuple[list[AssemblyInspection], list[str]]:
     """Every assembly whose mates were extracted, inspected as built (one task each, keyed on
     its meshes, its mates, the config and the inspection's code), and its registered
-    relations; the inspections and the relation files."""
+    relations; then each recording of ``recordings`` in a folder named after one of them
+    (``cadio.inspect.recording.assembly_recordings``) against it. The inspections and the
+    relation files."""
     ws = Workspace(Path(run.workspace))
     cfg = inspect_config(options, tolerances)
     catalog = read_catalog(ws.catalog)
@@ -529,9 +555,19 @@ def inspect_stage(mates: list[MatesSummary], run: Run, options: InspectionOption
         key = content_digest(files, cfg=cfg, epoch=run.epoch, version=INSPECT_VERSION,
                              code=inspection_digest())[:32]
         futures.append(inspect_task.submit(summary.assembly, run.workspace, cfg, key))
+    done_ok = {m.assembly: m for m in mates if m.ok}
+    for assembly, path in assembly_recordings(Path(recordings), set(done_ok)) if recordings \
+            else []:
+        parts = catalog[catalog["source"] == done_ok[assembly].source]["part_id"].astype(str)
+        files = [ws.mesh(p) for p in sorted(parts)] + [Path(done_ok[assembly].path), path]
+        key = content_digest(files, cfg=cfg, epoch=run.epoch, version=INSPECT_VERSION,
+                             code=inspection_digest())[:32]
+        futures.append(inspect_recording_task.submit(assembly, str(path), run.workspace, cfg,
+                                                     key))
     inspected = [f.result() for f in futures]
     relations = []
-    for done in (i for i in inspected if not i.error and cfg.search):
+    for done in (i for i in inspected if not i.error and cfg.search
+                 and (Path(i.folder) / "found.parquet").is_file()):
         key = content_digest([Path(done.folder) / "found.parquet", *_models(relations_models)],
                              version=INSPECT_VERSION, evidence=evidence_digest(),
                              methods=RELATION_METHODS.digest(), inputs=INPUTS.digest())

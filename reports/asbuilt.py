@@ -40,10 +40,10 @@ AS_BUILT_COLUMNS = ("assembly", "index_a", "index_b", "face_a", "face_b", "relat
                     "status", "reason", "axis_distance_mm", "axis_distance_mm_threshold",
                     "axis_angle_deg", "axis_angle_deg_threshold", "plane_offset_mm",
                     "plane_offset_mm_threshold", "normal_angle_deg",
-                    "normal_angle_deg_threshold", "part_a", "part_b")
+                    "normal_angle_deg_threshold", "part_a", "part_b", "capture")
 SUMMARY_COLUMNS = ("views", "method", "measure", "kind", "size", "n", "rate")
 VISIBLE = 0.2  # both parts of a pair view show at least this share of their surface
-INTACT, ALL_VIEWS, PRODUCT = "intact", "all", "registered"
+INTACT, RECORDING, ALL_VIEWS, PRODUCT = "intact", "recording", "all", "registered"
 TABLES = ("mates", "poses", "defects", "parts", "found", "shares")
 
 
@@ -64,17 +64,20 @@ def as_built_frame(mates: pd.DataFrame) -> pd.DataFrame:
     cols = list(AS_BUILT_COLUMNS)
     if mates.empty:
         return pd.DataFrame(columns=cols)
-    rows = mates[(mates["variant"] == INTACT) & (mates["views"] == ALL_VIEWS)
+    rows = mates[mates["variant"].isin([INTACT, RECORDING]) & (mates["views"] == ALL_VIEWS)
                  & (mates["method"] == PRODUCT)]
     return rows.reindex(columns=cols).sort_values(
-        ["assembly", "index_a", "index_b", "relation", "face_a", "face_b"]).reset_index(drop=True)
+        ["assembly", "capture", "index_a", "index_b", "relation", "face_a", "face_b"]
+    ).reset_index(drop=True)
 
 
 def verdicts(as_built: pd.DataFrame) -> pd.DataFrame:
     """Per assembly: ``holds``, ``N mates broken`` (naming them) or ``not inspectable``, and
     the count of mates per status."""
     rows = []
-    for assembly, group in as_built.groupby("assembly", sort=True):
+    keys = ["assembly", "capture"] if "capture" in as_built else ["assembly"]
+    for key, group in as_built.groupby(keys, sort=True, dropna=False):
+        assembly, capture = (key[0], key[1]) if len(keys) == 2 else (key[0], "")
         counts = group["status"].value_counts()
         broken = group[group["status"] == "broken"]
         if len(broken):
@@ -85,10 +88,11 @@ def verdicts(as_built: pd.DataFrame) -> pd.DataFrame:
             verdict = "holds"
         which = "; ".join(f"{r.relation} {r.part_a[:8]}/{r.face_a} - {r.part_b[:8]}/{r.face_b}"
                           for r in broken.head(5).itertuples())
-        rows.append({"assembly": assembly, "verdict": verdict, "broken": which,
+        rows.append({"assembly": assembly, "capture": capture, "verdict": verdict,
+                     "broken": which,
                      **{s: int(counts.get(s, 0)) for s in ("holds", "not observable",
                                                            "not inspectable")}})
-    return pd.DataFrame(rows, columns=["assembly", "verdict", "broken", "holds",
+    return pd.DataFrame(rows, columns=["assembly", "capture", "verdict", "broken", "holds",
                                        "not observable", "not inspectable"])
 
 
@@ -223,10 +227,12 @@ def junit_suites(as_built: pd.DataFrame) -> list[ET.Element]:
     from reports.trends import xml_safe
 
     out = []
-    for assembly, rows in as_built.groupby("assembly", sort=True):
+    keys = ["assembly", "capture"] if "capture" in as_built else ["assembly"]
+    for key, rows in as_built.groupby(keys, sort=True, dropna=False):
+        assembly, capture = key[0], (key[1] if len(keys) == 2 else "")
         broken = int((rows["status"] == "broken").sum())
         unjudged = int(rows["status"].isin(["not observable", "not inspectable"]).sum())
-        suite = ET.Element("testsuite", name=xml_safe(f"as built {assembly}"),
+        suite = ET.Element("testsuite", name=xml_safe(f"as built {assembly} {capture}".strip()),
                            tests=str(len(rows)), failures=str(broken), errors="0",
                            skipped=str(unjudged))
         for r in rows.to_dict("records"):

@@ -132,7 +132,8 @@ def test_inspect_shows_every_field_of_the_night_with_its_description_and_range(
     expected = NightConfig.model_json_schema()["$defs"]
     groups = {name: field.annotation.__name__ for name, field in NightConfig.model_fields.items()
               if name != "tolerances"}
-    assert set(groups) == {"library", "capture", "models", "thresholds", "runtime"}
+    assert set(groups) == {"library", "capture", "inspection", "models", "thresholds",
+                           "runtime"}
     for group, model in groups.items():
         fields = shown[model]["properties"]
         assert set(fields) == set(expected[model]["properties"]), group

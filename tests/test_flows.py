@@ -8,6 +8,7 @@ import shutil
 from dataclasses import asdict
 from pathlib import Path
 
+import numpy as np
 import pandas as pd
 import pytest
 from prefect.testing.utilities import prefect_test_harness
@@ -292,3 +293,45 @@ def test_a_deployment_run_into_a_folder_that_is_no_workspace_fails_before_any_wo
                                           r"mateqa workspace \(it holds notes.txt\)"):
         nightly(config)
     assert [p.name for p in home.iterdir()] == ["notes.txt"]
+
+
+def test_a_recording_in_an_assembly_s_folder_is_inspected_against_it(
+        harness: object, tmp_path: Path) -> None:
+    """`--captures DIR`: a recording in DIR/<assembly>/ (no masks, no scene, no part names)
+    is checked as built against that assembly of the library; the learned route leaves it
+    alone, and the night's as_built.csv holds it beside the assembly's own inspection."""
+    import build123d as bd
+
+    from cadio.cad.step import write_step
+    from cadio.inspect.stage import InspectConfig, assembly_model, record
+    from cadio.samples.assemblies import assembly_builders
+    from cadio.workspace import Workspace
+    from flows.config import night_config
+    from flows.nightly import nightly
+
+    name = "bolted-joint-m8"
+    lib = tmp_path / "lib" / "fasteners"
+    lib.mkdir(parents=True)
+    build = {n: b for n, _, b in assembly_builders()}[name]
+    write_step(bd.Compound(children=build(), label=name), lib / f"{name}.step")
+    config = {"library": {"path": str(lib.parent), "voxel_sizes": [16]},
+              "runtime": {"workspace": str(tmp_path / "ws")},
+              "capture": {"views_per_scene": 1, "pairs_per_relation": 1},
+              "inspection": {"views": 2, "defects": False, "search": False},
+              "thresholds": {"fail_on_threshold": False}}
+    nightly(night_config(config))  # the workspace knows the assembly: record it as built
+    model = assembly_model(name, Workspace(tmp_path / "ws"))
+    poses = dict(enumerate(model.design))
+    lift = np.eye(4)
+    lift[2, 3] = 5.0  # the upper plate 5 mm off the lower one
+    poses[1] = lift @ poses[1]
+    folder = tmp_path / "recordings" / name
+    folder.mkdir(parents=True)
+    record(model, poses, folder / "monday.mcap", InspectConfig(), instance_ids=False)
+    summary = nightly(night_config({**config, "capture": {
+        **config["capture"], "recordings": str(tmp_path / "recordings")}}))
+    assert summary.stages.captures == 0  # the learned route did not read it
+    as_built = pd.read_csv(Path(summary.run_dir) / "as_built.csv")
+    mine = as_built[as_built["capture"] == f"{name}/monday.mcap"]
+    assert not mine.empty and (mine["status"] == "broken").any()
+    assert set(mine[mine["status"] == "broken"][["index_a", "index_b"]].stack()) >= {1}

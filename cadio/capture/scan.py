@@ -233,9 +233,11 @@ def capture_assembly(assembly: str, category: str, part_ids: list[str], ws: Work
     return with_inputs(summary, ws, cfg, scored)
 
 
-def read_captures(captures_dir: Path, ws: Workspace, cfg: ScanConfig) -> list[CaptureSummary]:
+def read_captures(captures_dir: Path, ws: Workspace, cfg: ScanConfig,
+                  skip: Collection[Path] = ()) -> list[CaptureSummary]:
     """Learning inputs of every recording made elsewhere (``*.mcap`` under the folder, in
-    either MCAP dialect: ``cadio.recordings.mcap_io``). A recording that cannot be used (no
+    either MCAP dialect: ``cadio.recordings.mcap_io``), but those of ``skip`` (the
+    recordings the inspection reads alone). A recording that cannot be used (no
     regular file: a folder or a pipe so named) gets its reason in the summary's ``error`` and
     the others go on. The reader refuses what it can tell is wrong (``read_capture``: sizes,
     intrinsics, poses, empty depth); whatever else a recording's content breaks in its scan is
@@ -245,7 +247,10 @@ def read_captures(captures_dir: Path, ws: Workspace, cfg: ScanConfig) -> list[Ca
         MachineError: its inputs cannot be written into the workspace (the machine's fault).
     """
     out = []
+    skipped = {Path(p).resolve() for p in skip}
     for path in sorted(Path(captures_dir).rglob("*.mcap")):
+        if path.resolve() in skipped:
+            continue
         summary = CaptureSummary(scene_id=path.stem, path=str(path))
         if not path.is_file():
             out.append(replace(summary, error="not a regular file (a folder or a pipe so "

@@ -176,7 +176,7 @@ def read_inputs(job: ExportJob) -> AssemblyMates:
                             tolerances=job.tolerances.as_dict(), reason=job.reason)
     if job.as_built:
         rows = pd.read_parquet(job.as_built, filters=[("assembly", "==", job.assembly)])
-        record = replace(record, as_built=mate_checks(rows))
+        record = replace(record, as_built=mate_checks(latest_capture(rows)))
     if record.status == NO_PREDICTIONS and not job.reason:
         why = ("the run has no relation predictions" if not job.predictions else
                "the assembly was not captured (see the run's stages report)"
@@ -217,6 +217,17 @@ def export_assembly(job: ExportJob) -> ExportSummary:
         relation_accuracy=_nan(agreement["relation_accuracy"]),
         joint_agreement=_nan(agreement["joint_agreement"]),
         seconds=time.perf_counter() - start)
+
+
+def latest_capture(rows: pd.DataFrame) -> pd.DataFrame:
+    """An assembly's as-built rows of one capture: the last of its recordings made elsewhere
+    (by name) where the night read any, else its own inspection capture."""
+    if "capture" not in rows or rows.empty:
+        return rows
+    captures = sorted(set(rows["capture"].astype(str)))
+    recorded = [c for c in captures if not c.startswith("inspect-")]
+    chosen = (recorded or captures)[-1]
+    return rows[rows["capture"].astype(str) == chosen]
 
 
 def _nan(value: float | None) -> float:

@@ -96,6 +96,39 @@ def inspect_assembly(assembly: str, ws: Workspace, cfg: InspectConfig, key: str
                                   error=f"{type(exc).__name__}: {exc}")
 
 
+RECORDING = "recording"  # the variant of a recording made elsewhere (no truth to score)
+
+
+def inspect_recording_rows(assembly: str, recording: Path, ws: Workspace, cfg: InspectConfig,
+                           key: str) -> AssemblyInspection:
+    """One recording of an assembly (made elsewhere: no masks, no truth) checked against its
+    design; its mates as built under ``inspect/<key>/mates.parquet``, as the product's rows
+    of variant ``recording``. A recording that cannot be read or does not show the assembly
+    comes back as the record's error (the night goes on)."""
+    from cadio.errors import InputFileError
+    from cadio.inspect.recording import InspectRecordingConfig, check_recording
+
+    folder = ws.root / "inspect" / key
+    start = time.perf_counter()
+    try:
+        result = check_recording(assembly, recording, ws,
+                                 InspectRecordingConfig(cfg.route, cfg.tolerances))
+    except (InputFileError, OSError, ValueError) as exc:
+        log.warning("inspection of %s: %s", recording, exc)
+        return AssemblyInspection(assembly, str(folder), seconds={
+            "inspect": time.perf_counter() - start}, error=str(exc))
+    base = {"assembly": assembly, "variant": RECORDING,
+            "capture": f"{recording.parent.name}/{recording.name}", "views": ALL_VIEWS,
+            "method": REGISTERED}
+    rows = [{**base, **m.row(), "part_a": result.part_ids[m.index_a],
+             "part_b": result.part_ids[m.index_b]} for m in result.mates]
+    folder.mkdir(parents=True, exist_ok=True)
+    with atomic_path(folder / "mates.parquet") as tmp:
+        pd.DataFrame(rows).to_parquet(tmp, index=False)
+    return AssemblyInspection(assembly, str(folder), 1, len(rows),
+                              {"inspect": time.perf_counter() - start})
+
+
 def _score(model: Any, variant: Variant, path: Path, found: Sequence[Inspected],
            ws: Workspace, tables: dict[str, list[dict[str, Any]]]) -> None:
     """The rows of one capture's inspections (each set of views)."""

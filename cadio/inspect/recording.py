@@ -13,7 +13,7 @@ from __future__ import annotations
 
 import csv
 import shutil
-from collections.abc import Iterable
+from collections.abc import Collection, Iterable
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -131,9 +131,28 @@ def inspect_recording(step: Path, recording: Path, ws: Workspace,
         InputFileError: the STEP or the recording cannot be read (``CaptureError`` for a
             recording), or the recording does not show the assembly (``NotThisAssembly``).
     """
+    return check_recording(prepare_design(step, ws, cfg.tolerances), recording, ws, cfg)
+
+
+def assembly_recordings(folder: Path, assemblies: Collection[str]) -> list[tuple[str, Path]]:
+    """The recordings under ``folder`` that name their assembly: each ``*.mcap`` in a folder
+    named after one of ``assemblies`` (its STEP file's name without ``.step``), with it."""
+    return [(path.parent.name, path) for path in sorted(Path(folder).rglob("*.mcap"))
+            if path.parent.name in assemblies]
+
+
+def check_recording(assembly: str, recording: Path, ws: Workspace,
+                    cfg: InspectRecordingConfig = InspectRecordingConfig()
+                    ) -> RecordingInspection:
+    """Check one recording against an assembly whose parts and mates the workspace holds.
+
+    Raises:
+        InputFileError: the recording cannot be read, or does not show the assembly.
+    """
     from cadio.recordings.mcap_io import read_capture
 
-    assembly = prepare_design(step, ws, cfg.tolerances)
+    if not recording.is_file():
+        raise InputFileError(recording, "not a regular file")
     frames = list(read_capture(recording))
     if not frames:
         raise InputFileError(recording, "no frame (no depth image with its camera info)")
