@@ -4,6 +4,13 @@
 .PHONY: setup setup-test nightly serve stop-server test lint bench
 
 WORKSPACE ?= workspace
+# The PyTorch build the set-up installs (torch==2.13.0, the lock's pin). Empty: whatever pip's
+# index gives, which from plain PyPI on Linux is the CUDA build with NVIDIA's CUDA libraries.
+# TORCH=cpu (or another build of PyTorch's wheel index, e.g. cu126) adds that index,
+# https://download.pytorch.org/whl/$(TORCH), so `make nightly TORCH=cpu` installs the CPU build.
+# Choose it before the first set-up: an installed torch of the pinned version is kept.
+TORCH ?=
+export TORCH
 
 setup:
 	@bash scripts/setup.sh

@@ -45,14 +45,20 @@ if ! "$PY" -c 'import sys; assert sys.version_info[:2] == (3, 11)' 2>/dev/null; 
 fi
 [ -x .venv/bin/python ] || "$PY" -m venv .venv
 # constraints.txt is the lock: every package, direct or not, at one exact version.
-# torch==2.13.0 resolves to the CPU wheel; a looser pin would pull several GB of CUDA.
-# pip re-resolves every pin on each call (minutes); a stamp of the lock and the package
-# metadata skips it while neither changed. The test stamp covers a night's needs too.
-lock=$(cat constraints.txt pyproject.toml | sha256sum | cut -d' ' -f1)
+# torch==2.13.0 is whatever build pip's index holds: from plain PyPI on Linux, the CUDA build.
+# TORCH=cpu (the Makefile's variable) adds PyTorch's index of that build, whose 2.13.0+cpu
+# pip prefers to PyPI's 2.13.0.
+# pip re-resolves every pin on each call (minutes); a stamp of the lock, the package metadata
+# and the chosen build skips it while none changed. The test stamp covers a night's needs too.
+index=()
+[ -n "${TORCH:-}" ] && index=(--extra-index-url "https://download.pytorch.org/whl/${TORCH}")
+lock=$({ cat constraints.txt pyproject.toml; [ -z "${TORCH:-}" ] || echo "torch=${TORCH}"; } \
+  | sha256sum | cut -d' ' -f1)
 target="." stamp=.venv/.installed-run
 [ "$test_setup" = 1 ] && target=".[dev]" stamp=.venv/.installed-test
 if [ "$(cat "$stamp" 2>/dev/null)" != "$lock" ] && [ "$(cat .venv/.installed-test 2>/dev/null)" != "$lock" ]; then
-  .venv/bin/python -m pip install -q --disable-pip-version-check -c constraints.txt -e "$target"
+  .venv/bin/python -m pip install -q --disable-pip-version-check "${index[@]}" -c constraints.txt \
+    -e "$target"
   echo "$lock" > "$stamp"
 fi
 

@@ -352,7 +352,7 @@ def _pixels(path: Path, img: ImageMsg, decode: Any) -> Any:
 
 
 def read_capture(path: Path | str, *, pose: FloatArray | None = None,
-                 tolerance_ns: int = 20_000_000, depth_scale_m: float = 0.001,
+                 tolerance_ns: int = ReadOptions.tolerance_ns, depth_scale_m: float = 0.001,
                  depth_topic: str | None = None, colour_topic: str | None = None,
                  fixed_frame: str | None = None) -> Iterator[RgbdFrame]:
     """Yield the RGB-D frames of an MCAP recording: ours, a Foxglove one or a ROS 2 one.
