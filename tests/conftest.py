@@ -168,6 +168,12 @@ def prefect_api(tmp_path_factory: pytest.TempPathFactory):  # type: ignore[no-un
     stop_server(proc)
 
 
+# The inspection of the test nights: one view, the design's route only. The search and the
+# planted defects are the tests' of cadio.inspect and of one night in test_flows; in every
+# night they would double its time.
+TEST_INSPECTION = {"views": 1, "defects": False, "search": False}
+
+
 def start_night(library: Path, workspace: Path, env: dict[str, str],
                 **groups: dict[str, object]):  # type: ignore[no-untyped-def]
     """The nightly flow on ``library`` in a child process (its own session, so that it and its
@@ -179,7 +185,7 @@ def start_night(library: Path, workspace: Path, env: dict[str, str],
     config: dict[str, dict[str, object]] = {
         "library": {"path": str(library)}, "runtime": {"workspace": str(workspace)},
         "capture": {"views_per_scene": 1, "pairs_per_relation": 1},
-        "thresholds": {"fail_on_threshold": False}}
+        "inspection": TEST_INSPECTION, "thresholds": {"fail_on_threshold": False}}
     for name, values in groups.items():
         config.setdefault(name, {}).update(values)
     code = ("from flows.config import night_config; from flows.nightly import nightly; "
@@ -207,33 +213,35 @@ def local_night(small_library: Path, prefect_api: dict[str, str],
     return (workspace / "runs" / "latest").resolve()
 
 
-# Test files that share the session's Prefect server or its uninterrupted night: the test run
-# (`pytest -n 2`) gives them to one worker together, so that each is started once.
-SERVER_GROUP = {"test_bad_inputs", "test_calibrate", "test_dask", "test_docker", "test_export",
-                "test_resume", "test_verdict", "test_workspace_claim"}
+# Test files that share a worker's session fixtures: those of the uninterrupted night (and its
+# Prefect server) are one scheduling unit, so that the night is made once; those that need only
+# the server another, so that the two run side by side (one unit of both left the other worker
+# idle for minutes at the end of the run).
+GROUPS = {"night": {"test_calibrate", "test_dask", "test_export", "test_resume"},
+          "server": {"test_bad_inputs", "test_docker", "test_verdict", "test_workspace_claim"}}
 
 
-# The heaviest scopes of the run (a test file, or "server" for SERVER_GROUP), heaviest first:
-# seconds of a run on two cores were server 505, test_deployments 214, test_flows 148,
-# test_untrusted_names 103, test_server 69, test_assembly_variants 68, test_mates 59, then under
-# 55 each. xdist hands scopes out in collection order, so these go first and the many small
-# files fill in at the end; by number of tests (xdist's own order) a heavy file could start
-# last and leave the other worker idle.
-HEAVY_FIRST = ("server", "test_deployments", "test_flows", "test_untrusted_names", "test_server",
-               "test_assembly_variants", "test_mates", "test_samples", "test_integrate",
-               "test_real_ingest", "test_relations_model")
+# The heaviest scopes of the run (a test file, or a group of GROUPS), heaviest first: xdist
+# hands scopes out in collection order, so these go first and the many small files fill in at
+# the end; by number of tests (xdist's own order) a heavy file could start last and leave the
+# other worker idle.
+HEAVY_FIRST = ("night", "test_deployments", "server", "test_flows", "test_untrusted_names",
+               "test_server", "test_assembly_variants", "test_mates", "test_samples",
+               "test_integrate", "test_real_ingest", "test_relations_model")
 
 
 def _scope(path: str) -> str:
-    """The scheduling unit of a test file: "server" for SERVER_GROUP, else the file."""
-    return "server" if Path(path).stem in SERVER_GROUP else path
+    """The scheduling unit of a test file: its group in GROUPS, else the file."""
+    stem = Path(path).stem
+    return next((group for group, stems in GROUPS.items() if stem in stems), path)
 
 
 def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
     """Collect the heaviest scopes first (``HEAVY_FIRST``); the rest keep their order."""
     def rank(item: pytest.Item) -> int:
-        stem = Path(item.nodeid.split("::", 1)[0]).stem
-        key = "server" if stem in SERVER_GROUP else stem
+        path = item.nodeid.split("::", 1)[0]
+        key = _scope(path)
+        key = key if key in GROUPS else Path(path).stem
         return HEAVY_FIRST.index(key) if key in HEAVY_FIRST else len(HEAVY_FIRST)
 
     items.sort(key=rank)  # stable: a file's tests keep their order
@@ -242,8 +250,8 @@ def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
 @pytest.hookimpl(optionalhook=True)
 def pytest_xdist_make_scheduler(config: pytest.Config, log: object) -> object:
     """pytest-xdist's scheduler by test file (a file's module fixtures are set up once), with
-    the files of ``SERVER_GROUP`` one unit (xdist's own ``loadgroup`` marks are not honoured
-    under this pytest: it no longer lets a plugin rename a test's node id)."""
+    the files of each group of ``GROUPS`` one unit (xdist's own ``loadgroup`` marks are not
+    honoured under this pytest: it no longer lets a plugin rename a test's node id)."""
     from xdist.scheduler import LoadScopeScheduling
 
     class FileScheduling(LoadScopeScheduling):  # type: ignore[misc]

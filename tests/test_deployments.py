@@ -20,7 +20,7 @@ from uuid import UUID
 
 import pandas as pd
 import pytest
-from conftest import free_port
+from conftest import TEST_INSPECTION, free_port
 
 from cadio.tolerances import DEFAULT_TOLERANCES
 
@@ -96,7 +96,7 @@ def _run_nightly(env: dict[str, str], library: Path, workspace: Path) -> str:
     done = _deployment_run(env, {
         "library": {"path": str(library)}, "runtime": {"workspace": str(workspace)},
         "capture": {"views_per_scene": 1, "pairs_per_relation": 1},
-        "thresholds": {"fail_on_threshold": False}})
+        "inspection": TEST_INSPECTION, "thresholds": {"fail_on_threshold": False}})
     assert done.returncode == 0, done.stdout[-4000:] + done.stderr[-4000:]
     return done.stdout
 

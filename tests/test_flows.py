@@ -317,9 +317,16 @@ def test_a_recording_in_an_assembly_s_folder_is_inspected_against_it(
     config = {"library": {"path": str(lib.parent), "voxel_sizes": [16]},
               "runtime": {"workspace": str(tmp_path / "ws")},
               "capture": {"views_per_scene": 1, "pairs_per_relation": 1},
-              "inspection": {"views": 2, "defects": False, "search": False},
+              "inspection": {"views": 2, "parts_per_defect": 1},
               "thresholds": {"fail_on_threshold": False}}
-    nightly(night_config(config))  # the workspace knows the assembly: record it as built
+    first = Path(nightly(night_config(config)).run_dir)  # the night's own inspection
+    caught = pd.read_csv(first / "inspect_summary.csv").query("measure == 'caught'")
+    assert set(caught["method"]) == {"registered", "design"}
+    assert (caught.query("method == 'design'")["rate"] == 0).all()  # the design pose leaks none
+    assert caught.query("method == 'registered'")["rate"].gt(0).any()  # and the scan some
+    f1 = pd.read_csv(first / "registered_mates.csv")
+    assert {"registered", "truth"} <= set(f1["input"])
+    # the workspace knows the assembly now: record it as built
     model = assembly_model(name, Workspace(tmp_path / "ws"))
     poses = dict(enumerate(model.design))
     lift = np.eye(4)

@@ -170,6 +170,7 @@ def test_a_threshold_failure_prints_the_verdict_and_exits_3_without_a_traceback(
     def night(*extra: str) -> subprocess.CompletedProcess[str]:
         args = ["nightly", "--library", str(lib.parent), "--workspace", str(ws),
                 "--voxel-sizes", "16", "--views-per-scene", "1", "--pairs-per-relation", "1",
+                "--inspection-views", "1", "--no-inspection-defects", "--no-inspection-search",
                 "--thresholds", str(strict), *extra]
         return subprocess.run([sys.executable, "-m", "flows.cli", *args], capture_output=True,
                               text=True, check=False, cwd=Path(__file__).parents[1],
