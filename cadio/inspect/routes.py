@@ -164,7 +164,9 @@ def _place_parts(model: AssemblyModel, scan: Scan, nominal: FloatArray, cfg: Rou
                                     cfg.missing_min_points else "too little of it seen")
             continue
         placed[i] = PartAsBuilt(i, fit.pose, _uncertainty(part, fit, cfg))
-        used |= _explained(part, fit.pose, scan, cfg, (others, i))
+        # a part explains only points it was offered: a washer's rim under its nut lies
+        # within the fine distance of the nut, and is the washer's
+        used |= _explained(part, fit.pose, scan, cfg, (others, i)) & ((label == i) | (label < 0))
     return placed, fits, int(used.sum())
 
 
