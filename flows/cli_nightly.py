@@ -42,12 +42,25 @@ def cmd_nightly(args: argparse.Namespace) -> int:
     try:
         return _run_nightly(args)
     finally:
+        if args.stop_server:
+            _drain_run_logs()
         busy = stop_unless_used(proc) if args.stop_server else None
         if busy:  # another night's runs: stopping the server would fail them
             port = settings.server_port
             print(f"mateqa nightly: left the Prefect server on port {port} running: {busy}; "
                   f"`mateqa serve --stop{'' if port == 4200 else f' --port {port}'}` stops it "
                   "once they end", file=sys.stderr)
+
+
+def _drain_run_logs() -> None:
+    """Send the log lines still queued for the server before it stops: otherwise Prefect's log
+    worker finds it gone at exit and prints "Error logging to API" under the verdict."""
+    from prefect.logging.handlers import APILogWorker
+
+    try:
+        APILogWorker.drain_all(timeout=5)
+    except Exception:  # the night is over; its logs are on disk
+        pass
 
 
 def _api_answers(url: str) -> bool:

@@ -7,7 +7,7 @@ product's check (the design route on every view, then on one view alone), the se
 phase and per part, against the floor of 1 s per part for the product's check on two cores.
 A ``mateqa nightly`` logs the whole stage's seconds (``inspection``) beside the others'.
 
-Usage: ``.venv/bin/python bench/speed/inspect.py WORKSPACE [ASSEMBLY ...] [--views 4]``
+Usage: ``.venv/bin/python bench/speed/inspection.py WORKSPACE [ASSEMBLY ...] [--views 4]``
 """
 
 from __future__ import annotations
