@@ -87,6 +87,14 @@ class RouteConfig:
     # A part is called missing only where the design shows this many of its points: of one
     # it barely shows, too few scan points are no evidence either way (not inspectable).
     missing_min_points: int = 240
+    # A part whose designed place the depth contradicts on more than half of what the cameras
+    # would see of it (they saw farther: free space) is not there; it is missing unless its
+    # refinement found it where the depth agrees on ``found_above`` of it and covers
+    # ``found_coverage`` (a part moved: its mates judge it). On the intact assemblies no part
+    # was seen through on more than 30% of its place; a missing one on at least 70%.
+    absent_below: float = 0.5
+    found_above: float = 0.9
+    found_coverage: float = 0.5
     # A segment is registered to a shape only where the shape's diameter allows its extent;
     # the shapes are tried smallest first, and a fit this good (inlier share of the segment,
     # share of its visible CAD the depth does not contradict) ends the search.
@@ -159,6 +167,15 @@ def _place_parts(model: AssemblyModel, scan: Scan, nominal: FloatArray, cfg: Rou
             continue
         fit = refine(part, offered, start, scan.cameras, cfg.local, (others, i))
         fits[i] = fit
+        if _seen_through(part, start, scan, cfg, (others, i)) and not (
+                fit.coverage >= cfg.found_coverage
+                and not _seen_through(part, fit.pose, scan, cfg, (others, i), cfg.found_above)):
+            # the camera sees through where the design puts it, and the refinement found it
+            # nowhere the depth agrees with: gone (refined from an empty place, a part slides
+            # onto what lies behind it, a nut onto its washer)
+            placed[i] = PartAsBuilt(i, None, None, "missing" if expected[i] >=
+                                    cfg.missing_min_points else "too little of it seen")
+            continue
         if fit.coverage < cfg.missing_coverage:
             placed[i] = PartAsBuilt(i, None, None, "missing" if expected[i] >=
                                     cfg.missing_min_points else "too little of it seen")
@@ -234,6 +251,14 @@ def expected_points(model: AssemblyModel, nominal: FloatArray, scan: Scan,
         for g, c in zip(ids, n, strict=True):
             counts[owner[int(g)]] += int(c) * 4  # every 2nd pixel each way
     return counts
+
+
+def _seen_through(part: PartSurface, pose: FloatArray, scan: Scan, cfg: RouteConfig,
+                  hidden_by: tuple[Occluders, int], share: float | None = None) -> bool:
+    """Whether the cameras saw past the part at ``pose`` (free space where it would stand) on
+    more than ``1 - share`` of what they would see of it (``cfg.absent_below`` by default)."""
+    seen, _ = visible(part, pose, scan.cameras, cfg.register.stride, hidden_by)
+    return consistency(seen, scan) < (cfg.absent_below if share is None else share)
 
 
 def _explained(part: PartSurface, pose: FloatArray, scan: Scan, cfg: RouteConfig,
