@@ -33,6 +33,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
+from cadio.inspect.asbuilt import verdict_of
 from cadio.workspace import atomic_path
 from reports.tables import markdown_table
 
@@ -80,12 +81,7 @@ def verdicts(as_built: pd.DataFrame) -> pd.DataFrame:
         assembly, capture = (key[0], key[1]) if len(keys) == 2 else (key[0], "")
         counts = group["status"].value_counts()
         broken = group[group["status"] == "broken"]
-        if len(broken):
-            verdict = f"{len(broken)} mate{'s' if len(broken) > 1 else ''} broken"
-        elif (group["status"] == "not inspectable").all():
-            verdict = "not inspectable"
-        else:
-            verdict = "holds"
+        verdict = verdict_of(group["status"].tolist())
         which = "; ".join(f"{r.relation} {r.part_a[:8]}/{r.face_a} - {r.part_b[:8]}/{r.face_b}"
                           for r in broken.head(5).itertuples())
         rows.append({"assembly": assembly, "capture": capture, "verdict": verdict,

@@ -27,6 +27,7 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
+from cadio.inspect.asbuilt import MateAsBuilt, verdict
 from cadio.records import CONVERSE, Relation
 from cadio.truth.joints import CAD_NAMES, NONE, predicted_joint
 
@@ -129,41 +130,9 @@ class PairMates:
         return tuple(f for f in self.faces if f.relation in held)
 
 
-@dataclass(frozen=True)
-class MateCheck:
-    """A CAD face mate as built (the run's ``as_built.csv`` row): its keys, status (holds,
-    broken, not observable, not inspectable), why, and residuals with their thresholds."""
-
-    index_a: int
-    index_b: int
-    face_a: int
-    face_b: int
-    relation: str
-    status: str
-    reason: str = ""
-    residuals: Mapping[str, tuple[float, float]] = field(default_factory=dict)
-
-    def text(self) -> str:
-        """The check in words: status, then each residual against its threshold."""
-        said = "; ".join(f"{name} {value:.3g} (threshold {limit:.3g})"
-                         for name, (value, limit) in self.residuals.items())
-        return f"{self.status}" + (f": {said}" if said else f" ({self.reason})"
-                                   if self.reason else "")
-
-
-RESIDUALS = ("axis_distance_mm", "axis_angle_deg", "plane_offset_mm", "normal_angle_deg")
-
-
-def mate_checks(rows: pd.DataFrame) -> tuple[MateCheck, ...]:
+def mate_checks(rows: pd.DataFrame) -> tuple[MateAsBuilt, ...]:
     """The as-built checks of an assembly's rows of ``as_built.csv``."""
-    out = []
-    for r in rows.to_dict("records"):
-        residuals = {name: (float(r[name]), float(r[f"{name}_threshold"])) for name in RESIDUALS
-                     if name in r and r[name] is not None and math.isfinite(float(r[name]))}
-        out.append(MateCheck(int(r["index_a"]), int(r["index_b"]), int(r["face_a"]),
-                             int(r["face_b"]), str(r["relation"]), str(r["status"]),
-                             str(r.get("reason") or ""), residuals))
-    return tuple(out)
+    return tuple(MateAsBuilt.from_row(r) for r in rows.to_dict("records"))
 
 
 @dataclass(frozen=True)
@@ -181,18 +150,11 @@ class AssemblyMates:
     run_id: str = ""
     models: Mapping[str, str] = field(default_factory=dict)
     tolerances: Mapping[str, float] = field(default_factory=dict)
-    as_built: tuple[MateCheck, ...] = ()  # each CAD face mate as built (the inspection)
+    as_built: tuple[MateAsBuilt, ...] = ()  # each CAD face mate as built (the inspection)
 
     def as_built_verdict(self) -> str:
         """``holds``, ``N mates broken``, ``not inspectable``, or "" (not inspected)."""
-        if not self.as_built:
-            return ""
-        broken = sum(m.status == "broken" for m in self.as_built)
-        if broken:
-            return f"{broken} mate{'s' if broken > 1 else ''} broken"
-        if all(m.status == "not inspectable" for m in self.as_built):
-            return "not inspectable"
-        return "holds"
+        return verdict(self.as_built) if self.as_built else ""
 
     def agreement(self) -> dict[str, Any]:
         """Agreement with the CAD over the predicted pairs: relation accuracy (all pair x

@@ -19,12 +19,12 @@ import jsonschema
 from cadio.export.predictions import (
     AssemblyMates,
     FaceGeometry,
-    MateCheck,
     PairMates,
     PartRef,
     RelationCall,
     finite,
 )
+from cadio.inspect.asbuilt import MateAsBuilt
 from cadio.workspace import atomic_write
 
 SCHEMA_ID = "mateqa.mates/1"
@@ -69,12 +69,12 @@ def _pair(p: PairMates) -> dict[str, Any]:
     }
 
 
-def _check(m: MateCheck) -> dict[str, Any]:
+def _check(m: MateAsBuilt) -> dict[str, Any]:
     return {"index_a": m.index_a, "index_b": m.index_b, "face_a": m.face_a,
             "face_b": m.face_b, "relation": m.relation, "status": m.status,
             "reason": m.reason,
-            "residuals": {k: {"value": finite(v), "threshold": finite(t)}
-                          for k, (v, t) in m.residuals.items()}}
+            "residuals": {r.name: {"value": finite(r.value), "threshold": finite(r.threshold)}
+                          for r in m.residuals}}
 
 
 def sidecar(mates: AssemblyMates) -> dict[str, Any]:

@@ -67,6 +67,10 @@ class Residual:
         return math.isfinite(self.sigma)
 
 
+# The residuals a mate can have, in the order the files list them.
+RESIDUALS = ("axis_distance_mm", "axis_angle_deg", "plane_offset_mm", "normal_angle_deg")
+
+
 @dataclass(frozen=True)
 class MateAsBuilt:
     """A CAD face mate as built (the keys of the mates stage: index_a, index_b, face_a, face_b,
@@ -80,6 +84,25 @@ class MateAsBuilt:
     status: str
     residuals: tuple[Residual, ...] = ()
     reason: str = ""
+
+    @classmethod
+    def from_row(cls, row: Mapping[str, Any]) -> MateAsBuilt:
+        """The mate of an ``as_built.csv`` row (``row``'s inverse; the residuals' standard
+        deviations are not in the file: NaN)."""
+        residuals = tuple(Residual(name, float(row[name]), float(row[f"{name}_threshold"]),
+                                   math.nan) for name in RESIDUALS
+                          if name in row and row[name] is not None
+                          and math.isfinite(float(row[name])))
+        return cls(int(row["index_a"]), int(row["index_b"]), int(row["face_a"]),
+                   int(row["face_b"]), str(row["relation"]), str(row["status"]), residuals,
+                   str(row.get("reason") or ""))
+
+    def text(self) -> str:
+        """The check in words: status, then each residual against its threshold."""
+        said = "; ".join(f"{r.name} {r.value:.3g} (threshold {r.threshold:.3g})"
+                         for r in self.residuals)
+        return f"{self.status}" + (f": {said}" if said else f" ({self.reason})"
+                                   if self.reason else "")
 
     def row(self) -> dict[str, Any]:
         """The ``as_built.csv`` row of the mate (residuals as ``<name>`` and their
@@ -238,9 +261,15 @@ def assembly_as_built(rows: Sequence[Mapping[str, Any]], parts: Mapping[int, Par
 
 def verdict(mates: Sequence[MateAsBuilt]) -> str:
     """An assembly's verdict: ``holds``, ``N mates broken`` or ``not inspectable``."""
-    broken = [m for m in mates if m.status == BROKEN]
+    return verdict_of([m.status for m in mates])
+
+
+def verdict_of(statuses: Sequence[str]) -> str:
+    """The verdict of an assembly's mates from their statuses (the rule of every report, the
+    export and ``mateqa inspect``)."""
+    broken = sum(s == BROKEN for s in statuses)
     if broken:
-        return f"{len(broken)} mate{'s' if len(broken) > 1 else ''} broken"
-    if mates and all(m.status == NOT_INSPECTABLE for m in mates):
+        return f"{broken} mate{'s' if broken > 1 else ''} broken"
+    if statuses and all(s == NOT_INSPECTABLE for s in statuses):
         return NOT_INSPECTABLE
     return HOLDS
