@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from functools import cached_property
 
 import numpy as np
 import numpy.typing as npt
@@ -76,6 +77,11 @@ class PartCloud:
     spacing: float
     plane_of: npt.NDArray[np.int64] | None = None
     exact: bool = False
+
+    @cached_property
+    def tree(self) -> cKDTree:
+        """The k-d tree of the points, built once (a part meets many others in a view)."""
+        return cKDTree(self.points)
 
     def plane_members(self) -> list[npt.NDArray[np.int64]]:
         """The point indices of each plane, in ``planes`` order."""

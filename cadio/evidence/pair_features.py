@@ -147,12 +147,13 @@ def pair_features(a: PartCloud, b: PartCloud,
                         *NO_CYLINDER_PAIR, *NO_COAXIAL_PAIR],
                        dtype=np.float32)
         return out
-    da = cKDTree(b.points).query(a.points, k=1)[0]
-    db = cKDTree(a.points).query(b.points, k=1)[0]
     reach = cfg.contact_mm + cfg.contact_spacings * max(a.spacing, b.spacing)
+    da = b.tree.query(a.points, k=1, distance_upper_bound=reach)[0]
+    db = a.tree.query(b.points, k=1, distance_upper_bound=reach)[0]
     in_a, in_b = da <= reach, db <= reach
     shares = sorted((float(in_a.mean()), float(in_b.mean())))
-    feats = [float(min(da.min(), db.min())), *shares]
+    feats = [min(float(da.min()), float(db.min())) if in_a.any() else _least_distance(a, b),
+             *shares]
     feats += _contact_plane(a, b, in_a, in_b, cfg)
     feats += _contact_axis(a, b, in_a, in_b, cfg)
     feats += _part_axes(a, b, cfg)
@@ -164,6 +165,16 @@ def pair_features(a: PartCloud, b: PartCloud,
     feats += _cylinder_pair(cylinders)
     feats += _coaxial_pair(cylinders)
     return np.array(feats, dtype=np.float32)
+
+
+def _least_distance(a: PartCloud, b: PartCloud) -> float:
+    """The least distance between the two clouds, exactly, for clouds apart: every point's
+    nearest neighbour without a bound is slow where the other cloud is far (the search visits
+    every cell about as near), so a few points give an upper bound, and only the points within
+    it are searched to the end."""
+    bound = float(b.tree.query(a.points[:: max(1, len(a.points) // 64)], k=1)[0].min())
+    within = b.tree.query(a.points, k=1, distance_upper_bound=bound * (1 + 1e-9) + 1e-12)[0]
+    return float(within.min())
 
 
 def _contact_plane(a: PartCloud, b: PartCloud, in_a: npt.NDArray[np.bool_],
