@@ -26,6 +26,7 @@ from typing import Any
 import pandas as pd
 from prefect import task
 from prefect.context import TaskRunContext
+from prefect.futures import as_completed
 
 from cadio.cad.ingest import (
     Found,
@@ -59,14 +60,15 @@ from cadio.evidence.pair_features import evidence_digest
 from cadio.export.job import ExportJob, export_assemblies, run_jobs, write_index
 from cadio.inspect.defects import DefectPlan
 from cadio.inspect.evaluate import (
+    ISOLATED,
     AssemblyInspection,
-    inspect_assembly,
+    inspect_isolated,
     inspect_recording_rows,
     inspection_digest,
 )
 from cadio.inspect.recording import assembly_recordings
 from cadio.inspect.stage import InspectConfig
-from cadio.sandbox import Limits
+from cadio.sandbox import Job, Limits, run_isolated
 from cadio.tolerances import Tolerances, write_tolerances
 from cadio.truth.assemblies import (
     MATES_VERSION,
@@ -81,7 +83,12 @@ from flows.config import InspectionOptions
 from flows.logs import run_logger
 from models.completions import COMPLETIONS
 from models.evaluate import Scores, complete_parts, part_inputs
-from models.relate import RelateBatch, load_relation_models, relate_batch, relate_inspection
+from models.relate import (
+    RelateBatch,
+    RelateInspectionJob,
+    relate_batch,
+    relate_inspection_job,
+)
 from models.relation_inputs import INPUTS
 from models.relation_methods import RELATION_METHODS
 from reports.methods import product
@@ -554,17 +561,21 @@ def inspect_config(options: InspectionOptions, tolerances: Tolerances) -> Inspec
 def inspect_task(assembly: str, workspace: str, cfg: InspectConfig,
                  key: str) -> AssemblyInspection:
     """Capture one assembly and its planted variants as the inspection camera sees them, and
-    check each against the design."""
-    return inspect_assembly(assembly, Workspace(Path(workspace)), cfg, key)
+    check each against the design (in a worker process: two run on two cores)."""
+    return inspect_isolated(assembly, Workspace(Path(workspace)), cfg, key)
 
 
 @task(name="relate-inspection", **_CACHED)
 def relate_inspection_task(folder: str, workspace: str, relations_models: str,
                            key: str) -> str:
     """The relations of an inspected assembly on the registered CAD (and the truth, on the
-    same pair views), written beside its inspection rows."""
-    rows = relate_inspection(Path(folder), Workspace(Path(workspace)),
-                             load_relation_models(Path(relations_models)))
+    same pair views), written beside its inspection rows; worked out in a worker process (two
+    run on two cores)."""
+    job = RelateInspectionJob(folder, workspace, relations_models)
+    [outcome] = list(run_isolated(relate_inspection_job, [Job(folder, job)], ISOLATED))
+    if outcome.result is None:
+        raise RuntimeError(f"relations of the inspection {folder}: {outcome.error}")
+    rows = outcome.result
     out = Path(folder) / "relations.parquet"
     with atomic_path(out) as tmp:
         pairs_frame(rows.to_dict("records")).to_parquet(tmp, index=False)
@@ -606,13 +617,14 @@ def inspect_stage(mates: list[MatesSummary], run: Run, options: InspectionOption
                              code=inspection_digest())[:32]
         futures.append(inspect_recording_task.submit(assembly, str(path), run.workspace, cfg,
                                                      key))
-    inspected = [f.result() for f in futures]
-    relations = []
-    for done in (i for i in inspected if not i.error and cfg.search
-                 and (Path(i.folder) / "found.parquet").is_file()):
+    related = []  # each assembly's relations start as soon as its inspection is done
+    for future in as_completed(futures):
+        done = future.result()
+        if done.error or not cfg.search or not (Path(done.folder) / "found.parquet").is_file():
+            continue
         key = content_digest([Path(done.folder) / "found.parquet", *_models(relations_models)],
                              version=INSPECT_VERSION, evidence=evidence_digest(),
                              methods=RELATION_METHODS.digest(), inputs=INPUTS.digest())
-        relations.append(relate_inspection_task(done.folder, run.workspace, relations_models,
-                                                key))
-    return inspected, relations
+        related.append(relate_inspection_task.submit(done.folder, run.workspace,
+                                                     relations_models, key))
+    return [f.result() for f in futures], sorted(f.result() for f in related)

@@ -324,6 +324,25 @@ def cad_joints(captures: Sequence[Path], ws: Workspace) -> pd.DataFrame:
     return pd.concat(frames)[columns] if frames else pd.DataFrame(columns=columns)
 
 
+@dataclass(frozen=True)
+class RelateInspectionJob:
+    """An inspected assembly's relations, as a worker process runs them."""
+
+    folder: str
+    workspace: str
+    relations_models: str
+
+
+def relate_inspection_job(job: RelateInspectionJob) -> pd.DataFrame:
+    """``relate_inspection`` with the models of ``job.relations_models``, on one of torch's
+    threads (the worker runs beside another on two cores)."""
+    import torch
+
+    torch.set_num_threads(1)
+    return relate_inspection(Path(job.folder), Workspace(Path(job.workspace)),
+                             load_relation_models(Path(job.relations_models)))
+
+
 def relate_inspection(folder: Path, ws: Workspace, models: RelationModels,
                       cfg: PairConfig = DEFAULT_PAIRS) -> pd.DataFrame:
     """The relations of an inspected assembly's intact capture: every method on the

@@ -37,6 +37,7 @@ from cadio.inspect.stage import (
     shares,
     variants_of,
 )
+from cadio.sandbox import Job, Limits, run_isolated
 from cadio.workspace import Workspace, atomic_path
 
 log = logging.getLogger(__name__)
@@ -94,6 +95,40 @@ def inspect_assembly(assembly: str, ws: Workspace, cfg: InspectConfig, key: str
         log.warning("inspection of %s: %s", assembly, exc)
         return AssemblyInspection(assembly, str(folder), seconds=clock,
                                   error=f"{type(exc).__name__}: {exc}")
+
+
+@dataclass(frozen=True)
+class InspectJob:
+    """One assembly's inspection, as a worker process runs it (``inspect_isolated``)."""
+
+    assembly: str
+    workspace: str
+    cfg: InspectConfig
+    key: str
+
+
+def inspect_job(job: InspectJob) -> AssemblyInspection:
+    return inspect_assembly(job.assembly, Workspace(Path(job.workspace)), job.cfg, job.key)
+
+
+# An inspection is minutes of numpy, k-d trees and ray casts: in a worker process of its own,
+# two of them run on two cores (threads share one interpreter's lock: two assemblies in the
+# night's threads took 1.2x the time of one); a crash in open3d takes the worker, not the night.
+ISOLATED = Limits(seconds=3600.0, memory_mb=16384, workers=1)
+
+
+def inspect_isolated(assembly: str, ws: Workspace, cfg: InspectConfig, key: str,
+                     limits: Limits = ISOLATED) -> AssemblyInspection:
+    """``inspect_assembly`` in a worker process (``cadio.sandbox``); a worker that dies or
+    runs out of time comes back as the record's error."""
+    job = InspectJob(assembly, str(ws.root), cfg, key)
+    for outcome in run_isolated(inspect_job, [Job(assembly, job)], limits):
+        if outcome.result is not None:
+            return outcome.result
+        log.warning("inspection of %s: %s", assembly, outcome.error)
+        return AssemblyInspection(assembly, str(ws.root / "inspect" / key),
+                                  error=str(outcome.error))
+    raise AssertionError("run_isolated yields one outcome per job")
 
 
 RECORDING = "recording"  # the variant of a recording made elsewhere (no truth to score)

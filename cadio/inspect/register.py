@@ -25,6 +25,7 @@ from typing import Any
 
 import numpy as np
 import open3d as o3d
+from numpy.typing import NDArray
 from scipy.spatial import cKDTree
 
 from cadio.inspect.surface import (
@@ -167,9 +168,10 @@ def _icp(model: FloatArray, normals: FloatArray, scan: FloatArray, pose: FloatAr
     moved = scan
     total = np.eye(4)
     for _ in range(cfg.iterations):
-        step = _step(model, normals, moved, tree, centre, reach, cfg.tukey * reach)
-        if step is None:
+        steps, ok = _steps(model, normals, moved[None], tree, centre, reach, cfg.tukey * reach)
+        if not ok[0]:
             break
+        step = steps[0]
         total = step @ total
         moved = apply_pose(np.asarray(np.linalg.inv(step), dtype=np.float64), moved)
         if np.linalg.norm(step[:3, 3]) < 1e-4 and abs(np.trace(step[:3, :3]) - 3) < 1e-9:
@@ -183,41 +185,6 @@ def reaches(part: PartSurface, cfg: RegisterConfig) -> list[float]:
     """The correspondence distances of ICP's scales, mm, coarse to fine."""
     voxel = voxel_of(part, cfg)
     return [*(s * voxel for s in cfg.scales if s * voxel > cfg.fine_mm), cfg.fine_mm]
-
-
-def _step(model: FloatArray, normals: FloatArray, scan: FloatArray, tree: cKDTree,
-          centre: FloatArray, reach: float, kernel: float) -> FloatArray | None:
-    """One Gauss-Newton step of the part (4, 4, world); None without enough pairs.
-
-    Each scan point is paired with its nearest visible CAD point (a model tree would pair the
-    CAD with the scan: the scan holds other parts' points too, the visible CAD only this one's).
-    """
-    dist, idx = tree.query(scan, distance_upper_bound=reach)
-    keep = np.isfinite(dist)
-    if keep.sum() < 6:
-        return None
-    s, m, n = scan[keep], model[idx[keep]], normals[idx[keep]]
-    r = np.einsum("ij,ij->i", n, m - s)
-    w = np.where(np.abs(r) < kernel, (1 - (r / kernel) ** 2) ** 2, 0.0)
-    jac = np.hstack([np.cross(m - centre, n), n])
-    hessian = (jac * w[:, None]).T @ jac
-    grad = (jac * w[:, None]).T @ r
-    # Damped (Levenberg-Marquardt) in units where a turn counts by its motion at the part's
-    # rim: a direction the points do not constrain (a shaft's turn about its axis) takes no
-    # step from the noise instead of a wild one.
-    radius = max(float(np.sqrt(np.mean(np.sum((m - centre) ** 2, axis=1)))), 1e-6)
-    scale = np.array([1 / radius] * 3 + [1.0] * 3)
-    h = hessian * np.outer(scale, scale)
-    damping = 1e-3 * float(np.trace(h)) / 6 + 1e-12
-    try:
-        delta = -scale * np.linalg.solve(h + damping * np.eye(6), scale * grad)
-    except np.linalg.LinAlgError:
-        return None
-    reach_turn = reach / radius  # no step moves a point of the part farther than ``reach``
-    turn, shift = float(np.linalg.norm(delta[:3])), float(np.linalg.norm(delta[3:]))
-    delta[:3] *= min(1.0, reach_turn / max(turn, 1e-12))
-    delta[3:] *= min(1.0, reach / max(shift, 1e-12))
-    return _motion(delta, centre)
 
 
 def _motion(delta: FloatArray, centre: FloatArray) -> FloatArray:
@@ -328,16 +295,18 @@ def global_search(part: PartSurface, scan: FloatArray, cameras: Sequence[Camera]
     reach = max(cfg.scales[0] * voxel, cfg.fine_mm)
     few = _draw(scan, cfg.coarse_points, cfg.seed)
     towards = np.mean([c.centre for c in cameras], axis=0)
-    scored: list[tuple[tuple[float, float], FloatArray, str]] = []
-    for k, start in enumerate(_ransac(part, scan, cameras, cfg, voxel)):
-        for pose in _with_flips(part, start) if cfg.flips else [start]:
-            scored.append((*_coarse(part, few, pose, reach, cfg), f"ransac-{k}"))
+    starts = [(pose, f"ransac-{k}")
+              for k, start in enumerate(_ransac(part, scan, cameras, cfg, voxel))
+              for pose in (_with_flips(part, start) if cfg.flips else [start])]
+    scored = [(*fit, seed) for fit, (_, seed) in
+              zip(_coarse(part, few, [p for p, _ in starts], reach, cfg), starts, strict=True)]
     turns = _principal_turns(part, scan)
     if not any(score[0] >= cfg.good_enough for score, _, _ in scored):
         turns += _orientations(cfg.orientations, cfg.seed)[24:]
-    for k, rot in enumerate(turns):
-        for start in _slides(part, _facing(part, rot, scan.mean(axis=0), towards), scan):
-            scored.append((*_coarse(part, few, start, reach, cfg), f"turn-{k}"))
+    starts = [(start, f"turn-{k}") for k, rot in enumerate(turns)
+              for start in _slides(part, _facing(part, rot, scan.mean(axis=0), towards), scan)]
+    scored += [(*fit, seed) for fit, (_, seed) in
+               zip(_coarse(part, few, [p for p, _ in starts], reach, cfg), starts, strict=True)]
     scored.sort(key=lambda item: item[0], reverse=True)
     best = _distinct(scored, part.diameter / 10, cfg.keep)
     return sorted((replace(refine(part, scan, pose, cameras, cfg, judge=judge), seed=seed)
@@ -373,26 +342,97 @@ def _tree(part: PartSurface) -> cKDTree:
     return cached[1]
 
 
-def _coarse(part: PartSurface, scan: FloatArray, pose: FloatArray, reach: float,
-            cfg: RegisterConfig) -> tuple[tuple[float, float], FloatArray]:
-    """A candidate after ``coarse_iterations`` point-to-plane steps against the part's whole
-    surface (in its own frame, the scan brought there), and its score: the share of the scan
-    within ``reach / 2`` of the surface, then -RMS."""
-    local = apply_pose(np.asarray(np.linalg.inv(pose), dtype=np.float64), scan)
+def _coarse(part: PartSurface, scan: FloatArray, poses: Sequence[FloatArray], reach: float,
+            cfg: RegisterConfig) -> list[tuple[tuple[float, float], FloatArray]]:
+    """Candidates after ``coarse_iterations`` point-to-plane steps against the part's whole
+    surface (in its own frame, the scan brought there), each with its score: the share of the
+    scan within ``reach / 2`` of the surface, then -RMS. All candidates step together (one
+    tree query and one batch of 6x6 solves per step); a candidate without enough pairs stops
+    where it is."""
+    if not poses:
+        return []
     tree = _tree(part)
-    moved, total = local, np.eye(4)
+    starts = np.stack([np.asarray(p, dtype=np.float64) for p in poses])
+    inverse = np.linalg.inv(starts)
+    moved = np.einsum("kij,nj->kni", inverse[:, :3, :3], scan) + inverse[:, None, :3, 3]
+    total = np.tile(np.eye(4), (len(starts), 1, 1))
+    going = np.ones(len(starts), dtype=bool)
     for _ in range(cfg.coarse_iterations):
-        step = _step(part.samples, part.normals, moved, tree, part.centre, reach,
-                     cfg.tukey * reach)
-        if step is None:
+        if not going.any():
             break
-        total = step @ total
-        moved = apply_pose(np.asarray(np.linalg.inv(step), dtype=np.float64), moved)
-    dist, _ = tree.query(moved, distance_upper_bound=reach / 2)
-    near = dist[np.isfinite(dist)]
-    rms = float(np.sqrt(np.mean(near ** 2))) if len(near) else float("inf")
-    out: FloatArray = pose @ total
-    return (round(float(len(near) / len(moved)), 2), -rms), out
+        steps, ok = _steps(part.samples, part.normals, moved[going], tree, part.centre, reach,
+                           cfg.tukey * reach)
+        index = np.flatnonzero(going)
+        going[index[~ok]] = False
+        index, steps = index[ok], steps[ok]
+        total[index] = steps @ total[index]
+        back = np.linalg.inv(steps)
+        moved[index] = (np.einsum("kij,knj->kni", back[:, :3, :3], moved[index])
+                        + back[:, None, :3, 3])
+    dist, _ = tree.query(moved.reshape(-1, 3), distance_upper_bound=reach / 2)
+    dist = dist.reshape(len(starts), -1)
+    near = np.isfinite(dist)
+    count = near.sum(axis=1)
+    squares = np.where(near, dist, 0.0) ** 2
+    rms = np.where(count > 0, np.sqrt(squares.sum(axis=1) / np.maximum(count, 1)), np.inf)
+    out: list[tuple[tuple[float, float], FloatArray]] = []
+    for k in range(len(starts)):
+        pose: FloatArray = starts[k] @ total[k]
+        out.append(((round(float(count[k] / moved.shape[1]), 2), -float(rms[k])), pose))
+    return out
+
+
+def _steps(model: FloatArray, normals: FloatArray, scans: FloatArray, tree: cKDTree,
+           centre: FloatArray, reach: float, kernel: float
+           ) -> tuple[FloatArray, NDArray[np.bool_]]:
+    """One Gauss-Newton step of the part (4, 4, world) for each of k candidates: scans
+    (k, n, 3); the steps (k, 4, 4) and which candidates had enough pairs (six; the others'
+    steps are the identity).
+
+    Each scan point is paired with its nearest visible CAD point (a model tree would pair the
+    CAD with the scan: the scan holds other parts' points too, the visible CAD only this one's).
+    Damped (Levenberg-Marquardt) in units where a turn counts by its motion at the part's rim:
+    a direction the points do not constrain (a shaft's turn about its axis) takes no step from
+    the noise instead of a wild one; no step moves a point of the part farther than ``reach``.
+    """
+    k, n = scans.shape[:2]
+    dist, idx = tree.query(scans.reshape(-1, 3), distance_upper_bound=reach)
+    keep = np.isfinite(dist).reshape(k, n)
+    idx = np.where(keep.ravel(), idx, 0).reshape(k, n)
+    m, nrm = model[idx], normals[idx]
+    r = np.einsum("kij,kij->ki", nrm, m - scans)
+    w = np.where(keep & (np.abs(r) < kernel), (1 - (r / kernel) ** 2) ** 2, 0.0)
+    r = np.where(keep, r, 0.0)
+    jac = np.concatenate([np.cross(m - centre, nrm), nrm], axis=2)
+    weighted = np.swapaxes(jac * w[..., None], 1, 2)
+    hessian = weighted @ jac
+    grad = (weighted @ r[..., None])[..., 0]
+    count = keep.sum(axis=1)
+    ok = count >= 6
+    spread = np.where(keep, np.sum((m - centre) ** 2, axis=2), 0.0).sum(axis=1)
+    radius = np.maximum(np.sqrt(spread / np.maximum(count, 1)), 1e-6)
+    scale = np.concatenate([np.repeat((1 / radius)[:, None], 3, axis=1), np.ones((k, 3))],
+                           axis=1)
+    h = hessian * scale[:, :, None] * scale[:, None, :]
+    damping = 1e-3 * np.trace(h, axis1=1, axis2=2) / 6 + 1e-12
+    h = h + damping[:, None, None] * np.eye(6)
+    h[~ok] = np.eye(6)
+    try:
+        delta = -scale * np.linalg.solve(h, (scale * grad)[..., None])[..., 0]
+    except np.linalg.LinAlgError:  # one singular system: solve them one by one
+        delta = np.zeros((k, 6))
+        for j in np.flatnonzero(ok):
+            try:
+                delta[j] = -scale[j] * np.linalg.solve(h[j], scale[j] * grad[j])
+            except np.linalg.LinAlgError:
+                ok[j] = False
+    turn = np.linalg.norm(delta[:, :3], axis=1)
+    shift = np.linalg.norm(delta[:, 3:], axis=1)
+    delta[:, :3] *= np.minimum(1.0, (reach / radius) / np.maximum(turn, 1e-12))[:, None]
+    delta[:, 3:] *= np.minimum(1.0, reach / np.maximum(shift, 1e-12))[:, None]
+    delta[~ok] = 0.0
+    steps = np.stack([_motion(d, centre) for d in delta])
+    return steps, ok
 
 
 def _ransac(part: PartSurface, scan: FloatArray, cameras: Sequence[Camera],
@@ -423,16 +463,15 @@ def align_samples(part: PartSurface, other: PartSurface) -> FloatArray:
     reach = max(other.diameter / 10, 1.0)
     cfg = RegisterConfig(coarse_iterations=30)
     few = _draw(part.samples, 2000, 0)
-    best: tuple[tuple[float, float], FloatArray] | None = None
+    starts = []
     for rot in _principal_turns(other, part.samples):
         start = np.eye(4)  # other's frame -> part's frame, as a pose of other in part's
         start[:3, :3] = rot
         start[:3, 3] = part.centre - rot @ other.centre
-        score, pose = _coarse(other, few, start, reach, cfg)
-        if best is None or score > best[0]:
-            best = (score, pose)
-    assert best is not None
-    out: FloatArray = np.asarray(np.linalg.inv(best[1]), dtype=np.float64)
+        starts.append(start)
+    scored = _coarse(other, few, starts, reach, cfg)
+    best = max(range(len(scored)), key=lambda k: scored[k][0])  # the first of the best
+    out: FloatArray = np.asarray(np.linalg.inv(scored[best][1]), dtype=np.float64)
     return out
 
 

@@ -16,7 +16,7 @@ Everything is millimetres, world frame; a part is known by its index in the asse
 
 from __future__ import annotations
 
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field, replace
 
 import numpy as np
@@ -475,21 +475,24 @@ def shape_keys(parts: Sequence[PartSurface], symmetries: Sequence[Symmetry],
     return tuple(keys)
 
 
-def alike_transforms(parts: Sequence[PartSurface], shapes: Sequence[str]
+def alike_transforms(parts: Sequence[PartSurface], shapes: Sequence[str],
+                     onto: Callable[[PartSurface, PartSurface], FloatArray] | None = None
                      ) -> tuple[FloatArray, ...]:
     """Per part, the motion of its frame onto the first part of its shape's (identity for
-    that one): the Kabsch fit of their vertices where the meshes are one mesh moved (a
-    part instanced several times), else the least-RMS of the turns that put principal axes
-    on principal axes, refined by ICP on the samples."""
+    that one), by ``onto`` (default ``onto_alike``; a caller may remember its answers)."""
     first: dict[str, int] = {}
     out = []
     for i, (part, shape) in enumerate(zip(parts, shapes, strict=True)):
         j = first.setdefault(shape, i)
-        out.append(np.eye(4) if j == i else _onto(part, parts[j]))
+        out.append(np.eye(4) if j == i else (onto or onto_alike)(part, parts[j]))
     return tuple(out)
 
 
-def _onto(part: PartSurface, other: PartSurface) -> FloatArray:
+def onto_alike(part: PartSurface, other: PartSurface) -> FloatArray:
+    """(4, 4) the motion of ``part``'s frame that lays its surface on ``other``'s (two parts
+    of one shape): the Kabsch fit of their vertices where the meshes are one mesh moved (a
+    part instanced several times), else the least-RMS of the turns that put principal axes
+    on principal axes, refined by ICP on the samples."""
     """(4, 4) the motion of ``part``'s frame that lays its surface on ``other``'s."""
     a, b = part.mesh.vertices, other.mesh.vertices
     if a.shape == b.shape:

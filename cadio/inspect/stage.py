@@ -37,6 +37,7 @@ from cadio.inspect.routes import (
     by_design,
     by_search,
     expected_points,
+    onto_alike,
     shape_keys,
     visible_share,
 )
@@ -98,7 +99,7 @@ def assembly_model(assembly: str, ws: Workspace) -> AssemblyModel:
     symmetries = tuple(_symmetry(ws, p) for p in parts)
     shapes = shape_keys(parts, symmetries)
     return AssemblyModel(assembly, parts, tuple(np.eye(4) for _ in parts), symmetries, shapes,
-                         alike_transforms(parts, shapes))
+                         alike_transforms(parts, shapes, lambda a, b: _onto(ws, a, b)))
 
 
 def part_ids(assembly: str, ws: Workspace) -> list[str]:
@@ -127,6 +128,20 @@ def _symmetry(ws: Workspace, part: Any) -> Symmetry:
     path.parent.mkdir(parents=True, exist_ok=True)
     with atomic_write(path, "w") as fh:
         fh.write(json.dumps(found.to_dict()))
+    return found
+
+
+def _onto(ws: Workspace, part: Any, other: Any) -> FloatArray:
+    """The motion laying a part on another of its shape (``routes.onto_alike``: a search
+    over turns, seconds a pair), kept in ``inspect/alike/<part_id>-<other_id>.json`` once
+    found: part ids name their file's content and the solid."""
+    path = ws.root / "inspect" / "alike" / f"{part.part_id}-{other.part_id}.json"
+    if path.is_file():
+        return np.array(json.loads(path.read_text()), dtype=np.float64)
+    found = onto_alike(part, other)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    with atomic_write(path, "w") as fh:
+        fh.write(json.dumps(found.tolist()))
     return found
 
 
