@@ -11,6 +11,7 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from dataclasses import dataclass, field
+from functools import cached_property
 from typing import Any
 
 import numpy as np
@@ -67,6 +68,11 @@ class PartSurface:
     centre: FloatArray
     diameter: float
     _scene: list[Any] = field(default_factory=list, repr=False)
+
+    @cached_property
+    def facet_normals(self) -> FloatArray:
+        """(m, 3) the outward unit normal of each triangle of the mesh."""
+        return facet_normals(self.mesh)
 
     def raycaster(self) -> Any:
         """The part's open3d ray-casting scene (built on first use)."""
@@ -150,16 +156,17 @@ def visible(part: PartSurface, pose: FloatArray, cameras: Sequence[Camera],
         hit = np.isfinite(t)
         if not hit.any():
             continue
-        if hidden_by is not None:
+        if hidden_by is not None:  # (only the rays that meet the part are cast again)
             others, index = hidden_by
-            t_first, first = others.first(np.hstack([np.broadcast_to(origin, dirs.shape),
-                                                     dirs]).astype(np.float32))
-            hit &= (first == index) | (t <= t_first + 1.0)
+            rows = np.flatnonzero(hit)
+            t_first, first = others.first(np.hstack([np.broadcast_to(origin, (len(rows), 3)),
+                                                     dirs[rows]]).astype(np.float32))
+            hit[rows] = (first == index) | (t[rows] <= t_first + 1.0)
             if not hit.any():
                 continue
         tri = cast["primitive_ids"].numpy()[hit].astype(np.int64)
         pts = local_o + local_d[hit] * t[hit, None]
-        nrm = facet_normals(part.mesh)[tri]
+        nrm = part.facet_normals[tri]
         facing = np.einsum("ij,ij->i", nrm, local_d[hit]) < 0
         points.append(apply_pose(pose, pts[facing]))
         normals.append(nrm[facing] @ pose[:3, :3].T)
