@@ -267,19 +267,20 @@ def fit_cylinders(points: FloatArray, normals: FloatArray, spacing: float,
         idx = np.flatnonzero(free)
         if len(idx) < cfg.min_contact:
             break
-        best: tuple[int, npt.NDArray[np.bool_]] | None = None
-        pairs = rng.integers(0, len(idx), size=(cfg.cylinder_hypotheses, 2))
-        for i, j in idx[pairs]:
-            hyp = _cylinder_through(points[i], normals[i], points[j], normals[j])
-            if hyp is None:
-                continue
-            held = free & _on_cylinder(points, normals, *hyp, eps, sin_n)
-            count = int(held.sum())
-            if best is None or count > best[0]:
-                best = (count, held)
-        if best is None or best[0] < cfg.min_contact:
+        pairs = idx[rng.integers(0, len(idx), size=(cfg.cylinder_hypotheses, 2))]
+        axes, centres, radii, valid = _cylinders_through(points[pairs[:, 0]],
+                                                         normals[pairs[:, 0]],
+                                                         points[pairs[:, 1]],
+                                                         normals[pairs[:, 1]])
+        if not valid.any():
             break
-        members = np.flatnonzero(best[1])
+        held = free & _on_cylinders(points, normals, axes[valid], centres[valid],
+                                    radii[valid], eps, sin_n)
+        counts = held.sum(axis=1)
+        best = int(np.argmax(counts))  # the first of the most supported
+        if counts[best] < cfg.min_contact:
+            break
+        members = np.flatnonzero(held[best])
         axis, _ = axis_of(normals[members])
         centre, radius, rms = circle(points[members], axis)
         first = Cylinder(axis, centre, radius, rms, members)
@@ -322,31 +323,47 @@ def refine_cylinder(cylinder: Cylinder, points: FloatArray) -> Cylinder:
     return Cylinder(axis, centre, abs(float(fit.x[4])), rms, cylinder.members)
 
 
-def _cylinder_through(p: FloatArray, n: FloatArray, q: FloatArray, m: FloatArray
-                      ) -> tuple[FloatArray, FloatArray, float] | None:
-    """(axis, centre, radius) of the cylinder through two points with these normals, or None
-    when the normals are too near parallel to fix an axis."""
-    axis = np.cross(n, m)
-    norm = float(np.linalg.norm(axis))
-    if norm < math.sin(math.radians(10.0)):
-        return None
-    axis = axis / norm
-    # the two normal lines, projected on the plane across the axis, meet at the centre
-    n2, m2 = n - (n @ axis) * axis, m - (m @ axis) * axis
+def _cylinders_through(p: FloatArray, n: FloatArray, q: FloatArray, m: FloatArray
+                       ) -> tuple[FloatArray, FloatArray, FloatArray, npt.NDArray[np.bool_]]:
+    """(axes (h, 3), centres (h, 3), radii (h,), valid (h,)) of the cylinders through pairs of
+    points (h, 3) with these normals; not valid where the normals are too near parallel to fix
+    an axis."""
+    axes = np.cross(n, m)
+    norms = np.linalg.norm(axes, axis=1)
+    valid = norms >= math.sin(math.radians(10.0))
+    axes = axes / np.where(valid, norms, 1.0)[:, None]
+    # the two normal lines, projected on the plane across the axis, meet at the centre: the
+    # least-squares t of t n2 - s m2 = (q - p) across the axis (its normal equations)
+    n2 = n - np.sum(n * axes, axis=1, keepdims=True) * axes
+    m2 = m - np.sum(m * axes, axis=1, keepdims=True) * axes
     rhs = q - p
-    design = np.column_stack([n2, -m2])
-    (t, _), *_ = np.linalg.lstsq(design, rhs - (rhs @ axis) * axis, rcond=None)
-    centre = p + t * n2
-    radius = 0.5 * (offset_across(p, centre, axis) + offset_across(q, centre, axis))
-    return axis, centre, radius
+    rhs = rhs - np.sum(rhs * axes, axis=1, keepdims=True) * axes
+    nn, mm_, nm = np.sum(n2 * n2, axis=1), np.sum(m2 * m2, axis=1), np.sum(n2 * m2, axis=1)
+    nr, mr = np.sum(n2 * rhs, axis=1), np.sum(m2 * rhs, axis=1)
+    det = nn * mm_ - nm * nm
+    t = (nr * mm_ - nm * mr) / np.where(valid, det, 1.0)
+    centres = p + t[:, None] * n2
+    radii = 0.5 * (_across(p - centres, axes) + _across(q - centres, axes))
+    return axes, centres, radii, valid
 
 
-def _on_cylinder(points: FloatArray, normals: FloatArray, axis: FloatArray, centre: FloatArray,
-                 radius: float, eps: float, sin_n: float) -> npt.NDArray[np.bool_]:
-    d = points - centre
-    radial = np.linalg.norm(d - np.outer(d @ axis, axis), axis=1)
-    on: npt.NDArray[np.bool_] = (np.abs(radial - radius) <= eps) & (
-        np.abs(normals @ axis) <= sin_n)
+def _across(d: FloatArray, axes: FloatArray) -> FloatArray:
+    """(h,) the lengths of vectors (h, 3) across their axes (h, 3)."""
+    out: FloatArray = np.linalg.norm(d - np.sum(d * axes, axis=1, keepdims=True) * axes, axis=1)
+    return out
+
+
+def _on_cylinders(points: FloatArray, normals: FloatArray, axes: FloatArray,
+                  centres: FloatArray, radii: FloatArray, eps: float, sin_n: float
+                  ) -> npt.NDArray[np.bool_]:
+    """(h, n) which points lie on each of h cylinders: within ``eps`` of its surface, their
+    normals within ``asin(sin_n)`` of across its axis."""
+    along = points @ axes.T - np.sum(centres * axes, axis=1)  # (n, h)
+    squared = (np.sum(points ** 2, axis=1)[:, None] - 2 * points @ centres.T
+               + np.sum(centres ** 2, axis=1)[None, :] - along ** 2)
+    radial = np.sqrt(np.maximum(squared, 0.0))
+    on: npt.NDArray[np.bool_] = ((np.abs(radial - radii) <= eps)
+                                 & (np.abs(normals @ axes.T) <= sin_n)).T
     return on
 
 
