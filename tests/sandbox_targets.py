@@ -30,6 +30,8 @@ def misbehave(payload: str) -> str:
         raise ValueError("bad payload")
     if payload == "pid":
         return str(os.getpid())
+    if payload.startswith("env:"):
+        return os.environ.get(payload.removeprefix("env:"), "")
     if payload == "full-disk":  # a write the disk refuses, as a full one does
         from cadio.workspace import atomic_write
 

@@ -120,6 +120,17 @@ def test_a_pool_run_to_the_end_leaves_its_workers_to_the_next_pool() -> None:
     assert release_idle_workers() == 4 and _workers() == []
 
 
+def test_a_worker_holds_its_libraries_to_the_threads_it_is_given() -> None:
+    release_idle_workers()
+    one = _run(["env:OMP_NUM_THREADS", "env:OPENBLAS_NUM_THREADS", "pid"],
+               Limits(seconds=60, workers=1, threads=1))
+    assert one["env:OMP_NUM_THREADS"] == one["env:OPENBLAS_NUM_THREADS"] == "1"
+    inherited = _run(["env:OMP_NUM_THREADS", "pid"], Limits(seconds=60, workers=1))
+    assert inherited["env:OMP_NUM_THREADS"] == os.environ.get("OMP_NUM_THREADS", "")
+    assert inherited["pid"] != one["pid"]  # a kept worker serves only pools of its threads
+    release_idle_workers()
+
+
 def test_a_kept_worker_leaving_as_a_job_is_sent_loses_no_job() -> None:
     release_idle_workers()
     _run(["ok:a"], Limits(seconds=60, workers=1))

@@ -113,8 +113,10 @@ def inspect_job(job: InspectJob) -> AssemblyInspection:
 
 # An inspection is minutes of numpy, k-d trees and ray casts: in a worker process of its own,
 # two of them run on two cores (threads share one interpreter's lock: two assemblies in the
-# night's threads took 1.2x the time of one); a crash in open3d takes the worker, not the night.
-ISOLATED = Limits(seconds=3600.0, memory_mb=16384, workers=1)
+# night's threads took 1.2x the time of one), each on one thread of its libraries' (two
+# quadcopter inspections side by side: 38.7 s with their threads, 29.5 s with one each); a
+# crash in open3d takes the worker, not the night.
+ISOLATED = Limits(seconds=3600.0, memory_mb=16384, workers=1, threads=1)
 
 
 def inspect_isolated(assembly: str, ws: Workspace, cfg: InspectConfig, key: str,
