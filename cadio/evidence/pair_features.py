@@ -148,8 +148,10 @@ def pair_features(a: PartCloud, b: PartCloud,
                        dtype=np.float32)
         return out
     reach = cfg.contact_mm + cfg.contact_spacings * max(a.spacing, b.spacing)
-    da = b.tree.query(a.points, k=1, distance_upper_bound=reach)[0]
-    db = a.tree.query(b.points, k=1, distance_upper_bound=reach)[0]
+    # (the bound is exclusive: a point exactly at ``reach``, common on a voxel grid, is in)
+    bound = reach * (1 + 1e-9) + 1e-12
+    da = b.tree.query(a.points, k=1, distance_upper_bound=bound)[0]
+    db = a.tree.query(b.points, k=1, distance_upper_bound=bound)[0]
     in_a, in_b = da <= reach, db <= reach
     shares = sorted((float(in_a.mean()), float(in_b.mean())))
     feats = [min(float(da.min()), float(db.min())) if in_a.any() else _least_distance(a, b),
