@@ -334,11 +334,8 @@ class RelateInspectionJob:
 
 
 def relate_inspection_job(job: RelateInspectionJob) -> pd.DataFrame:
-    """``relate_inspection`` with the models of ``job.relations_models``, on one of torch's
-    threads (the worker runs beside another on two cores)."""
-    import torch
-
-    torch.set_num_threads(1)
+    """``relate_inspection`` with the models of ``job.relations_models`` (in a worker whose
+    threads its ``cadio.sandbox.Limits`` set)."""
     return relate_inspection(Path(job.folder), Workspace(Path(job.workspace)),
                              load_relation_models(Path(job.relations_models)))
 

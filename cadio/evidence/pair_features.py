@@ -148,10 +148,8 @@ def pair_features(a: PartCloud, b: PartCloud,
                        dtype=np.float32)
         return out
     reach = cfg.contact_mm + cfg.contact_spacings * max(a.spacing, b.spacing)
-    # (the bound is exclusive: a point exactly at ``reach``, common on a voxel grid, is in)
-    bound = reach * (1 + 1e-9) + 1e-12
-    da = b.tree.query(a.points, k=1, distance_upper_bound=bound)[0]
-    db = a.tree.query(b.points, k=1, distance_upper_bound=bound)[0]
+    da = b.tree.query(a.points, k=1, distance_upper_bound=_inclusive(reach))[0]
+    db = a.tree.query(b.points, k=1, distance_upper_bound=_inclusive(reach))[0]
     in_a, in_b = da <= reach, db <= reach
     shares = sorted((float(in_a.mean()), float(in_b.mean())))
     feats = [min(float(da.min()), float(db.min())) if in_a.any() else _least_distance(a, b),
@@ -175,8 +173,14 @@ def _least_distance(a: PartCloud, b: PartCloud) -> float:
     every cell about as near), so a few points give an upper bound, and only the points within
     it are searched to the end."""
     bound = float(b.tree.query(a.points[:: max(1, len(a.points) // 64)], k=1)[0].min())
-    within = b.tree.query(a.points, k=1, distance_upper_bound=bound * (1 + 1e-9) + 1e-12)[0]
+    within = b.tree.query(a.points, k=1, distance_upper_bound=_inclusive(bound))[0]
     return float(within.min())
+
+
+def _inclusive(bound: float) -> float:
+    """A k-d tree's ``distance_upper_bound`` that keeps a point exactly at ``bound`` (the
+    tree's bound is exclusive; on a voxel grid such distances occur)."""
+    return bound * (1 + 1e-9) + 1e-12
 
 
 def _contact_plane(a: PartCloud, b: PartCloud, in_a: npt.NDArray[np.bool_],

@@ -504,7 +504,6 @@ def onto_alike(part: PartSurface, other: PartSurface) -> FloatArray:
     of one shape): the Kabsch fit of their vertices where the meshes are one mesh moved (a
     part instanced several times), else the least-RMS of the turns that put principal axes
     on principal axes, refined by ICP on the samples."""
-    """(4, 4) the motion of ``part``'s frame that lays its surface on ``other``'s."""
     a, b = part.mesh.vertices, other.mesh.vertices
     if a.shape == b.shape:
         motion = _rigid(list(zip(a, b, strict=True)))

@@ -16,7 +16,7 @@ from __future__ import annotations
 import json
 import logging
 import math
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 from typing import Any
@@ -121,28 +121,28 @@ def part_ids(assembly: str, ws: Workspace) -> list[str]:
 
 def _symmetry(ws: Workspace, part: Any) -> Symmetry:
     """The part's symmetry, kept in ``inspect/symmetry/<part_id>.json`` once found."""
-    path = ws.root / "inspect" / "symmetry" / f"{part.part_id}.json"
-    if path.is_file():
-        return Symmetry.from_dict(json.loads(path.read_text()))
-    found = symmetry_of(part.samples)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    with atomic_write(path, "w") as fh:
-        fh.write(json.dumps(found.to_dict()))
-    return found
+    found = _kept(ws.root / "inspect" / "symmetry" / f"{part.part_id}.json",
+                  lambda: symmetry_of(part.samples).to_dict())
+    return Symmetry.from_dict(found)
 
 
 def _onto(ws: Workspace, part: Any, other: Any) -> FloatArray:
     """The motion laying a part on another of its shape (``routes.onto_alike``: a search
     over turns, seconds a pair), kept in ``inspect/alike/<part_id>-<other_id>.json`` once
     found: part ids name their file's content and the solid."""
-    path = ws.root / "inspect" / "alike" / f"{part.part_id}-{other.part_id}.json"
-    if path.is_file():
-        return np.array(json.loads(path.read_text()), dtype=np.float64)
-    found = onto_alike(part, other)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    with atomic_write(path, "w") as fh:
-        fh.write(json.dumps(found.tolist()))
-    return found
+    found = _kept(ws.root / "inspect" / "alike" / f"{part.part_id}-{other.part_id}.json",
+                  lambda: onto_alike(part, other).tolist())
+    return np.array(found, dtype=np.float64)
+
+
+def _kept(path: Path, make: Callable[[], Any]) -> Any:
+    """The JSON value kept at ``path``; made by ``make`` and kept there the first time (read
+    back as a later night reads it)."""
+    if not path.is_file():
+        path.parent.mkdir(parents=True, exist_ok=True)
+        with atomic_write(path, "w") as fh:
+            fh.write(json.dumps(make()))
+    return json.loads(path.read_text())
 
 
 def variants_of(model: AssemblyModel, mates: pd.DataFrame, cfg: InspectConfig) -> list[Variant]:
