@@ -326,30 +326,31 @@ def by_search(model: AssemblyModel, scan: Scan, cfg: RouteConfig = RouteConfig()
     """
     if not scan.segments:
         raise ValueError("the search route needs a segmented scan (instance ids)")
-    shapes = _shape_members(model)
+    candidates = [(shape, model.parts[members[0]])
+                  for shape, members in _shape_members(model).items()]
     by_segment: dict[int, tuple[str, Fit]] = {}
     for segment, idx in sorted(scan.segments.items()):
         points = scan.points[idx]
         if len(points) >= 10:
-            best = _best_shape(model, shapes, points, scan, cfg)
+            best = best_shape(candidates, points, scan, cfg)
             if best is not None:
                 by_segment[segment] = best
     return name_parts(model, by_segment)
 
 
-def _best_shape(model: AssemblyModel, shapes: Mapping[str, list[int]], points: FloatArray,
-                scan: Scan, cfg: RouteConfig) -> tuple[str, Fit] | None:
-    """The shape that fits a segment best. Shapes the segment could be (no smaller than its
-    extent) are tried nearest its size first, and the search stops at a good fit: a part many
-    times the segment's size would have to hide nearly all of itself to show only it."""
+def best_shape(candidates: Sequence[tuple[str, PartSurface]], points: FloatArray, scan: Scan,
+               cfg: RouteConfig) -> tuple[str, Fit] | None:
+    """The candidate shape (a key and a surface of it) that fits a segment best, found without
+    any prior pose. Shapes the segment could be (no smaller than its extent) are tried nearest
+    its size first, and the search stops at a good fit: a part many times the segment's size
+    would have to hide nearly all of itself to show only it."""
     extent = _extent(points)
-    fitting = [(shape, members) for shape, members in shapes.items()
-               if extent <= model.parts[members[0]].diameter + cfg.extent_slack_mm]
-    fitting.sort(key=lambda sm: model.parts[sm[1][0]].diameter)
+    fitting = sorted((c for c in candidates if extent <= c[1].diameter + cfg.extent_slack_mm),
+                     key=lambda c: c[1].diameter)
     fitness, coverage = cfg.good_fit
     best: tuple[str, Fit] | None = None
-    for shape, members in fitting:
-        fit = global_search(model.parts[members[0]], points, scan.cameras, cfg.register,
+    for shape, surface in fitting:
+        fit = global_search(surface, points, scan.cameras, cfg.register,
                             lambda seen: consistency(seen, scan))[0]
         if best is None or fit.rank() > best[1].rank():
             best = (shape, fit)
@@ -366,13 +367,20 @@ def _shape_members(model: AssemblyModel) -> dict[str, list[int]]:
 
 
 def _extent(points: FloatArray) -> float:
-    """The length of a cloud's box along its principal axes, from the 1st to the 99th
-    percentile on each (a mask's edge holds a few pixels of what lies behind)."""
+    """The cloud's largest width: over its principal axes and the 10 directions between them
+    (the cube's edge and corner diagonals in their frame), from the 1st to the 99th percentile
+    on each (a mask's edge holds a few pixels of what lies behind). A width is never more
+    than the largest distance between two of the part's points, as a box along the principal
+    axes can be (the diagonal of an X-shaped frame's box is longer than either arm)."""
     centred = points - points.mean(axis=0)
     _, axes = np.linalg.eigh(centred.T @ centred)
-    along = centred @ axes
+    signs = [(1, 0, 0), (0, 1, 0), (0, 0, 1), (1, 1, 0), (1, -1, 0), (1, 0, 1), (1, 0, -1),
+             (0, 1, 1), (0, 1, -1), (1, 1, 1), (1, 1, -1), (1, -1, 1), (1, -1, -1)]
+    directions = np.array(signs, dtype=np.float64)
+    directions /= np.linalg.norm(directions, axis=1, keepdims=True)
+    along = centred @ axes @ directions.T
     lo, hi = np.percentile(along, [1, 99], axis=0)
-    return float(np.linalg.norm(hi - lo))
+    return float(np.max(hi - lo))
 
 
 def name_parts(model: AssemblyModel, by_segment: Mapping[int, tuple[str, Fit]]) -> list[Found]:
