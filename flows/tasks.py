@@ -96,7 +96,7 @@ from reports.relations import pairs_frame
 
 # Bump when a stage's code changes what it writes, so cached batches are redone.
 CAPTURE_VERSION = "capture-2"
-COMPLETION_VERSION = "completion-1"
+COMPLETION_VERSION = "completion-2"
 RELATE_VERSION = "relate-3"
 
 
@@ -487,7 +487,10 @@ def complete_stage(captured: list[CaptureSummary], run: Run, models_dir: str) ->
     labels = _categories_digest(ws)
     futures = []
     for b in batches(folders, COMPLETION_BATCH):
-        key = content_digest([*_files_in(b), *_models(models_dir)], folders=b, labels=labels,
+        # the captures too: the registered completion reads their cameras, depth and parts
+        shown = sorted(p for p in {ws.capture(f.parent.name) for f in b} if p.is_file())
+        key = content_digest([*_files_in(b), *shown, *_models(models_dir)], folders=b,
+                             labels=labels,
                              epoch=run.epoch, version=COMPLETION_VERSION,
                              methods=COMPLETIONS.digest())
         futures.append(complete_task.submit([str(f) for f in b], models_dir, run.workspace, key))

@@ -29,6 +29,7 @@ from cadio.capture.coverage import capture_context
 from cadio.capture.examples import Example, read_example
 from cadio.capture.register import register
 from cadio.catalog import read_catalog
+from cadio.inspect.completion import LibraryCad
 from cadio.workspace import Workspace, atomic_path
 from models.checkpoint import load_checkpoint, model_from_checkpoint
 from models.completions import COMPLETIONS, ours
@@ -82,13 +83,20 @@ def load_models(folder: Path = SHIPPED, device: str = "cpu") -> CompletionModels
     return CompletionModels(models, cards)
 
 
-def complete(models: CompletionModels, example: Example) -> dict[str, npt.NDArray[np.bool_]]:
+def complete(models: CompletionModels, example: Example, cad: LibraryCad | None = None
+             ) -> dict[str, npt.NDArray[np.bool_]]:
     """Every registered method's solid for one example (``models.completions``); a learned
-    method without a checkpoint for the example's protocol is left out."""
+    method without a checkpoint for the example's protocol is left out, and so is one that
+    reads the library's CAD where ``cad`` has none of the example's capture (or is None)."""
     out = {}
     for method in COMPLETIONS.entries():
         if method.solid is not None:
             out[method.name] = method.solid(example)
+            continue
+        if method.from_cad is not None:
+            scene = None if cad is None else cad.of(str(example.meta.get("capture", "")))
+            if scene is not None:
+                out[method.name] = method.from_cad(example, scene)
             continue
         model = models.models.get((method.name, example.protocol))
         if model is not None and method.model_input is not None:
@@ -158,8 +166,10 @@ class Scores:
 
 def score_files(paths: Iterable[Path], models: CompletionModels,
                 split_of: Callable[[str], str], category_of: Callable[[str], str],
-                on_file: Callable[[str], None] | None = None) -> Scores:
-    """Complete and score every example file; a file that cannot be read is a failure row."""
+                on_file: Callable[[str], None] | None = None,
+                cad: LibraryCad | None = None) -> Scores:
+    """Complete and score every example file; a file that cannot be read is a failure row.
+    ``cad``: the library's CAD of the examples' captures, for the methods that read it."""
     parts: list[dict[str, Any]] = []
     registration: list[dict[str, Any]] = []
     failed: list[tuple[str, str]] = []
@@ -170,7 +180,7 @@ def score_files(paths: Iterable[Path], models: CompletionModels,
             failed.append((str(path), f"{type(exc).__name__}: {exc}"))
             continue
         pid = str(example.meta["part_id"])
-        preds = complete(models, example)
+        preds = complete(models, example, cad)
         parts += score_example(example, preds, split_of(pid), category_of(pid))
         if ours().name in preds and example.target is not None:
             row = register_completion(example, preds[ours().name], example.target.shape[0])
@@ -220,7 +230,7 @@ def complete_parts(folders: Iterable[Path], models_dir: Path, ws: Workspace) -> 
                         strict=True))
     paths = [p for folder in folders for p in sorted(Path(folder).glob("*-*.npz"))]
     return score_files(paths, models, lambda pid: "train" if pid in seen else "test",
-                       lambda pid: category.get(pid, "unknown"))
+                       lambda pid: category.get(pid, "unknown"), cad=LibraryCad(ws))
 
 
 def write_completion_report(run_dir: Path, scores: Iterable[Scores],

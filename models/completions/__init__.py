@@ -3,7 +3,9 @@
 A module registers a ``CompletionMethod``: its name, role (the method the product ships, or a
 baseline it is judged by), a one-line summary for tables, cards and ``--help``, and how it
 completes an example: ``solid`` for a method without learning (the example carries what it
-needs), or ``model_input`` for a learned one, whose network is the checkpoint
+needs), ``from_cad`` for one that reads the library's CAD of the example's capture (its bill of
+materials, scale, cameras and depth: ``cadio.inspect.completion.CaptureCad``; run where the
+stage has the workspace), or ``model_input`` for a learned one, whose network is the checkpoint
 ``completion-<name>-<protocol>.pt`` of the night's folder and whose config is ``config`` with
 ``defaults``. The completion stage, the completion report, the checks, the training commands
 and the model card read this registry; nothing else lists the methods.
@@ -25,6 +27,7 @@ from cadio.registry import Registry, Role
 
 if TYPE_CHECKING:
     from cadio.capture.examples import Example
+    from cadio.inspect.completion import CaptureCad
 
 BoolGrid = npt.NDArray[np.bool_]
 
@@ -40,6 +43,7 @@ class CompletionMethod:
     module: str
     solid: Callable[[Example], BoolGrid] | None = None
     model_input: Callable[[Example], npt.NDArray[Any]] | None = None
+    from_cad: Callable[[Example, CaptureCad], BoolGrid] | None = None
     config: str = ""  # "module:Class" of a learned method's config
     defaults: Mapping[str, Any] = field(default_factory=dict)
     # How the tables a person reads name it, where not by its name (the files keep the name).
@@ -50,9 +54,11 @@ class CompletionMethod:
         return self.display or self.name
 
     def __post_init__(self) -> None:
-        if (self.solid is None) == (self.model_input is None):
+        given = [h for h in (self.solid, self.model_input, self.from_cad) if h is not None]
+        if len(given) != 1:
             raise ValueError(f"completion method {self.name!r}: give exactly one of solid "
-                             "(no learning) and model_input (a checkpoint's network)")
+                             "(no learning), from_cad (the library's CAD) and model_input (a "
+                             "checkpoint's network)")
 
     @property
     def learned(self) -> bool:
