@@ -487,12 +487,11 @@ def complete_stage(captured: list[CaptureSummary], run: Run, models_dir: str) ->
     labels = _categories_digest(ws)
     futures = []
     for b in batches(folders, COMPLETION_BATCH):
-        # the captures too: the registered completion reads their cameras, depth and parts
+        # the captures and the registration's code too: the registered completion reads them
         shown = sorted(p for p in {ws.capture(f.parent.name) for f in b} if p.is_file())
         key = content_digest([*_files_in(b), *shown, *_models(models_dir)], folders=b,
-                             labels=labels,
-                             epoch=run.epoch, version=COMPLETION_VERSION,
-                             methods=COMPLETIONS.digest())
+                             labels=labels, epoch=run.epoch, version=COMPLETION_VERSION,
+                             methods=COMPLETIONS.digest(), cad=inspection_digest())
         futures.append(complete_task.submit([str(f) for f in b], models_dir, run.workspace, key))
     return [f.result() for f in futures]
 

@@ -37,11 +37,13 @@ from cadio.workspace import Workspace, read_mesh
 
 # The learned captures are rendered without the sensor's noise: ICP's finest reach can be
 # tighter than at inspection range (it follows the points' spacing, ``_search``), and a
-# lighter search does (one refined candidate, fewer RANSAC runs, half the scoring points,
-# the cube's 24 turns only): on 56 single views of the four held-out assemblies mean IoU 0.900
-# against 0.916 for the inspection's search, at half its time.
+# lighter search does: one refined candidate, fewer RANSAC runs, half the scoring points, and
+# the principal-axis turns only where no feature match fits. On 56 single views of the four
+# held-out assemblies: mean IoU 0.890 against 0.916 with the inspection's search, at a quarter
+# of its time (0.20 s against 0.74 s a view); on 36 views of parts alone 0.993 either way.
 COMPLETION_ROUTE = RouteConfig(register=RegisterConfig(
-    fine_mm=1.5, keep=1, hypotheses=1, max_hypotheses=2, coarse_points=150, orientations=24))
+    fine_mm=1.5, keep=1, hypotheses=1, max_hypotheses=2, coarse_points=150, orientations=24,
+    turns_always=False))
 
 
 @dataclass(frozen=True, eq=False)

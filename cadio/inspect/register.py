@@ -74,6 +74,10 @@ class RegisterConfig:
     # The spread orientations are tried only when no candidate's coarse score (the inlier
     # share of the scan) reaches this.
     good_enough: float = 0.85
+    # The scan's principal axes turned onto the part's are tried even where a feature match
+    # fits that well (a noisy view's features can match a flipped pose well enough); a search
+    # of a clean view can leave them out.
+    turns_always: bool = True
     seed: int = 0
     stride: int = 1  # every stride-th pixel of the visible surface
     # At most this many of the scan's points near the part take part (a seeded draw): the
@@ -300,8 +304,9 @@ def global_search(part: PartSurface, scan: FloatArray, cameras: Sequence[Camera]
               for pose in (_with_flips(part, start) if cfg.flips else [start])]
     scored = [(*fit, seed) for fit, (_, seed) in
               zip(_coarse(part, few, [p for p, _ in starts], reach, cfg), starts, strict=True)]
-    turns = _principal_turns(part, scan)
-    if not any(score[0] >= cfg.good_enough for score, _, _ in scored):
+    matched = any(score[0] >= cfg.good_enough for score, _, _ in scored)
+    turns = [] if matched and not cfg.turns_always else _principal_turns(part, scan)
+    if not matched:
         turns += _orientations(cfg.orientations, cfg.seed)[24:]
     starts = [(start, f"turn-{k}") for k, rot in enumerate(turns)
               for start in _slides(part, _facing(part, rot, scan.mean(axis=0), towards), scan)]
