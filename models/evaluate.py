@@ -228,9 +228,16 @@ def complete_parts(folders: Iterable[Path], models_dir: Path, ws: Workspace) -> 
     catalog = read_catalog(ws.catalog)
     category = dict(zip(catalog["part_id"].astype(str), catalog["category"].astype(str),
                         strict=True))
-    paths = [p for folder in folders for p in sorted(Path(folder).glob("*-*.npz"))]
+    paths = [p for folder in folders for p in sorted(Path(folder).glob("*-*.npz"),
+                                                     key=_views_first)]
     return score_files(paths, models, lambda pid: "train" if pid in seen else "test",
                        lambda pid: category.get(pid, "unknown"), cad=LibraryCad(ws))
+
+
+def _views_first(path: Path) -> tuple[int, str]:
+    """An input folder's examples, single views first (the registered completion starts a
+    sequence from its views' own registrations): ``observed-0-4`` has two views."""
+    return sum(token.isdigit() for token in path.stem.split("-")), path.name
 
 
 def write_completion_report(run_dir: Path, scores: Iterable[Scores],

@@ -74,10 +74,6 @@ class RegisterConfig:
     # The spread orientations are tried only when no candidate's coarse score (the inlier
     # share of the scan) reaches this.
     good_enough: float = 0.85
-    # The scan's principal axes turned onto the part's are tried even where a feature match
-    # fits that well (a noisy view's features can match a flipped pose well enough); a search
-    # of a clean view can leave them out.
-    turns_always: bool = True
     seed: int = 0
     stride: int = 1  # every stride-th pixel of the visible surface
     # At most this many of the scan's points near the part take part (a seeded draw): the
@@ -304,9 +300,8 @@ def global_search(part: PartSurface, scan: FloatArray, cameras: Sequence[Camera]
               for pose in (_with_flips(part, start) if cfg.flips else [start])]
     scored = [(*fit, seed) for fit, (_, seed) in
               zip(_coarse(part, few, [p for p, _ in starts], reach, cfg), starts, strict=True)]
-    matched = any(score[0] >= cfg.good_enough for score, _, _ in scored)
-    turns = [] if matched and not cfg.turns_always else _principal_turns(part, scan)
-    if not matched:
+    turns = _principal_turns(part, scan)
+    if not any(score[0] >= cfg.good_enough for score, _, _ in scored):
         turns += _orientations(cfg.orientations, cfg.seed)[24:]
     starts = [(start, f"turn-{k}") for k, rot in enumerate(turns)
               for start in _slides(part, _facing(part, rot, scan.mean(axis=0), towards), scan)]
@@ -316,6 +311,16 @@ def global_search(part: PartSurface, scan: FloatArray, cameras: Sequence[Camera]
     best = _distinct(scored, part.diameter / 10, cfg.keep)
     return sorted((replace(refine(part, scan, pose, cameras, cfg, judge=judge), seed=seed)
                    for pose, seed in best), key=Fit.rank, reverse=True)
+
+
+def coarse_scores(part: PartSurface, scan: FloatArray, poses: Sequence[FloatArray],
+                  cfg: RegisterConfig = RegisterConfig()
+                  ) -> list[tuple[tuple[float, float], FloatArray]]:
+    """Each pose after the search's few coarse ICP steps against the part's whole surface,
+    with the score ``global_search`` ranks its candidates by: the share of (a seeded draw of)
+    the scan within half the coarse reach, then -RMS."""
+    reach = max(cfg.scales[0] * voxel_of(part, cfg), cfg.fine_mm)
+    return _coarse(part, _draw(scan, cfg.coarse_points, cfg.seed), poses, reach, cfg)
 
 
 def _distinct(scored: Sequence[tuple[tuple[float, float], FloatArray, str]], apart_mm: float,
