@@ -82,7 +82,7 @@ from cadio.workspace import Workspace, atomic_path
 from flows.config import InspectionOptions
 from flows.logs import run_logger
 from models.completions import COMPLETIONS
-from models.evaluate import Scores, complete_parts, part_inputs
+from models.evaluate import Scores, complete_isolated, part_inputs
 from models.relate import (
     RelateBatch,
     RelateInspectionJob,
@@ -296,9 +296,9 @@ def _one_kernel_thread() -> None:
 
 @task(name="complete", **_CACHED)
 def complete_task(folders: list[str], models_dir: str, workspace: str, key: str) -> Scores:
-    """Complete and score a batch of captured parts with every method."""
-    _one_kernel_thread()
-    return complete_parts([Path(f) for f in folders], Path(models_dir), Workspace(Path(
+    """Complete and score a batch of captured parts with every method, in a worker process
+    (``models.evaluate.complete_isolated``)."""
+    return complete_isolated([Path(f) for f in folders], Path(models_dir), Workspace(Path(
         workspace)))
 
 

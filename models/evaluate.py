@@ -15,7 +15,7 @@ from __future__ import annotations
 import json
 import logging
 import math
-from collections.abc import Callable, Iterable, Mapping
+from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import asdict, dataclass, fields
 from pathlib import Path
 from typing import Any
@@ -30,6 +30,7 @@ from cadio.capture.examples import Example, read_example
 from cadio.capture.register import register
 from cadio.catalog import read_catalog
 from cadio.inspect.completion import LibraryCad
+from cadio.sandbox import Job, Limits, run_isolated
 from cadio.workspace import Workspace, atomic_path
 from models.checkpoint import load_checkpoint, model_from_checkpoint
 from models.completions import COMPLETIONS, ours
@@ -232,6 +233,41 @@ def complete_parts(folders: Iterable[Path], models_dir: Path, ws: Workspace) -> 
                                                      key=_views_first)]
     return score_files(paths, models, lambda pid: "train" if pid in seen else "test",
                        lambda pid: category.get(pid, "unknown"), cad=LibraryCad(ws))
+
+
+@dataclass(frozen=True)
+class CompleteJob:
+    """One batch of the completion stage, as a worker process runs it."""
+
+    folders: tuple[str, ...]
+    models_dir: str
+    workspace: str
+
+
+def complete_job(job: CompleteJob) -> Scores:
+    return complete_parts([Path(f) for f in job.folders], Path(job.models_dir),
+                          Workspace(Path(job.workspace)))
+
+
+# A batch is minutes of registration (Python between numpy calls) beside the networks: in a
+# worker process of its own, two batches run on two cores, where in the night's two threads
+# they shared one interpreter's lock; each worker on one thread of its libraries (torch's
+# too: ``OMP_NUM_THREADS``), as the inspection's.
+ISOLATED = Limits(seconds=3600.0, memory_mb=8192, workers=1, threads=1)
+
+
+def complete_isolated(folders: Sequence[Path], models_dir: Path, ws: Workspace,
+                      limits: Limits = ISOLATED) -> Scores:
+    """``complete_parts`` in a worker process (``cadio.sandbox``); a worker that dies or runs
+    out of time fails each of the batch's folders, with the reason, and the night goes on."""
+    job = CompleteJob(tuple(str(f) for f in folders), str(models_dir), str(ws.root))
+    for outcome in run_isolated(complete_job, [Job(str(models_dir), job)], limits):
+        if outcome.result is not None:
+            return outcome.result
+        log.warning("completion of %d part folders: %s", len(folders), outcome.error)
+        return Scores([], [], [(str(f), f"completion worker: {outcome.error}")
+                               for f in folders])
+    raise AssertionError("run_isolated yields one outcome per job")
 
 
 def _views_first(path: Path) -> tuple[int, str]:

@@ -146,14 +146,15 @@ def test_learning_examples_are_built_only_where_a_part_is_scored(night: Night) -
 
 def test_the_completion_report_counts_every_part_of_the_library(night: Night,
                                                                 tmp_path: Path) -> None:
-    from models.evaluate import SHIPPED, complete_parts, part_inputs, write_completion_report
+    from models.evaluate import SHIPPED, complete_isolated, part_inputs, write_completion_report
     from reports.completion import read_completion_parts
     from reports.coverage import read_part_coverage
 
     inputs = night.ws.root / "inputs"
     folders = part_inputs([inputs / c.scene_id for c in night.captured if not c.error])
     assert len(folders) == len(ingested_parts(night.catalog))  # one context each here
-    scores = complete_parts(folders, SHIPPED, night.ws)
+    scores = complete_isolated(folders, SHIPPED, night.ws)  # as the night: in a worker
+    assert scores.failed == []
     write_completion_report(tmp_path, [scores], ingested_parts(night.catalog))
     coverage = read_part_coverage(tmp_path).set_index("category")
     handwheel = int((night.catalog["source"].str.endswith("handwheel.step")
@@ -204,3 +205,13 @@ def test_no_pose_of_the_scene_reaches_the_registered_completion(
     blind = solids()
     assert len(examples) == 4 and all(a.any() for a in honest)
     assert all(np.array_equal(a, b) for a, b in zip(honest, blind, strict=True))
+
+
+def test_a_completion_worker_that_dies_fails_its_folders_not_the_night(night: Night) -> None:
+    from models.evaluate import SHIPPED, complete_isolated, part_inputs
+
+    inputs = night.ws.root / "inputs"
+    folders = part_inputs([inputs / c.scene_id for c in night.captured if not c.error])[:2]
+    scores = complete_isolated(folders, SHIPPED, night.ws, Limits(seconds=0.5, workers=1))
+    assert scores.parts == [] and [f for f, _ in scores.failed] == [str(f) for f in folders]
+    assert all("completion worker" in why and "time" in why for _, why in scores.failed)
