@@ -86,8 +86,8 @@ from models.evaluate import Scores, complete_isolated, part_inputs
 from models.relate import (
     RelateBatch,
     RelateInspectionJob,
-    relate_batch,
     relate_inspection_job,
+    relate_isolated,
 )
 from models.relation_inputs import INPUTS
 from models.relation_methods import RELATION_METHODS
@@ -282,18 +282,6 @@ def capture_alone_task(part_ids: list[str], workspace: str, cfg: ScanConfig,
     return capture_parts_alone(part_ids, Workspace(Path(workspace)), cfg)
 
 
-def _one_kernel_thread() -> None:
-    """One thread for torch's kernels in a task that runs networks. The flow runs its tasks
-    side by side (two on two cores, as many as a Dask worker has threads), each its own core's
-    worth of work; torch's pool of a thread per core on top of that spun more than it worked
-    (a completion batch took 3-4x the CPU time with two threads on a loaded two-core machine).
-    The deployments' workers had ``OMP_NUM_THREADS=1`` already; a night from the command line
-    did not."""
-    import torch
-
-    torch.set_num_threads(1)
-
-
 @task(name="complete", **_CACHED)
 def complete_task(folders: list[str], models_dir: str, workspace: str, key: str) -> Scores:
     """Complete and score a batch of captured parts with every method, in a worker process
@@ -305,10 +293,10 @@ def complete_task(folders: list[str], models_dir: str, workspace: str, key: str)
 @task(name="relate", **_CACHED)
 def relate_task(captures: list[str], workspace: str, relations_models: str,
                 completion_models: str, out: str, key: str) -> RelateBatch:
-    """Relations of every pair view of a batch of captures, by every method and input."""
-    _one_kernel_thread()
-    return relate_batch([Path(c) for c in captures], Workspace(Path(workspace)),
-                        Path(relations_models), Path(completion_models), Path(out))
+    """Relations of every pair view of a batch of captures, by every method and input, in a
+    worker process (``models.relate.relate_isolated``)."""
+    return relate_isolated([Path(c) for c in captures], Workspace(Path(workspace)),
+                           Path(relations_models), Path(completion_models), Path(out))
 
 
 @task(name="export", **_RETRY)

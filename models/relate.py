@@ -30,6 +30,7 @@ from cadio.catalog import read_catalog
 from cadio.errors import CaptureError
 from cadio.evidence.pairs import DEFAULT_PAIRS, PairConfig, PairView, capture_pairs
 from cadio.records import Relation
+from cadio.sandbox import Job, Limits, run_isolated
 from cadio.workspace import Workspace, atomic_path
 from models.completions import ours as completion_ours
 from models.errors import CheckpointError
@@ -272,6 +273,42 @@ class RelateBatch:
     failed: tuple[str, ...]
     joints_path: str = ""
     left_out: int = 0  # pair views not scored: a network trained on one of their parts
+
+
+@dataclass(frozen=True)
+class RelateJob:
+    """One batch of the relation stage, as a worker process runs it."""
+
+    captures: tuple[str, ...]
+    workspace: str
+    relations_dir: str
+    completion_dir: str
+    out: str
+
+
+def relate_job(job: RelateJob) -> RelateBatch:
+    return relate_batch([Path(c) for c in job.captures], Workspace(Path(job.workspace)),
+                        Path(job.relations_dir), Path(job.completion_dir), Path(job.out))
+
+
+# As the completion's batches (``models.evaluate.ISOLATED``): a worker process each, on one
+# thread of its libraries, so that two batches run on two cores.
+ISOLATED = Limits(seconds=3600.0, memory_mb=8192, workers=1, threads=1)
+
+
+def relate_isolated(captures: Sequence[Path], ws: Workspace, relations_dir: Path,
+                    completion_dir: Path, out: Path, limits: Limits = ISOLATED) -> RelateBatch:
+    """``relate_batch`` in a worker process (``cadio.sandbox``); a worker that dies or runs
+    out of time fails each of the batch's captures, with the reason, and writes no rows."""
+    job = RelateJob(tuple(str(c) for c in captures), str(ws.root), str(relations_dir),
+                    str(completion_dir), str(out))
+    for outcome in run_isolated(relate_job, [Job(str(out), job)], limits):
+        if outcome.result is not None:
+            return outcome.result
+        log.warning("relations of %d captures: %s", len(captures), outcome.error)
+        return RelateBatch(str(out), len(captures), 0, 0, tuple(
+            f"{Path(c).name}: relation worker: {outcome.error}" for c in captures))
+    raise AssertionError("run_isolated yields one outcome per job")
 
 
 def relate_batch(captures: Sequence[Path], ws: Workspace, relations_dir: Path,

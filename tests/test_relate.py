@@ -19,7 +19,7 @@ from cadio.truth.scene_config import SceneConfig
 from cadio.truth.scenes import generate_scenes, read_scene_parts
 from cadio.workspace import Workspace
 from models.evaluate import SHIPPED
-from models.relate import SHIPPED_RELATIONS, relate_batch
+from models.relate import SHIPPED_RELATIONS, relate_batch, relate_isolated
 from models.relation_methods import RELATION_METHODS
 from models.relations import RelationConfig
 from models.relations_train import save_relation_checkpoint, train_relations
@@ -68,8 +68,8 @@ def test_every_method_decides_every_input_of_every_pair_view(ws: Workspace,
                                                              tmp_path: Path) -> None:
     models = _checkpoints(tmp_path / "models", [])
     captures = sorted(ws.root.glob("captures/*.mcap"))
-    batch = relate_batch(captures, ws, models, SHIPPED, tmp_path / "rows.parquet")
-    assert batch.failed == () and batch.captures == 2
+    batch = relate_isolated(captures, ws, models, SHIPPED, tmp_path / "rows.parquet")  # as the
+    assert batch.failed == () and batch.captures == 2  # night runs it: in a worker process
     rows = pd.read_parquet(batch.path)
     assert tuple(rows.columns[:len(PAIR_COLUMNS)]) == PAIR_COLUMNS
     assert set(rows["method"]) == set(RELATION_METHODS.names())
@@ -230,3 +230,15 @@ def test_a_completed_network_is_handed_the_observed_points_evidence_of_each_view
     assert set(ltn["input"]) == {"completed"}
     completed = rows[rows["input"] == "completed"]
     assert len(ltn) == len(completed[completed["method"] == "geometric"]) > 0
+
+
+def test_a_relation_worker_that_dies_fails_its_captures_not_the_night(ws: Workspace,
+                                                                      tmp_path: Path) -> None:
+    from cadio.sandbox import Limits
+
+    captures = sorted(ws.root.glob("captures/*.mcap"))
+    batch = relate_isolated(captures, ws, SHIPPED_RELATIONS, SHIPPED, tmp_path / "rows.parquet",
+                            Limits(seconds=0.5, workers=1))
+    assert batch.rows == 0 and not (tmp_path / "rows.parquet").exists()
+    assert [f.split(":")[0] for f in batch.failed] == [c.name for c in captures]
+    assert all("relation worker" in f and "time" in f for f in batch.failed)
