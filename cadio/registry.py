@@ -5,7 +5,8 @@ entry (name, role, one-line summary, the hooks its stage calls), as timm's ``reg
 registers a model: the stages, the reports, the CLI's choices and the model cards read the
 registry, never a list of names of their own. A registry imports every module of its package
 the first time it is read, so a new module there is found without an edit anywhere else; a
-test registers a toy entry for a while with ``registered``.
+test registers a toy entry for a while with ``registered``, and a stage that works in worker
+processes hands them its ``foreign`` entries (those from outside the package).
 
 Entries are listed by ``order``, then name: tables show the method under test first and its
 baselines after, whatever the modules' file names.
@@ -16,8 +17,8 @@ from __future__ import annotations
 import hashlib
 import importlib
 import pkgutil
-from collections.abc import Iterator
-from contextlib import contextmanager
+from collections.abc import Iterable, Iterator
+from contextlib import ExitStack, contextmanager
 from enum import StrEnum
 from pathlib import Path
 from typing import Generic, Protocol, TypeVar
@@ -81,6 +82,24 @@ class Registry(Generic[T]):
             yield entry
         finally:
             self._entries.pop(entry.name, None)
+
+    def foreign(self) -> tuple[T, ...]:
+        """The entries registered from outside the package (a test's, an embedding program's):
+        a worker process finds the package's own on import and is handed these
+        (``including``), so their hooks must be picklable (module-level functions)."""
+        self._load()
+        return tuple(e for e in self._entries.values()
+                     if not str(getattr(e, "module", "")).startswith(f"{self.package}."))
+
+    @contextmanager
+    def including(self, entries: Iterable[T]) -> Iterator[None]:
+        """The block with ``entries`` registered where this process has none of their name (a
+        worker handed another process's ``foreign`` entries), removed after it."""
+        with ExitStack() as stack:
+            for entry in entries:
+                if entry.name not in self:
+                    stack.enter_context(self.registered(entry))
+            yield
 
     def get(self, name: str) -> T:
         """The entry of a name.

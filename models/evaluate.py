@@ -33,7 +33,7 @@ from cadio.inspect.completion import LibraryCad
 from cadio.sandbox import Job, Limits, run_isolated
 from cadio.workspace import Workspace, atomic_path
 from models.checkpoint import load_checkpoint, model_from_checkpoint
-from models.completions import COMPLETIONS, ours
+from models.completions import COMPLETIONS, CompletionMethod, ours
 from models.train import Model, predict
 from reports.completion import CompletionCase, parts_frame, write_completion
 from reports.coverage import part_coverage, write_part_coverage
@@ -242,11 +242,13 @@ class CompleteJob:
     folders: tuple[str, ...]
     models_dir: str
     workspace: str
+    methods: tuple[CompletionMethod, ...] = ()  # registered outside ``models.completions``
 
 
 def complete_job(job: CompleteJob) -> Scores:
-    return complete_parts([Path(f) for f in job.folders], Path(job.models_dir),
-                          Workspace(Path(job.workspace)))
+    with COMPLETIONS.including(job.methods):
+        return complete_parts([Path(f) for f in job.folders], Path(job.models_dir),
+                              Workspace(Path(job.workspace)))
 
 
 # A batch is minutes of registration (Python between numpy calls) beside the networks: in a
@@ -260,7 +262,8 @@ def complete_isolated(folders: Sequence[Path], models_dir: Path, ws: Workspace,
                       limits: Limits = ISOLATED) -> Scores:
     """``complete_parts`` in a worker process (``cadio.sandbox``); a worker that dies or runs
     out of time fails each of the batch's folders, with the reason, and the night goes on."""
-    job = CompleteJob(tuple(str(f) for f in folders), str(models_dir), str(ws.root))
+    job = CompleteJob(tuple(str(f) for f in folders), str(models_dir), str(ws.root),
+                      COMPLETIONS.foreign())
     for outcome in run_isolated(complete_job, [Job(str(models_dir), job)], limits):
         if outcome.result is not None:
             return outcome.result

@@ -284,11 +284,15 @@ class RelateJob:
     relations_dir: str
     completion_dir: str
     out: str
+    # the methods and inputs registered outside their packages (``Registry.foreign``)
+    methods: tuple[RelationMethod, ...] = ()
+    inputs: tuple[Any, ...] = ()
 
 
 def relate_job(job: RelateJob) -> RelateBatch:
-    return relate_batch([Path(c) for c in job.captures], Workspace(Path(job.workspace)),
-                        Path(job.relations_dir), Path(job.completion_dir), Path(job.out))
+    with RELATION_METHODS.including(job.methods), INPUTS.including(job.inputs):
+        return relate_batch([Path(c) for c in job.captures], Workspace(Path(job.workspace)),
+                            Path(job.relations_dir), Path(job.completion_dir), Path(job.out))
 
 
 # As the completion's batches (``models.evaluate.ISOLATED``): a worker process each, on one
@@ -301,7 +305,7 @@ def relate_isolated(captures: Sequence[Path], ws: Workspace, relations_dir: Path
     """``relate_batch`` in a worker process (``cadio.sandbox``); a worker that dies or runs
     out of time fails each of the batch's captures, with the reason, and writes no rows."""
     job = RelateJob(tuple(str(c) for c in captures), str(ws.root), str(relations_dir),
-                    str(completion_dir), str(out))
+                    str(completion_dir), str(out), RELATION_METHODS.foreign(), INPUTS.foreign())
     for outcome in run_isolated(relate_job, [Job(str(out), job)], limits):
         if outcome.result is not None:
             return outcome.result

@@ -7,6 +7,7 @@ import json
 import shutil
 from dataclasses import asdict
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pandas as pd
@@ -187,12 +188,22 @@ def _two_parts(tmp_path: Path, box_step: Path, pin_step: Path) -> Path:
     return lib.parent
 
 
+def _fill(example: Any) -> Any:
+    """A toy completion: every voxel of the grid solid (module-level: the night's workers
+    are handed it by reference)."""
+    return np.ones_like(example.visible)
+
+
+def _never(points: Any, *rest: Any) -> Any:
+    """A toy relation method: no relation ever holds."""
+    return np.zeros((len(points), 10), bool)
+
+
 def test_a_method_registered_in_one_module_reaches_the_night_s_tables(
         harness: object, tmp_path: Path, box_step: Path, pin_step: Path) -> None:
     """A completion method and a relation method, each registered as its own module would
-    register it, show in the night's completion and relation tables with no other edit."""
-    import numpy as np
-
+    register it, show in the night's completion and relation tables with no other edit (the
+    stages' worker processes are handed them)."""
     from cadio.registry import Role
     from flows.config import night_config
     from flows.nightly import nightly
@@ -200,9 +211,9 @@ def test_a_method_registered_in_one_module_reaches_the_night_s_tables(
     from models.relation_methods import RELATION_METHODS, RelationMethod
 
     fill = CompletionMethod("fill", "every voxel of the grid solid", Role.BASELINE, 9,
-                            __name__, solid=lambda example: np.ones_like(example.visible))
+                            __name__, solid=_fill)
     never = RelationMethod("never", "no relation ever holds", Role.BASELINE, 9, __name__,
-                           decide=lambda points, *rest: np.zeros((len(points), 10), bool))
+                           decide=_never)
     config = night_config({"library": {"path": str(_two_parts(tmp_path, box_step, pin_step)),
                                       "voxel_sizes": [16]},
                            "runtime": {"workspace": str(tmp_path / "ws")},
