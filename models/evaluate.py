@@ -88,7 +88,8 @@ def complete(models: CompletionModels, example: Example, cad: LibraryCad | None 
              ) -> dict[str, npt.NDArray[np.bool_]]:
     """Every registered method's solid for one example (``models.completions``); a learned
     method without a checkpoint for the example's protocol is left out, and so is one that
-    reads the library's CAD where ``cad`` has none of the example's capture (or is None)."""
+    reads the library's CAD where ``cad`` has none of the example's capture (or is None), or
+    where it fails on the example (logged: the other methods' solids stand)."""
     out = {}
     for method in COMPLETIONS.entries():
         if method.solid is not None:
@@ -97,7 +98,13 @@ def complete(models: CompletionModels, example: Example, cad: LibraryCad | None 
         if method.from_cad is not None:
             scene = None if cad is None else cad.of(str(example.meta.get("capture", "")))
             if scene is not None:
-                out[method.name] = method.from_cad(example, scene)
+                try:
+                    out[method.name] = method.from_cad(example, scene)
+                except (ValueError, RuntimeError, np.linalg.LinAlgError) as exc:
+                    # one example's registration, not the batch: its other methods stand
+                    log.warning("%s of %s in %s: %s: %s", method.name,
+                                example.meta.get("part_id"), example.meta.get("capture"),
+                                type(exc).__name__, exc)
             continue
         model = models.models.get((method.name, example.protocol))
         if model is not None and method.model_input is not None:

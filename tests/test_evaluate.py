@@ -135,3 +135,31 @@ def test_a_part_in_two_captures_is_scored_once_per_context(tmp_path: Path) -> No
                          tmp_path / "gone", tmp_path / "a0", tmp_path / "alone-d"])
     assert sorted(str(p.relative_to(tmp_path)) for p in found) == [
         "alone-d/1", "assembly-x/1", "s1/1", "s1/2", "s2/2"]
+
+
+def test_a_method_that_fails_on_an_example_leaves_the_others_standing(
+        examples: list[Path], caplog: pytest.LogCaptureFixture) -> None:
+    """A registration that raises on one example (its CAD method) is logged and left out of
+    that example; every other method's solid stands."""
+    from cadio.capture.examples import read_example
+    from cadio.inspect.completion import CaptureCad
+    from cadio.registry import Role
+    from models.completions import COMPLETIONS, CompletionMethod
+
+    failing = CompletionMethod("failing", "raises", Role.BASELINE, 9, __name__,
+                               from_cad=_raises)
+
+    class OneCapture:  # a capture's CAD for every example: no parts, no views
+        def of(self, capture: str) -> CaptureCad:
+            return CaptureCad((), {}, 1e-3, {}, {})
+
+    with COMPLETIONS.registered(failing):
+        preds = complete(load_models(Path("/nonexistent")), read_example(examples[0]),
+                         OneCapture())  # type: ignore[arg-type]
+    assert "failing" not in preds and {"visible", "carve"} <= set(preds)
+    assert not preds["registered"].any()  # nothing to register it to: an empty solid
+    assert "failing of box-0" in caplog.text and "no points to register" in caplog.text
+
+
+def _raises(example: object, cad: object) -> object:
+    raise ValueError("no points to register")
