@@ -271,13 +271,11 @@ def complete_isolated(folders: Sequence[Path], models_dir: Path, ws: Workspace,
     out of time fails each of the batch's folders, with the reason, and the night goes on."""
     job = CompleteJob(tuple(str(f) for f in folders), str(models_dir), str(ws.root),
                       COMPLETIONS.foreign())
-    for outcome in run_isolated(complete_job, [Job(str(models_dir), job)], limits):
-        if outcome.result is not None:
-            return outcome.result
-        log.warning("completion of %d part folders: %s", len(folders), outcome.error)
-        return Scores([], [], [(str(f), f"completion worker: {outcome.error}")
-                               for f in folders])
-    raise AssertionError("run_isolated yields one outcome per job")
+    (outcome,) = run_isolated(complete_job, [Job(str(models_dir), job)], limits)
+    if outcome.result is not None:
+        return outcome.result
+    log.warning("completion of %d part folders: %s", len(folders), outcome.error)
+    return Scores([], [], [(str(f), f"completion worker: {outcome.error}") for f in folders])
 
 
 def _views_first(path: Path) -> tuple[int, str]:

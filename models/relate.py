@@ -306,13 +306,12 @@ def relate_isolated(captures: Sequence[Path], ws: Workspace, relations_dir: Path
     out of time fails each of the batch's captures, with the reason, and writes no rows."""
     job = RelateJob(tuple(str(c) for c in captures), str(ws.root), str(relations_dir),
                     str(completion_dir), str(out), RELATION_METHODS.foreign(), INPUTS.foreign())
-    for outcome in run_isolated(relate_job, [Job(str(out), job)], limits):
-        if outcome.result is not None:
-            return outcome.result
-        log.warning("relations of %d captures: %s", len(captures), outcome.error)
-        return RelateBatch(str(out), len(captures), 0, 0, tuple(
-            f"{Path(c).name}: relation worker: {outcome.error}" for c in captures))
-    raise AssertionError("run_isolated yields one outcome per job")
+    (outcome,) = run_isolated(relate_job, [Job(str(out), job)], limits)
+    if outcome.result is not None:
+        return outcome.result
+    log.warning("relations of %d captures: %s", len(captures), outcome.error)
+    return RelateBatch(str(out), len(captures), 0, 0, tuple(
+        f"{Path(c).name}: relation worker: {outcome.error}" for c in captures))
 
 
 def relate_batch(captures: Sequence[Path], ws: Workspace, relations_dir: Path,

@@ -28,7 +28,7 @@ from scipy.spatial import cKDTree
 from cadio.capture.examples import Example
 from cadio.capture.observe import truth_occupancy
 from cadio.inspect.register import RegisterConfig, coarse_scores
-from cadio.inspect.routes import RouteConfig, best_shape
+from cadio.inspect.routes import RouteConfig, best_shape, size_signature
 from cadio.inspect.scan import Scan
 from cadio.inspect.surface import Camera, PartSurface, part_surface
 from cadio.recordings.mcap_io import read_capture, read_scene_meta
@@ -90,14 +90,12 @@ def capture_cad(path: Path, ws: Workspace, samples: int = 20_000) -> CaptureCad 
 
 
 def distinct_shapes(surfaces: list[PartSurface], tolerance_mm: float = 0.5) -> list[PartSurface]:
-    """One surface of each shape: a part whose diameter and principal spreads are within
-    ``tolerance_mm`` of an earlier one's is that shape again (a bill of materials lists a bolt
-    many times, each copy tessellated on its own)."""
+    """One surface of each shape: a part whose ``size_signature`` is within ``tolerance_mm``
+    of an earlier one's is that shape again (a bill of materials lists a bolt many times, each
+    copy tessellated on its own)."""
     kept: list[tuple[PartSurface, FloatArray]] = []
     for surface in surfaces:
-        centred = surface.samples - surface.centre
-        spreads = np.sqrt(np.maximum(np.linalg.eigvalsh(centred.T @ centred / len(centred)), 0))
-        signature = np.array([surface.diameter, *spreads])
+        signature = size_signature(surface)
         if not any(np.all(np.abs(signature - other) <= tolerance_mm) for _, other in kept):
             kept.append((surface, signature))
     return [surface for surface, _ in kept]

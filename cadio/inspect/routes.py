@@ -469,6 +469,14 @@ def _rigid(pairs: Sequence[tuple[FloatArray, FloatArray]]) -> FloatArray:
     return out
 
 
+def size_signature(part: PartSurface) -> FloatArray:
+    """(4,) a part's diameter and the principal spreads of its surface samples (mm): parts
+    whose signatures agree within a tolerance are one shape to a camera."""
+    centred = part.samples - part.centre
+    spreads = np.sqrt(np.maximum(np.linalg.eigvalsh(centred.T @ centred / len(centred)), 0))
+    return np.array([part.diameter, *spreads])
+
+
 def shape_keys(parts: Sequence[PartSurface], symmetries: Sequence[Symmetry],
                tolerance_mm: float = 1.0) -> tuple[str, ...]:
     """Per part, the key of the parts a camera cannot tell apart from it: a diameter and
@@ -479,11 +487,8 @@ def shape_keys(parts: Sequence[PartSurface], symmetries: Sequence[Symmetry],
     keys: list[str] = []
     signatures: list[tuple[FloatArray, int, bool]] = []
     for part, symmetry in zip(parts, symmetries, strict=True):
-        centred = part.samples - part.centre
-        spreads = np.sqrt(np.maximum(np.linalg.eigvalsh(centred.T @ centred / len(centred)),
-                                     0))
-        signature = (np.array([part.diameter, *spreads]),
-                     symmetry.order if symmetry.axis else 1, symmetry.flip is not None)
+        signature = (size_signature(part), symmetry.order if symmetry.axis else 1,
+                     symmetry.flip is not None)
         for key, (size, _, _) in zip(keys, signatures, strict=True):
             if np.all(np.abs(size - signature[0]) <= tolerance_mm):
                 keys.append(key)
