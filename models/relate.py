@@ -41,6 +41,7 @@ from models.geometric import (
     reads_observed,
     tests_for,
     with_observed,
+    within_pose,
 )
 from models.relation_decision import Decision, violations
 from models.relation_inputs import INPUTS, InputContext, builders
@@ -217,6 +218,9 @@ def relate_views(views: Sequence[PairView], models: RelationModels,
                       else k for v, k in zip(having, keys, strict=True)]
         features = pair_features_many([v.evidence_clouds(name) for v in having], mm,
                                       cloud_keys)
+        slack = np.array([v.slack.get(name, 0.0) for v in having])
+        if slack.any():  # a registration's poses: read within their uncertainty
+            features = within_pose(features, slack)
         centres = np.stack([v.observer_centres(name) for v in having])
         if name in observers:  # kept for the networks of the inputs that read it
             own = network_evidence(features, points, centres, tests_for(name))
@@ -383,10 +387,11 @@ def relate_inspection_job(job: RelateInspectionJob) -> pd.DataFrame:
 def relate_inspection(folder: Path, ws: Workspace, models: RelationModels,
                       cfg: PairConfig = DEFAULT_PAIRS) -> pd.DataFrame:
     """The relations of an inspected assembly's intact capture: every method on the
-    ``registered`` input (the CAD at the poses the search route found without the design) and
-    on ``truth`` (the CAD where the parts stood), on the same pair views, for each set of views
-    the capture was inspected with (scene ``<capture>`` for all views, ``<capture>@<view>``
-    for one alone). Rows of ``reports.relations.PAIR_COLUMNS``."""
+    ``registered`` input (the CAD at the poses the search route found without the design, each
+    pair read within its poses' uncertainty), on ``registered_cad`` (the same poses at the
+    CAD's tolerances) and on ``truth`` (the CAD where the parts stood), on the same pair views,
+    for each set of views the capture was inspected with (scene ``<capture>`` for all views,
+    ``<capture>@<view>`` for one alone). Rows of ``reports.relations.PAIR_COLUMNS``."""
     from cadio.evidence.pairs import PosedScene, posed_pair_views
     from cadio.inspect.evaluate import read_tables
     from cadio.inspect.stage import ALL_VIEWS, part_ids, read_truth
@@ -412,9 +417,14 @@ def relate_inspection(folder: Path, ws: Workspace, models: RelationModels,
             dict(zip(catalog["part_id"].astype(str), catalog["category"].astype(str),
                      strict=True)),
             contacts_of_mates(mates.to_dict("records"), mates.attrs.get("near_boundary", [])))
+        mine = group[group["index"].astype(int).isin(ids)]
         registered = {ids[int(r.index)]: np.array(r.pose).reshape(4, 4)
-                      for r in group.itertuples() if int(r.index) in ids}
-        views_of = posed_pair_views(known, {"registered": registered, "truth": dict(known.truth)},
-                                    cameras, ws, cfg)
+                      for r in mine.itertuples()}
+        sigmas = dict(zip([ids[int(i)] for i in mine["index"]],
+                          mine.get("sigma_mm", pd.Series(0.0, index=mine.index)).astype(float),
+                          strict=True))
+        views_of = posed_pair_views(
+            known, {"registered": registered, "registered_cad": registered,
+                    "truth": dict(known.truth)}, cameras, ws, cfg, {"registered": sigmas})
         rows += relate_views(views_of, models)
     return pd.DataFrame(rows)

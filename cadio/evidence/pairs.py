@@ -21,6 +21,7 @@ the observer's frame), never the poses or the features.
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -82,7 +83,10 @@ class PairView:
     them is measured on its points. ``truth``'s are (k, 6): each CAD sample with the exact
     unit normal of its face (``cadio.evidence.cad_samples``). centres: input name -> (2, 3)
     world metres, the centroids of the two parts' solids where the input knows them
-    (``truth``: the CAD's); the other inputs' centres are their points' means.
+    (``truth``: the CAD's); the other inputs' centres are their points' means. slack: input
+    name -> millimetres within which its poses place the two parts (a registration's: the
+    two poses' uncertainty, ``posed_pair_views``); the evidence's lengths are read within it
+    (``models.geometric.within_pose``). An input without one is read as measured.
     """
 
     scene: str
@@ -98,6 +102,7 @@ class PairView:
     near: npt.NDArray[np.bool_] = field(default_factory=lambda: np.zeros(10, dtype=bool))
     evidence: dict[str, tuple[Cloud, Cloud]] = field(default_factory=dict)
     centres: dict[str, FloatArray] = field(default_factory=dict)
+    slack: dict[str, float] = field(default_factory=dict)
 
     def observer_centres(self, name: str) -> FloatArray:
         """(2, 3) float64: the two parts' centres in the observer frame (``observer_points``),
@@ -381,13 +386,17 @@ class PosedScene:
 
 def posed_pair_views(known: PosedScene, posed: Mapping[str, Mapping[str, FloatArray]],
                      cameras: Sequence[FloatArray], ws: Workspace,
-                     cfg: PairConfig = DEFAULT_PAIRS) -> list[PairView]:
+                     cfg: PairConfig = DEFAULT_PAIRS,
+                     sigmas: Mapping[str, Mapping[str, float]] | None = None
+                     ) -> list[PairView]:
     """Pair views of parts whose poses an input gives directly (a registration's): for every
     camera (world -> camera, metres) and labelled pair, the truth of the view from the parts'
     true poses and, per input of ``posed`` (part id -> pose), the CAD samples of each part at
     the input's pose (points, the evidence's samples with their faces' exact normals, the
     solids' centroids), world metres. A pair whose two parts an input has no pose for lacks
-    that input; a view without any input for the pair gives none."""
+    that input; a view without any input for the pair gives none. ``sigmas``: per input, each
+    pose's shift uncertainty (part id -> mm); a pair of that input is read within the two
+    combined (``PairView.slack``), and a pose without a finite one at the CAD's tolerances."""
     scale = 1e-3
     placed = {pid: PosedPart(pid, {"pose_mm": pose}, ws, scale, cfg.n_points,
                               cfg.evidence_points) for pid, pose in known.truth.items()}
@@ -402,15 +411,27 @@ def posed_pair_views(known: PosedScene, posed: Mapping[str, Mapping[str, FloatAr
             rr = relate(placed[a].features, placed[b].features, w2c[2, :3], cfg.tolerances,
                         known.contacts.get((a, b), NO_CONTACT), cfg.margins)
             points, evidence, centres = {}, {}, {}
+            slacks: dict[str, float] = {}
             for name, parts in inputs.items():
                 if a in parts and b in parts:
                     pa, pb = parts[a], parts[b]
                     points[name] = np.stack([pa.truth, pb.truth])
                     evidence[name] = (pa.dense, pb.dense)
                     centres[name] = np.stack([pa.centre, pb.centre])
+                    slacks |= _slack(sigmas or {}, name, a, b)
             if points:
                 out.append(PairView(known.scene, view, a, b, pair_category(
                     known.categories.get(a, "?"), known.categories.get(b, "?")),
                     np.array(rr.truth, dtype=bool), rr.near_boundary(), np.asarray(w2c),
-                    scale, points, np.array(rr.near, dtype=bool), evidence, centres))
+                    scale, points, np.array(rr.near, dtype=bool), evidence, centres, slacks))
     return out
+
+
+def _slack(sigmas: Mapping[str, Mapping[str, float]], name: str, a: str, b: str
+           ) -> dict[str, float]:
+    """The pair's slack in input ``name``: its two poses' shift sigmas combined; none where the
+    input has no sigmas, 0 where either is not finite (the CAD's tolerances)."""
+    if name not in sigmas:
+        return {}
+    pair = [sigmas[name].get(p, 0.0) for p in (a, b)]
+    return {name: math.hypot(*pair) if all(map(math.isfinite, pair)) else 0.0}

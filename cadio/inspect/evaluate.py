@@ -191,7 +191,8 @@ def _score(model: Any, variant: Variant, path: Path, found: Sequence[Inspected],
         tables["found"] += [{**base, "index": f.index, "part_id": names[f.index],
                              "segment": f.segment, "fitness": f.fit.fitness,
                              "coverage": f.fit.coverage, "rmse_mm": f.fit.rmse_mm,
-                             "pose": f.fit.pose.ravel().tolist()} for f in inspected.found]
+                             "sigma_mm": f.sigma_mm, "pose": f.fit.pose.ravel().tolist()}
+                            for f in inspected.found]
 
 
 def _deviation(model: Any, path: Path, inspected: Inspected, out: Path,

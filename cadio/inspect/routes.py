@@ -16,6 +16,7 @@ Everything is millimetres, world frame; a part is known by its index in the asse
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field, replace
 
@@ -309,11 +310,13 @@ def _uncertainty(part: PartSurface, fit: Fit, cfg: RouteConfig, views: int
 @dataclass(frozen=True)
 class Found:
     """A segment registered by the search route: its instance, the part index it was given,
-    the shape, the fit, and the fits of the other shapes tried (their part names)."""
+    its fit, and the standard deviation of its pose's shift in the least held observable
+    direction (``PoseUncertainty.shift_sigma_mm``; inf where the fit holds no inliers)."""
 
     segment: int
     index: int
     fit: Fit
+    sigma_mm: float = math.inf
 
 
 def by_search(model: AssemblyModel, scan: Scan, cfg: RouteConfig = RouteConfig()
@@ -335,7 +338,9 @@ def by_search(model: AssemblyModel, scan: Scan, cfg: RouteConfig = RouteConfig()
             best = best_shape(candidates, points, scan, cfg)
             if best is not None:
                 by_segment[segment] = best
-    return name_parts(model, by_segment)
+    return [replace(f, sigma_mm=_uncertainty(model.parts[f.index], f.fit, cfg,
+                                             len(scan.cameras)).shift_sigma_mm())
+            for f in name_parts(model, by_segment)]
 
 
 def best_shape(candidates: Sequence[tuple[str, PartSurface]], points: FloatArray, scan: Scan,

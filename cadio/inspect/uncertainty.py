@@ -50,6 +50,15 @@ class PoseUncertainty:
                 return math.inf
         return math.sqrt(max(float(d @ self.covariance @ d), 0.0))
 
+    def shift_sigma_mm(self) -> float:
+        """The standard deviation of the part's shift in its least held observable direction
+        (an upper bound on any one direction's); inf where the covariance is not finite (a fit
+        without inliers)."""
+        shift = self.covariance[3:, 3:]
+        if not np.all(np.isfinite(shift)):
+            return math.inf
+        return math.sqrt(max(float(np.linalg.eigvalsh(shift).max()), 0.0))
+
     def _scale(self, d: FloatArray) -> FloatArray:
         out: FloatArray = d * np.array([1 / self.radius_mm] * 3 + [1.0] * 3)
         return out

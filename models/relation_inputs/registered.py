@@ -3,7 +3,10 @@
 The as-built route's input (``cadio.inspect``): each part of an inspection capture registered
 from the scan alone (the search route: no design pose reaches it), then read like ``truth``:
 its CAD samples with their faces' exact normals at the registered pose, decided by the
-``truth`` networks and the exact tests. Its pair views come from the inspection stage
+``truth`` networks and the exact tests, each pair's evidence read within its two poses'
+uncertainty (their shift sigmas combined; ``models.geometric.within_pose``): the CAD's 0.1 mm
+asks more than a pose registered in a D435's depth can say. ``registered_cad`` reads the same
+poses at the CAD's tolerances. Its pair views come from the inspection stage
 (``cadio.evidence.pairs.posed_pair_views``), never from a night's other captures.
 """
 
@@ -26,5 +29,5 @@ def builder(capture: Path, ws: Workspace, ctx: InputContext) -> InputBuilder | N
 
 REGISTERED = INPUTS.register(RelationInput(
     "registered", "the CAD's surface samples at the poses found in the scan, without the "
-    "design", 3, __name__, builder, role=Role.BASELINE, exact=True, networks="truth",
-    trained=False))
+    "design, read within the poses' uncertainty", 3, __name__, builder, role=Role.BASELINE,
+    exact=True, networks="truth", trained=False))
