@@ -336,7 +336,7 @@ def test_a_recording_in_an_assembly_s_folder_is_inspected_against_it(
     assert (caught.query("method == 'design'")["rate"] == 0).all()  # the design pose leaks none
     assert caught.query("method == 'registered'")["rate"].gt(0).any()  # and the scan some
     f1 = pd.read_csv(first / "registered_mates.csv")
-    assert {"registered", "truth"} <= set(f1["input"])
+    assert {"registered", "registered_cad", "truth"} <= set(f1["input"])
     # the workspace knows the assembly now: record it as built
     model = assembly_model(name, Workspace(tmp_path / "ws"))
     poses = dict(enumerate(model.design))

@@ -138,10 +138,13 @@ def test_the_search_route_never_reads_the_design_poses(ws: Workspace,
     assert [(f.segment, f.index) for f in found] == [(f.segment, f.index) for f in again]
     for a, b in zip(found, again, strict=True):
         np.testing.assert_array_equal(a.fit.pose, b.fit.pose)
+        assert a.sigma_mm == b.sigma_mm  # the uncertainty the relations read it within too
     truth = read_truth(ws, path.stem)
     errors = [pose_error(f.fit.pose, np.array(truth["poses"][str(f.index)]),
                          model.symmetries[f.index]) for f in found]
     assert len(found) >= 3 and np.median([mm for mm, _ in errors]) < 0.5
+    sigmas = [f.sigma_mm for f in found]  # noise-free: tight where the part is well seen
+    assert all(0 < s < np.inf for s in sigmas) and np.median(sigmas) < 0.05
 
 
 def test_an_assembly_s_inspection_rows(ws: Workspace) -> None:
@@ -159,3 +162,35 @@ def test_an_assembly_s_inspection_rows(ws: Workspace) -> None:
     intact = intact[(intact["variant"] == "intact") & (intact["method"] == REGISTERED)]
     assert not intact["flagged"].any()
     assert set(tables["poses"]["views"]) == {"all", "0"}
+
+
+def test_registered_pairs_are_read_within_their_poses_uncertainty(ws: Workspace) -> None:
+    """A part registered 0.4 mm off its coincident mate: within poses of 0.3 mm sigma each the
+    mate holds (``registered``); at the CAD's 0.1 mm it does not (``registered_cad``)."""
+    from cadio.camera.render import CaptureConfig, camera_pose
+    from cadio.evidence.pairs import PosedScene, posed_pair_views
+    from cadio.inspect.stage import part_ids
+    from cadio.truth.relations import RELATIONS, contacts_of_mates
+    from models.relate import assembly_pairs, load_relation_models, relate_views
+
+    mates = _mates(ws)
+    mate = mates[(mates["level"] == "face") & (mates["relation"] == "coincident")].iloc[0]
+    ids = part_ids(ASSEMBLY, ws)
+    truth = {pid: np.eye(4) for pid in ids}
+    moved = {**truth, ids[int(mate["index_b"])]: np.eye(4)}
+    moved[ids[int(mate["index_b"])]][:3, 3] = 0.4 * np.asarray(mate["axis"], dtype=float)
+    known = PosedScene(ASSEMBLY, truth, list(assembly_pairs(mates)),
+                       dict.fromkeys(ids, "assemblies"), contacts_of_mates(
+                           mates.to_dict("records"), mates.attrs.get("near_boundary", [])))
+    camera = camera_pose(CaptureConfig(distance_m=0.6), 0, np.zeros(3))
+    views = posed_pair_views(known, {"registered": moved, "registered_cad": moved,
+                                     "truth": truth}, [camera], ws,
+                             sigmas={"registered": dict.fromkeys(ids, 0.3)})
+    pair = {ids[int(mate["index_a"])], ids[int(mate["index_b"])]}
+    view = next(v for v in views if {v.part_a, v.part_b} == pair)
+    assert view.slack == {"registered": pytest.approx(0.3 * np.sqrt(2))}
+    rows = pd.DataFrame(relate_views([view], load_relation_models(), ["geometric"]))
+    coincident = rows[rows["relation"] == "coincident"].set_index("input")["predicted"]
+    assert view.labels[RELATIONS.index("coincident")]
+    assert coincident.to_dict() == {"truth": True, "registered": True,
+                                    "registered_cad": False}

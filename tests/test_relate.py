@@ -242,3 +242,18 @@ def test_a_relation_worker_that_dies_fails_its_captures_not_the_night(ws: Worksp
     assert batch.rows == 0 and not (tmp_path / "rows.parquet").exists()
     assert [f.split(":")[0] for f in batch.failed] == [c.name for c in captures]
     assert all("relation worker" in f and "time" in f for f in batch.failed)
+
+
+def test_evidence_within_a_pose_s_uncertainty_reads_its_lengths_less_the_slack() -> None:
+    from cadio.evidence.pair_features import FAR_MM, PAIR_FEATURES
+    from models.geometric import POSE_LENGTHS, within_pose
+
+    col = {n: PAIR_FEATURES.index(n) for n in PAIR_FEATURES}
+    raw = np.full((3, len(PAIR_FEATURES)), 2.0, dtype=np.float32)
+    raw[:, col["face_offset_mm"]] = (0.4, 3.0, FAR_MM)  # the third pair: no face pair found
+    out = within_pose(raw, [0.5, 1.0, 1.0])
+    assert out[:, col["face_offset_mm"]].tolist() == [0.0, 2.0, FAR_MM]
+    assert out[:, col["gap_mm"]].tolist() == [1.5, 1.0, 1.0]
+    others = [i for n, i in col.items() if n not in POSE_LENGTHS]
+    np.testing.assert_array_equal(out[:, others], raw[:, others])  # radii, angles: as measured
+    np.testing.assert_array_equal(within_pose(raw, np.zeros(3)), raw)
