@@ -129,6 +129,9 @@ class InspectionOptions(_Group):
     distance_m: float = Field(default=0.6, ge=0.28, le=3.0, description="camera distance, "
                               "metres (a D435's working range; farther where an assembly "
                               "needs it to fit the view)")
+    near_m: float = Field(default=0.0, ge=0.0, le=3.0, description="a second ring of as many "
+                          "views this near, metres (the robot moving the camera in on the "
+                          "assembly's middle; 0: none; a D435 measures from 0.28)")
     noise: bool = Field(default=True, description="the inspection camera's sensor model (a "
                         "D435: noise growing with depth, millimetre steps, holes)")
     defects: bool = Field(default=True, description="also plant defects (parts shifted 1, 2 "
@@ -139,6 +142,13 @@ class InspectionOptions(_Group):
     search: bool = Field(default=True, description="register each part without the design "
                          "too (the registered relations and their F1 against the CAD's mates)")
     seed: int = Field(default=0, ge=0, le=2**32 - 1, description="seed of the planted defects")
+
+    @field_validator("near_m")
+    @classmethod
+    def _near(cls, value: float) -> float:
+        if 0 < value < 0.28:
+            raise ValueError(f"must be 0 (no near views) or 0.28 to 3 metres, got {value}")
+        return value
 
 
 class ThresholdOptions(_Group):
