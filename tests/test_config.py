@@ -59,6 +59,7 @@ def test_the_flows_take_the_one_object() -> None:
     ({"capture": {"views": 2}}, "capture.views", "Extra inputs are not permitted"),
     ({"tolerances": {"contact_mm": -1}}, "tolerances", "contact_mm=-1"),
     ({"thresholds": {"history": "a week"}}, "thresholds.history", "valid integer"),
+    ({"inspection": {"near_m": 0.1}}, "inspection.near_m", "0 (no near views) or 0.28 to 3"),
 ])
 def test_a_bad_value_is_named_by_its_field(values: dict[str, Any], field: str,
                                            reason: str) -> None:

@@ -79,6 +79,22 @@ def test_a_capture_for_inspection_carries_no_scene_and_no_part_names(
     assert 0.45 < float(np.median(depth)) < 0.75
 
 
+def test_near_views_follow_the_views_around_at_their_own_distance(
+        ws: Workspace, model: AssemblyModel) -> None:
+    near = replace(QUIET, near_m=0.3)
+    path = capture_variant(model, Variant(ASSEMBLY, "intact"), ws, near)
+    frames = list(read_capture(path))
+    assert len(frames) == 2 * QUIET.views and len({f.timestamp_ns for f in frames}) == 4
+    eyes = [np.linalg.inv(f.world_to_camera)[:3, 3] for f in frames]
+    around, nearer = eyes[:QUIET.views], eyes[QUIET.views:]
+    for far, close in zip(around, nearer, strict=True):  # the same turn, twice as near
+        centre = far - (far - close) * 0.6 / 0.3
+        assert np.linalg.norm(far - centre) == pytest.approx(0.6, rel=1e-6)
+        assert np.linalg.norm(close - centre) == pytest.approx(0.3, rel=1e-6)
+    depth = frames[-1].depth[np.isfinite(frames[-1].depth) & (frames[-1].depth > 0)]
+    assert 0.2 < float(np.median(depth)) < 0.4
+
+
 def test_noise_free_the_design_route_places_every_seen_part_exactly(
         ws: Workspace, model: AssemblyModel) -> None:
     path = capture_variant(model, Variant(ASSEMBLY, "intact"), ws, QUIET)
