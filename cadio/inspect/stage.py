@@ -70,7 +70,8 @@ class InspectConfig:
     # default: on the held-out assemblies at 0.3 m (all views) the parts' pose error fell
     # from 0.69 to 0.17 mm (median) and 2 mm shifts were caught 8 of 8 times (5 of 8), but
     # nuts seen at 14% of their surface were flagged on the intact flange (false alarms 5 of
-    # 58 parts, 0 of 45 without) and the stage took 2.4 times as long.
+    # 58 parts, 0 of 45 without) and the stage took twice as long
+    # (``bench/studies/near_views.py``).
     near_m: float | None = None
     noise: bool = True  # the D435 model (``cadio.camera.noise.D435``)
     single_view: int | None = 0  # this view is also inspected alone (None: all views only)
