@@ -43,7 +43,8 @@ from cadio.workspace import Workspace, read_mesh
 # turns where a feature match fits halved it again but cost 0.05 IoU on the held-out night
 # (0.816 against 0.865; pair scenes' single views 0.812 against 0.902).
 COMPLETION_ROUTE = RouteConfig(register=RegisterConfig(
-    fine_mm=1.5, keep=1, hypotheses=1, max_hypotheses=2, coarse_points=150, orientations=24))
+    fine_mm=1.5, keep=1, hypotheses=1, max_hypotheses=2, coarse_points=150, orientations=24),
+    alike_window=0.0)
 
 
 @dataclass(frozen=True, eq=False)

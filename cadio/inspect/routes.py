@@ -101,6 +101,11 @@ class RouteConfig:
     # share of its visible CAD the depth does not contradict) ends the search.
     extent_slack_mm: float = 3.0
     good_fit: tuple[float, float] = (0.9, 0.9)
+    # ...except that a segment smaller than ``alike_below_mm`` is tried on every shape up to
+    # ``alike_window`` times its extent first: a nut and a bolt's end, a ball and a roller of
+    # one size all fit a small segment well, and the first is not the likeliest.
+    alike_window: float = 1.5
+    alike_below_mm: float = 40.0
     correlated_points: float = 16.0  # ``uncertainty.pose_uncertainty``
     # A fit to several views errs more than its Hessian says: each view's correlated errors
     # (and its camera's pose) stay whole however many points it gives, so the views do not
@@ -347,20 +352,24 @@ def best_shape(candidates: Sequence[tuple[str, PartSurface]], points: FloatArray
                cfg: RouteConfig) -> tuple[str, Fit] | None:
     """The candidate shape (a key and a surface of it) that fits a segment best, found without
     any prior pose. Shapes the segment could be (no smaller than its extent) are tried nearest
-    its size first, and the search stops at a good fit: a part many times the segment's size
-    would have to hide nearly all of itself to show only it."""
+    its size first, and the search stops at a good fit (past the shapes a small segment is
+    tried on: ``RouteConfig.alike_window``): a part many times the segment's size would have to
+    hide nearly all of itself to show only it."""
     extent = _extent(points)
     fitting = sorted((c for c in candidates if extent <= c[1].diameter + cfg.extent_slack_mm),
                      key=lambda c: c[1].diameter)
     fitness, coverage = cfg.good_fit
+    alike = cfg.alike_window * extent + cfg.extent_slack_mm if extent < cfg.alike_below_mm \
+        else 0.0
     best: tuple[str, Fit] | None = None
     for shape, surface in fitting:
+        if best is not None and best[1].fitness >= fitness and best[1].consistent >= coverage \
+                and surface.diameter > alike:
+            break
         fit = global_search(surface, points, scan.cameras, cfg.register,
                             lambda seen: consistency(seen, scan))[0]
         if best is None or fit.rank() > best[1].rank():
             best = (shape, fit)
-        if best[1].fitness >= fitness and best[1].consistent >= coverage:
-            break
     return best
 
 

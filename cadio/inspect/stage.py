@@ -73,6 +73,10 @@ class InspectConfig:
     # 58 parts, 0 of 45 without) and the stage took twice as long
     # (``bench/studies/near_views.py``).
     near_m: float | None = None
+    # The intact capture's near ring for the search route alone (None: none), whose relations
+    # are scored against the CAD's mates; the design route's checks read the ring around, so
+    # that the near ring's false alarms (above) do not reach them.
+    search_near_m: float | None = 0.3
     noise: bool = True  # the D435 model (``cadio.camera.noise.D435``)
     single_view: int | None = 0  # this view is also inspected alone (None: all views only)
     defects: DefectPlan = field(default_factory=DefectPlan)
@@ -98,15 +102,21 @@ class InspectConfig:
                              distance_m=max(self.distance_m, needed), n_views=self.views,
                              step_deg=step)
 
-    def rings(self, extent_mm: float) -> list[tuple[CaptureConfig, range]]:
+    def rings(self, extent_mm: float, near_m: float | None) -> list[tuple[CaptureConfig, range]]:
         """The capture's cameras: the ring that frames the assembly (views 0 to ``views`` -
-        1), then the near ring (``near_m``) at the same turns, its views numbered after them
-        (so that its frames, stamps and noise draws are its own)."""
+        1), then a near ring (``near_m``; None: none) at the same turns, its views numbered
+        after them (so that its frames, stamps and noise draws are its own)."""
         far = self.camera(extent_mm)
         out = [(far, range(self.views))]
-        if self.near_m:
-            out.append((replace(far, distance_m=self.near_m), range(self.views, 2 * self.views)))
+        if near_m:
+            out.append((replace(far, distance_m=near_m), range(self.views, 2 * self.views)))
         return out
+
+    def near_of(self, variant: str) -> float | None:
+        """The near ring of a capture: ``near_m``, or the intact one's for the search."""
+        if self.near_m:
+            return self.near_m
+        return self.search_near_m if self.search and variant == "intact" else None
 
 
 def assembly_model(assembly: str, ws: Workspace) -> AssemblyModel:
@@ -213,7 +223,7 @@ def capture_variant(model: AssemblyModel, variant: Variant, ws: Workspace,
     where every part stands to ``inspect/<name>.json``, for the scores alone."""
     name = capture_name(variant)
     poses = variant.poses(model.design, [p.centre for p in model.parts])
-    path = record(model, poses, ws.capture(name), cfg)
+    path = record(model, poses, ws.capture(name), cfg, near_m=cfg.near_of(variant.name))
     truth = {"assembly": model.name, "variant": variant.name,
              "defects": [asdict(d) for d in variant.defects],
              "instances": {str(i + 1): i for i in sorted(poses)},
@@ -226,18 +236,19 @@ def capture_variant(model: AssemblyModel, variant: Variant, ws: Workspace,
 
 
 def record(model: AssemblyModel, poses: dict[int, FloatArray], path: Path, cfg: InspectConfig,
-           instance_ids: bool = True) -> Path:
+           instance_ids: bool = True, near_m: float | None = None) -> Path:
     """Render the parts at ``poses`` (part -> assembly, mm) on a table, as the inspection
-    camera sees them, into an MCAP file: frames and cameras, and the renderer's instance ids
-    where ``instance_ids`` (as a simulation's masks); never a scene description or a part's
-    name. Without ids it is a recording as a RealSense driver writes one."""
+    camera sees them (and a near ring at ``near_m``), into an MCAP file: frames and cameras,
+    and the renderer's instance ids where ``instance_ids`` (as a simulation's masks); never a
+    scene description or a part's name. Without ids it is a recording as a RealSense driver
+    writes one."""
     parts = [PlacedPart(instance_id=i + 1, mesh=model.parts[i].mesh, pose=pose,
                         colour="#b4b4b4", part_id=model.parts[i].part_id, label=str(i))
              for i, pose in sorted(poses.items())]
     # the sensor publishes millimetre steps (16UC1), as a D435's driver does; without the
     # sensor model the exact depth is written (32FC1 metres), or the steps would be its error
     with CaptureWriter(path, depth_encoding=DEPTH_MM if cfg.noise else DEPTH_M) as writer:
-        for capture, views in cfg.rings(_extent(model)):
+        for capture, views in cfg.rings(_extent(model), near_m):
             for frame in render_views(parts, capture, views):
                 writer.write_frame(frame if instance_ids else replace(frame, instance=None))
     return path
@@ -278,13 +289,18 @@ def inspect_capture(model: AssemblyModel, path: Path, mates: pd.DataFrame, cfg: 
 
     frames = list(read_capture(path))
     whole = scan_of(frames)
-    sets = [(ALL_VIEWS, whole)]
+    # (scan for the design route, scan for the search): a capture's near ring taken for the
+    # search alone (``InspectConfig.search_near_m``) is not the design route's
+    checked = whole if cfg.near_m or len(frames) <= cfg.views else \
+        whole.of_views(list(range(cfg.views)))
+    sets = [(ALL_VIEWS, checked, whole)]
     if cfg.single_view is not None and cfg.single_view < len(frames):
-        sets.append((str(cfg.single_view), whole.of_views([cfg.single_view])))
+        one = whole.of_views([cfg.single_view])
+        sets.append((str(cfg.single_view), one, one))
     rows = mates.to_dict("records")
     limits = Limits.of(cfg.tolerances)
     out = []
-    for views, scan in sets:
+    for views, scan, searched in sets:
         clock = time.perf_counter()
         nominal, parts, fits = by_design(model, scan, cfg.route, fixture)
         design_s = time.perf_counter() - clock
@@ -297,8 +313,8 @@ def inspect_capture(model: AssemblyModel, path: Path, mates: pd.DataFrame, cfg: 
         baseline = assembly_as_built(rows, baseline_parts, dict(enumerate(model.design)), limits)
         found: list[Found] = []
         clock = time.perf_counter()
-        if search and scan.segments:
-            found = by_search(model, scan, cfg.route)
+        if search and searched.segments:
+            found = by_search(model, searched, cfg.route)
         out.append(Inspected(path.stem, views, nominal, parts, mates_built, baseline, found,
                              {"design": design_s, "search": time.perf_counter() - clock},
                              fits))
