@@ -38,8 +38,8 @@ NIGHT_FLAGS = {
     # the inspection's knobs by their group's name (its noise and seed are not the capture's)
     "inspection.enabled": "--inspection",
     **{f"inspection.{name}": f"--inspection-{name.replace('_', '-')}" for name in (
-        "views", "distance_m", "near_m", "noise", "defects", "parts_per_defect", "search",
-        "seed")},
+        "views", "distance_m", "near_m", "search_near_m", "noise", "defects",
+        "parts_per_defect", "search", "seed")},
 }
 # Fields a command sets from somewhere else than a flag of their own.
 TOLERANCES = "tolerances"  # --tol and --tolerances

@@ -132,6 +132,9 @@ class InspectionOptions(_Group):
     near_m: float = Field(default=0.0, ge=0.0, le=3.0, description="a second ring of as many "
                           "views this near, metres (the robot moving the camera in on the "
                           "assembly's middle; 0: none; a D435 measures from 0.28)")
+    search_near_m: float = Field(default=0.3, ge=0.0, le=3.0, description="the intact "
+                                 "capture's near ring, metres, read by the search route alone "
+                                 "(the registered relations; 0: none)")
     noise: bool = Field(default=True, description="the inspection camera's sensor model (a "
                         "D435: noise growing with depth, millimetre steps, holes)")
     defects: bool = Field(default=True, description="also plant defects (parts shifted 1, 2 "
@@ -143,7 +146,7 @@ class InspectionOptions(_Group):
                          "too (the registered relations and their F1 against the CAD's mates)")
     seed: int = Field(default=0, ge=0, le=2**32 - 1, description="seed of the planted defects")
 
-    @field_validator("near_m")
+    @field_validator("near_m", "search_near_m")
     @classmethod
     def _near(cls, value: float) -> float:
         if 0 < value < 0.28:

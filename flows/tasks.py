@@ -543,8 +543,9 @@ def inspect_config(options: InspectionOptions, tolerances: Tolerances) -> Inspec
     plan = DefectPlan(parts_per_variant=options.parts_per_defect, seed=options.seed) \
         if options.defects else DefectPlan(shifts_mm=(), turns_deg=(), missing=False)
     return InspectConfig(views=options.views, distance_m=options.distance_m,
-                         near_m=options.near_m or None, noise=options.noise, defects=plan,
-                         search=options.search, tolerances=tolerances)
+                         near_m=options.near_m or None,
+                         search_near_m=options.search_near_m or None, noise=options.noise,
+                         defects=plan, search=options.search, tolerances=tolerances)
 
 
 @task(name="inspect", **_CACHED)

@@ -210,3 +210,26 @@ def test_registered_pairs_are_read_within_their_poses_uncertainty(ws: Workspace)
     assert view.labels[RELATIONS.index("coincident")]
     assert coincident.to_dict() == {"truth": True, "registered": True,
                                     "registered_cad": False}
+
+
+def test_the_search_s_near_ring_reaches_the_search_alone(ws: Workspace,
+                                                         model: AssemblyModel) -> None:
+    """The intact capture gains a near ring for the search route; the design route's checks
+    read the ring around as they would without it, and the planted variants have none."""
+    searched = replace(QUIET, search=True, search_near_m=0.3)
+    intact = Variant(ASSEMBLY, "intact")
+    path = capture_variant(model, intact, ws, searched)
+    assert len(list(read_capture(path))) == 2 * QUIET.views
+    with_ring = inspect_capture(model, path, _mates(ws), searched, search=True,
+                                fixture=np.eye(4))[0]
+    assert with_ring.found  # the search read the scan
+    path = capture_variant(model, intact, ws, replace(searched, search_near_m=None))
+    assert len(list(read_capture(path))) == QUIET.views
+    without = inspect_capture(model, path, _mates(ws), searched, fixture=np.eye(4))[0]
+    for i, part in without.parts.items():
+        if part.pose is None:
+            assert with_ring.parts[i].pose is None
+        else:
+            np.testing.assert_allclose(with_ring.parts[i].pose, part.pose, atol=1e-9)
+    moved = Variant(ASSEMBLY, "shift-5mm", (Defect(0, "shift", 5.0, (1.0, 0.0, 0.0)),))
+    assert len(list(read_capture(capture_variant(model, moved, ws, searched)))) == QUIET.views

@@ -7,8 +7,9 @@ assembly needs it to fit, a few views around it, and as many again nearer where 
 ``captures/inspect-<assembly>-<variant>.mcap``: frames, cameras and instance ids only, never
 the parts' names or poses, which go to ``inspect/<capture>.json`` for the scores alone. Each
 capture is then inspected as a recording would be (``routes.by_design`` on all its views and
-on one view alone), and the intact one also by ``routes.by_search``, whose poses the
-relations of the ``registered`` input read. The results are plain records;
+on one view alone), and the intact one also by ``routes.by_search`` (with a second ring of
+views at 0.3 m that the intact capture holds for it alone), whose poses the relations of the
+``registered`` input read. The results are plain records;
 ``cadio.inspect.evaluate`` turns them into rows.
 """
 
