@@ -384,11 +384,25 @@ def relate_inspection_job(job: RelateInspectionJob) -> pd.DataFrame:
                              load_relation_models(Path(job.relations_models)))
 
 
+def _scored(found: pd.DataFrame) -> pd.DataFrame:
+    """The search's segments as their relations are scored: each as the part the inspection
+    scored it as (``cadio.inspect.stage.scored_as``: its own part where that is of the shape
+    it was registered as; copies of a shape are interchangeable), at its pose read as that
+    part's; tables without those columns as named."""
+    if "scored_index" not in found.columns:
+        return found
+    out = found[found["scored_index"].astype(int) >= 0].copy()
+    out["index"] = out["scored_index"].astype(int)
+    out["pose"] = out["scored_pose"]
+    return out
+
+
 def relate_inspection(folder: Path, ws: Workspace, models: RelationModels,
                       cfg: PairConfig = DEFAULT_PAIRS) -> pd.DataFrame:
     """The relations of an inspected assembly's intact capture: every method on the
     ``registered`` input (the CAD at the poses the search route found without the design, each
-    pair read within its poses' uncertainty), on ``registered_cad`` (the same poses at the
+    pair read within its poses' uncertainty; copies of a shape scored as the part whose points
+    they registered: ``_scored``), on ``registered_cad`` (the same poses at the
     CAD's tolerances) and on ``truth`` (the CAD where the parts stood), on the same pair views,
     for each set of views the capture was inspected with (scene ``<capture>`` for all views,
     ``<capture>@<view>`` for one alone). Rows of ``reports.relations.PAIR_COLUMNS``."""
@@ -417,7 +431,8 @@ def relate_inspection(folder: Path, ws: Workspace, models: RelationModels,
             dict(zip(catalog["part_id"].astype(str), catalog["category"].astype(str),
                      strict=True)),
             contacts_of_mates(mates.to_dict("records"), mates.attrs.get("near_boundary", [])))
-        mine = group[group["index"].astype(int).isin(ids)]
+        scored = _scored(group)
+        mine = scored[scored["index"].astype(int).isin(ids)]
         registered = {ids[int(r.index)]: np.array(r.pose).reshape(4, 4)
                       for r in mine.itertuples()}
         sigmas = dict(zip([ids[int(i)] for i in mine["index"]],

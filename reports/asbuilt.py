@@ -119,15 +119,18 @@ def summary_frame(tables: dict[str, pd.DataFrame]) -> pd.DataFrame:
 
 
 def pose_summary(poses: pd.DataFrame) -> pd.DataFrame:
-    """Per set of views and route: parts, median and 90th percentile of the pose errors."""
+    """Per set of views and route: parts, median and 90th percentile of the pose errors, and
+    the share of parts given their own name (the search names copies of a shape by where they
+    lie together: a ring of balls or a symmetric joint leaves which is which open)."""
     if poses.empty:
         return pd.DataFrame(columns=["views", "route", "n", "median_mm", "p90_mm",
-                                     "median_deg", "p90_deg"])
+                                     "median_deg", "p90_deg", "named"])
     g = poses.groupby(["views", "route"], sort=True)
     return pd.DataFrame({"n": g.size(),
                          "median_mm": g["error_mm"].median(), "p90_mm": g["error_mm"].quantile(0.9),
                          "median_deg": g["error_deg"].median(),
-                         "p90_deg": g["error_deg"].quantile(0.9)}).reset_index()
+                         "p90_deg": g["error_deg"].quantile(0.9),
+                         "named": g["named"].mean()}).reset_index()
 
 
 def registered_f1(relations: pd.DataFrame, shares: pd.DataFrame) -> pd.DataFrame:

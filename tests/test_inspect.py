@@ -240,3 +240,33 @@ def test_global_search_finds_a_part_without_any_prior_pose() -> None:
     best = global_search(surface, scan, cameras, RegisterConfig(seed=1))[0]
     mm, deg = pose_error(best.pose, truth, symmetry_of(surface.samples))
     assert mm < 0.2 and deg < 0.2, (mm, deg, best.seed)
+
+
+def test_copies_of_a_shape_are_scored_as_the_part_whose_points_they_registered() -> None:
+    """Three bolts and a plate: two bolt segments named each other's part are scored as their
+    own, each pose read as that part's; a plate's segment registered as a bolt keeps a bolt's
+    name (the one no segment of its own was scored as), its pose as that bolt's."""
+    from cadio.inspect.register import Fit
+    from cadio.inspect.routes import AssemblyModel, Found
+    from cadio.inspect.stage import scored_as
+
+    turn = np.eye(4)
+    turn[:3, :3] = [[0, -1, 0], [1, 0, 0], [0, 0, 1]]  # bolt 1's frame on bolt 0's
+    alike = (np.eye(4), turn, np.eye(4), np.eye(4))
+    model = AssemblyModel("toy", (), (), (), ("bolt", "bolt", "bolt", "plate"), alike)
+
+    def found(segment: int, index: int, x: float) -> Found:
+        pose = np.eye(4)
+        pose[:3, 3] = (x, 0.0, 0.0)
+        return Found(segment, index, Fit(model.as_part(index, pose), 1.0, 1.0, 0.1, 100,
+                                         np.eye(6), pose[:3, 3], 100))
+
+    segments = [found(10, 1, 5.0), found(11, 0, 7.0), found(12, 2, 9.0)]
+    truth = {"instances": {"10": 0, "11": 3, "12": 1}}
+    scored = scored_as(model, segments, truth)
+    assert {s: i for s, (i, _) in scored.items()} == {10: 0, 12: 1, 11: 2}
+    for segment, x in ((10, 5.0), (12, 9.0), (11, 7.0)):
+        index, pose = scored[segment]
+        first = np.eye(4)
+        first[:3, 3] = (x, 0.0, 0.0)
+        np.testing.assert_allclose(pose, model.as_part(index, first))

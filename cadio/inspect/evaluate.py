@@ -34,6 +34,7 @@ from cadio.inspect.stage import (
     inspect_capture,
     pose_rows,
     read_truth,
+    scored_as,
     shares,
     variants_of,
 )
@@ -188,11 +189,18 @@ def _score(model: Any, variant: Variant, path: Path, found: Sequence[Inspected],
                                                                               np.nan)})
         tables["shares"] += [{**base, "index": i, "part_id": names[i], "visible_share": v}
                              for i, v in sorted(seen.items())]
+        scored = scored_as(model, inspected.found, truth)
         tables["found"] += [{**base, "index": f.index, "part_id": names[f.index],
                              "segment": f.segment, "fitness": f.fit.fitness,
                              "coverage": f.fit.coverage, "rmse_mm": f.fit.rmse_mm,
-                             "sigma_mm": f.sigma_mm, "pose": f.fit.pose.ravel().tolist()}
+                             "sigma_mm": f.sigma_mm, "pose": f.fit.pose.ravel().tolist(),
+                             "scored_index": scored.get(f.segment, (-1, None))[0],
+                             "scored_pose": _ravel(scored.get(f.segment, (-1, None))[1])}
                             for f in inspected.found]
+
+
+def _ravel(pose: Any) -> list[float] | None:
+    return None if pose is None else [float(x) for x in np.asarray(pose).ravel()]
 
 
 def _deviation(model: Any, path: Path, inspected: Inspected, out: Path,

@@ -342,9 +342,7 @@ def pose_rows(model: AssemblyModel, inspected: Inspected, truth: dict[str, Any]
         if p.pose is not None]
     for f in inspected.found:
         true = made_by.get(f.segment, f.index)
-        as_first = f.fit.pose @ np.linalg.inv(model.alike[f.index]) if model.alike else \
-            f.fit.pose
-        found.append(("search", true, model.as_part(true, as_first), true == f.index))
+        found.append(("search", true, _read_as(model, f, true), true == f.index))
     rows = []
     for route, i, pose, named in found:
         if i not in poses:
@@ -355,6 +353,43 @@ def pose_rows(model: AssemblyModel, inspected: Inspected, truth: dict[str, Any]
                      "diameter_mm": model.parts[i].diameter, "error_mm": mm,
                      "error_deg": deg, "named": named})
     return rows
+
+
+def scored_as(model: AssemblyModel, found: Sequence[Found], truth: dict[str, Any]
+              ) -> dict[int, tuple[int, FloatArray]]:
+    """Per search segment, the part its relations are scored as and its pose read as that
+    part's. Copies of one shape look alike (which bolt of six, which ball of a ring, which of
+    two flanges of a symmetric joint): where the segment's own part (the capture's instance
+    masks) has the shape it was registered as, it is scored as that part, BOP's convention
+    for interchangeable instances; the names ``name_parts`` gives are scored on their own
+    (the poses' ``named``). A segment registered as another shape keeps its name (its pose is
+    wrong either way), or takes a part of its shape no segment was scored as."""
+    made_by = {int(k): int(v) for k, v in truth["instances"].items()}
+    out: dict[int, tuple[int, FloatArray]] = {}
+    taken: set[int] = set()
+    others = []
+    for f in found:
+        true = made_by.get(f.segment, -1)
+        if true >= 0 and model.shapes[true] == model.shapes[f.index]:
+            out[f.segment] = (true, _read_as(model, f, true))
+            taken.add(true)
+        else:
+            others.append(f)
+    for f in others:
+        free = [i for i, shape in enumerate(model.shapes)
+                if shape == model.shapes[f.index] and i not in taken]
+        if f.index not in taken or free:
+            index = f.index if f.index not in taken else free[0]
+            out[f.segment] = (index, _read_as(model, f, index))
+            taken.add(index)
+    return out
+
+
+def _read_as(model: AssemblyModel, found: Found, index: int) -> FloatArray:
+    """A search segment's pose read as part ``index``'s (a part of the shape it was named)."""
+    as_first = found.fit.pose @ np.linalg.inv(model.alike[found.index]) if model.alike else \
+        found.fit.pose
+    return model.as_part(index, as_first)
 
 
 def shares(model: AssemblyModel, path: Path, truth: dict[str, Any],

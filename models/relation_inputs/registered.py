@@ -5,9 +5,13 @@ from the scan alone (the search route: no design pose reaches it), then read lik
 its CAD samples with their faces' exact normals at the registered pose, decided by the
 ``truth`` networks and the exact tests, each pair's evidence read within its two poses'
 uncertainty (their shift sigmas combined; ``models.geometric.within_pose``): the CAD's 0.1 mm
-asks more than a pose registered in a D435's depth can say. ``registered_cad`` reads the same
-poses at the CAD's tolerances. Its pair views come from the inspection stage
-(``cadio.evidence.pairs.posed_pair_views``), never from a night's other captures.
+asks more than a pose registered in a D435's depth can say. Copies of a shape (which bolt of
+six, which ball of a ring) are scored as the part whose points they registered, as BOP scores
+interchangeable instances: which copy is which is left open by a symmetric assembly, and the
+names the search gives them are scored on their own (``inspect_pose_summary.csv``'s
+``named``). ``registered_cad`` reads the same poses at the CAD's tolerances. Its pair views
+come from the inspection stage (``cadio.evidence.pairs.posed_pair_views``), never from a
+night's other captures.
 """
 
 from __future__ import annotations
