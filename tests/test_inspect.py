@@ -270,3 +270,22 @@ def test_copies_of_a_shape_are_scored_as_the_part_whose_points_they_registered()
         first = np.eye(4)
         first[:3, 3] = (x, 0.0, 0.0)
         np.testing.assert_allclose(pose, model.as_part(index, first))
+
+
+def test_one_shape_however_it_is_turned_and_no_shape_by_small_steps() -> None:
+    """A washer laid flat and the same washer tilted in the assembly are one shape (their box
+    diagonals in the assembly's axes differ by more than the tolerance); boxes 35, 35.8,
+    36.6 and 37.4 mm long, each within a millimetre of the last, are two shapes."""
+    from cadio.inspect.routes import shape_keys
+    from cadio.records import apply_pose
+
+    washer = _cylinder_mesh(8.0, 3.0)
+    tilted = Mesh(apply_pose(_pose(40.0, (1.0, 1.0, 0.0), (50.0, 0.0, 0.0)), washer.vertices),
+                  washer.triangles)
+    flat, turned = part_surface("flat", washer), part_surface("tilted", tilted)
+    assert abs(flat.diameter - turned.diameter) > 1.0
+    none = Symmetry((0.0, 0.0, 0.0))
+    assert len(set(shape_keys([flat, turned], [none, none]))) == 1
+    boxes = [part_surface(f"box{k}", _box_mesh(35.0 + 0.8 * k, 10.0, 10.0)) for k in range(4)]
+    keys = shape_keys(boxes, [none] * 4)
+    assert keys[0] == keys[1] and keys[2] == keys[3] and keys[0] != keys[2]

@@ -484,32 +484,54 @@ def _rigid(pairs: Sequence[tuple[FloatArray, FloatArray]]) -> FloatArray:
 
 
 def size_signature(part: PartSurface) -> FloatArray:
-    """(4,) a part's diameter and the principal spreads of its surface samples (mm): parts
-    whose signatures agree within a tolerance are one shape to a camera."""
+    """(4,) a part's width and the principal spreads of its surface samples (mm), all alike
+    however the part is turned: parts whose signatures agree within a tolerance are one shape
+    to a camera. The width is the largest distance between two of its vertices (its
+    ``diameter``, a box diagonal in the assembly's axes, would tell a washer laid flat from
+    the same washer tilted)."""
     centred = part.samples - part.centre
     spreads = np.sqrt(np.maximum(np.linalg.eigvalsh(centred.T @ centred / len(centred)), 0))
-    return np.array([part.diameter, *spreads])
+    return np.array([width(part.mesh.vertices), *spreads])
+
+
+def width(vertices: FloatArray) -> float:
+    """The largest distance between two of the points (over their convex hull's corners)."""
+    from scipy.spatial import ConvexHull, QhullError
+    from scipy.spatial.distance import pdist
+
+    points = np.unique(np.asarray(vertices, dtype=np.float64), axis=0)
+    if len(points) < 2:
+        return 0.0
+    try:
+        points = points[ConvexHull(points).vertices]
+    except QhullError:  # flat or degenerate: every point is a candidate
+        pass
+    if len(points) > 4000:  # a hull of many corners: a seeded draw of them
+        points = points[np.random.default_rng(0).choice(len(points), 4000, replace=False)]
+    return float(pdist(points).max())
 
 
 def shape_keys(parts: Sequence[PartSurface], symmetries: Sequence[Symmetry],
                tolerance_mm: float = 1.0) -> tuple[str, ...]:
-    """Per part, the key of the parts a camera cannot tell apart from it: a diameter and
-    principal spreads (of its surface samples) within ``tolerance_mm`` of the first such
-    part's (about the sensor's noise at 0.6 m: a bolt 2 mm longer than its neighbours is the
-    same bolt to it; a plate and its mirror image are one plate). The key names that first
+    """Per part, the key of the parts a camera cannot tell apart from it: a width and
+    principal spreads (``size_signature``) within ``tolerance_mm`` of the first such part's
+    (about the sensor's noise at 0.6 m: a bolt 2 mm longer than its neighbours is the same
+    bolt to it; a plate and its mirror image are one plate), never of a later one's (a row of
+    parts each a little larger than the last is not one shape). The key names that first
     part, and its symmetry."""
     keys: list[str] = []
-    signatures: list[tuple[FloatArray, int, bool]] = []
+    first: list[tuple[str, FloatArray]] = []
     for part, symmetry in zip(parts, symmetries, strict=True):
-        signature = (size_signature(part), symmetry.order if symmetry.axis else 1,
-                     symmetry.flip is not None)
-        for key, (size, _, _) in zip(keys, signatures, strict=True):
-            if np.all(np.abs(size - signature[0]) <= tolerance_mm):
+        size = size_signature(part)
+        for key, other in first:
+            if np.all(np.abs(size - other) <= tolerance_mm):
                 keys.append(key)
                 break
         else:
-            keys.append(f"{part.part_id}:{signature[1]}:{signature[2]}")
-        signatures.append(signature)
+            key = f"{part.part_id}:{symmetry.order if symmetry.axis else 1}:" \
+                  f"{symmetry.flip is not None}"
+            first.append((key, size))
+            keys.append(key)
     return tuple(keys)
 
 
