@@ -176,7 +176,8 @@ def score_files(paths: Iterable[Path], models: CompletionModels,
                 split_of: Callable[[str], str], category_of: Callable[[str], str],
                 on_file: Callable[[str], None] | None = None,
                 cad: LibraryCad | None = None) -> Scores:
-    """Complete and score every example file; a file that cannot be read is a failure row.
+    """Complete and score every example file; a file that cannot be read or scored (an empty
+    truth grid, a network's error) is a failure row of its own, and the others are scored.
     ``cad``: the library's CAD of the examples' captures, for the methods that read it."""
     parts: list[dict[str, Any]] = []
     registration: list[dict[str, Any]] = []
@@ -184,15 +185,17 @@ def score_files(paths: Iterable[Path], models: CompletionModels,
     for path in paths:
         try:
             example = read_example(path)
-        except (OSError, ValueError, KeyError) as exc:
+            pid = str(example.meta["part_id"])
+            preds = complete(models, example, cad)
+            rows = score_example(example, preds, split_of(pid), category_of(pid))
+            if ours().name in preds and example.target is not None:
+                registration.append(asdict(register_completion(
+                    example, preds[ours().name], example.target.shape[0])))
+        except (OSError, ValueError, KeyError, RuntimeError) as exc:
+            log.warning("completion of %s: %s: %s", path, type(exc).__name__, exc)
             failed.append((str(path), f"{type(exc).__name__}: {exc}"))
             continue
-        pid = str(example.meta["part_id"])
-        preds = complete(models, example, cad)
-        parts += score_example(example, preds, split_of(pid), category_of(pid))
-        if ours().name in preds and example.target is not None:
-            row = register_completion(example, preds[ours().name], example.target.shape[0])
-            registration.append(asdict(row))
+        parts += rows
         if on_file is not None:
             on_file(str(path))
     return Scores(parts, registration, failed)

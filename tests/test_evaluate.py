@@ -103,6 +103,26 @@ def test_scores_cover_each_example_and_method_once(examples: list[Path], checkpo
     assert "missing.npz" in md.read_text()
 
 
+def test_an_example_that_cannot_be_scored_fails_alone(examples: list[Path], checkpoints: Path,
+                                                      tmp_path: Path) -> None:
+    """An example whose truth grid is empty (a part the cube holds no voxel of) is a failure
+    row naming its file; the examples beside it in the batch are scored."""
+    from dataclasses import replace
+
+    from cadio.capture.examples import read_example
+
+    empty = read_example(examples[0])
+    assert empty.target is not None
+    bad = tmp_path / "box-0" / "observed-9.npz"
+    write_example(bad, replace(empty, target=np.zeros_like(empty.target)), {"part_id": "box-0"})
+    scores = score_files([bad, examples[0], examples[2]], load_models(checkpoints),
+                         lambda pid: "test", lambda pid: "fasteners")
+    assert [path for path, _ in scores.failed] == [str(bad)]
+    assert "truth grid is empty" in scores.failed[0][1]
+    assert len({r["view_deg"] for r in scores.parts}) == 2  # both of the other views
+    assert len(scores.parts) == 2 * 5
+
+
 def test_a_perfect_completion_registers_with_no_residual(examples: list[Path]) -> None:
     from cadio.capture.examples import read_example
 
