@@ -82,7 +82,7 @@ from cadio.workspace import Workspace, atomic_path
 from flows.config import InspectionOptions
 from flows.logs import run_logger
 from models.completions import COMPLETIONS
-from models.evaluate import Scores, complete_isolated, part_inputs
+from models.evaluate import Scores, complete_isolated, folder_meta, part_inputs
 from models.relate import (
     RelateBatch,
     RelateInspectionJob,
@@ -186,12 +186,23 @@ def _models(folder: str) -> list[Path]:
     return sorted(Path(folder).glob("*.pt"))
 
 
-def _categories_digest(ws: Workspace) -> str:
+def _categories(ws: Workspace) -> dict[str, str]:
     """Part id -> category of the catalog (the scoring stages label rows with it)."""
     catalog = read_catalog(ws.catalog)
-    pairs = sorted(zip(catalog["part_id"].astype(str), catalog["category"].astype(str),
-                       strict=True))
-    return hashlib.sha256(json.dumps(pairs).encode()).hexdigest()
+    return dict(zip(catalog["part_id"].astype(str), catalog["category"].astype(str),
+                    strict=True))
+
+
+def _labels_of(categories: dict[str, str], folders: Iterable[Path]) -> list[tuple[str, str]]:
+    """The categories of the parts whose examples lie in ``folders`` (input folders of one
+    instance each): what a batch's rows are labelled with, and no other part's, so that a
+    part added to the library redoes no batch that does not hold it."""
+    parts = set()
+    for folder in folders:
+        meta = folder_meta(folder)
+        if meta is not None:
+            parts.add(str(meta["part_id"]))
+    return sorted((p, categories.get(p, "")) for p in parts)
 
 
 # ---------------------------------------------------------------- tasks: one call each
@@ -314,6 +325,24 @@ def batches(items: list[Any], size: int) -> list[list[Any]]:
     return [items[i:i + size] for i in range(0, len(items), size)]
 
 
+def stable_batches(items: list[Any], size: int, name: Any = str) -> list[list[Any]]:
+    """``items`` in consecutive lists of ``size`` on average, each ending at an item whose
+    ``name`` hashes to a cut (one in ``size``; at most ``3 * size`` items a list): where the
+    cuts fall follows the items themselves, not their count, so an item added to or removed
+    from a library changes its own list, not every later one (a cached batch stays a hit)."""
+    out: list[list[Any]] = []
+    current: list[Any] = []
+    for item in items:
+        current.append(item)
+        cut = int(hashlib.sha256(str(name(item)).encode()).hexdigest()[:12], 16) % size == 0
+        if cut or len(current) >= 3 * size:
+            out.append(current)
+            current = []
+    if current:
+        out.append(current)
+    return out
+
+
 def ingest_stage(library: str, run: Run, cfg: IngestConfig, batch_size: int,
                  categories: list[str] | None = None) -> str:
     """Every STEP file of the library (of ``categories`` only, when given) in batches of
@@ -396,7 +425,7 @@ def scene_futures(scenes: ScenesSummary, run: Run, cfg: ScanConfig,
     colours = dict(zip(*(read_catalog(ws.catalog)[c].astype(str) for c in ("part_id", "colour")),
                        strict=True))
     futures = []
-    for rows in batches(table.to_dict("records"), 10):
+    for rows in stable_batches(table.to_dict("records"), 10, lambda r: r["scene_id"]):
         ids = [str(r["scene_id"]) for r in rows]
         parts = sorted({str(r[c]) for r in rows for c in ("part_a", "part_b")})
         scored = None if plan is None else {i: plan[i] for i in ids if i in plan}
@@ -457,7 +486,7 @@ def alone_stage(part_ids: list[str], run: Run, cfg: ScanConfig) -> list[CaptureS
     colours = dict(zip(catalog["part_id"].astype(str), catalog["colour"].astype(str),
                        strict=True))
     futures = []
-    for b in batches(part_ids, ALONE_BATCH):
+    for b in stable_batches(part_ids, ALONE_BATCH):
         key = content_digest([ws.mesh(p) for p in b], parts=b, colours=[colours.get(p) for p in b],
                              cfg=cfg, epoch=run.epoch, version=CAPTURE_VERSION)
         present = _present(ws, [alone_id(p) for p in b])
@@ -472,13 +501,14 @@ def complete_stage(captured: list[CaptureSummary], run: Run, models_dir: str) ->
     ws = Workspace(Path(run.workspace))
     folders = part_inputs([ws.root / "inputs" / Path(c.path).stem for c in captured
                            if not c.error])
-    labels = _categories_digest(ws)
+    categories = _categories(ws)
     futures = []
-    for b in batches(folders, COMPLETION_BATCH):
+    for b in stable_batches(folders, COMPLETION_BATCH, lambda f: f"{f.parent.name}/{f.name}"):
         # the captures and the registration's code too: the registered completion reads them
         shown = sorted(p for p in {ws.capture(f.parent.name) for f in b} if p.is_file())
         key = content_digest([*_files_in(b), *shown, *_models(models_dir)], folders=b,
-                             labels=labels, epoch=run.epoch, version=COMPLETION_VERSION,
+                             labels=_labels_of(categories, b), epoch=run.epoch,
+                             version=COMPLETION_VERSION,
                              methods=COMPLETIONS.digest(), cad=inspection_digest())
         futures.append(complete_task.submit([str(f) for f in b], models_dir, run.workspace, key))
     return [f.result() for f in futures]
@@ -490,7 +520,8 @@ def relate_batches(paths: list[Path]) -> list[list[Path]]:
     every view), so assemblies batched together kept one task busy long after the others
     had finished, with a core idle."""
     whole = [p for p in paths if p.stem.startswith(ASSEMBLY_PREFIX)]
-    return [[p] for p in whole] + batches([p for p in paths if p not in whole], 10)
+    return [[p] for p in whole] + stable_batches([p for p in paths if p not in whole], 10,
+                                                 lambda p: p.stem)
 
 
 def relate_stage(captured: list[CaptureSummary], run: Run, relations_models: str,
@@ -500,10 +531,13 @@ def relate_stage(captured: list[CaptureSummary], run: Run, relations_models: str
     ws = Workspace(Path(run.workspace))
     paths = [Path(c.path) for c in captured
              if not c.error and c.path and not is_alone(c.scene_id)]  # a part alone: no pair
-    labels = _categories_digest(ws)
+    categories = _categories(ws)
     futures = []
     for b in relate_batches(paths):
-        inputs = _files_in([ws.root / "inputs" / p.stem for p in b])
+        folders = [ws.root / "inputs" / p.stem for p in b]
+        inputs = _files_in(folders)
+        labels = _labels_of(categories, [f for c in folders if c.is_dir()
+                                         for f in sorted(c.iterdir()) if f.is_dir()])
         mates = [ws.mates(p.stem[len(ASSEMBLY_PREFIX):]) for p in b
                  if p.stem.startswith(ASSEMBLY_PREFIX)]
         files = [*b, *inputs, *mates, *_models(relations_models), *_models(completion_models)]

@@ -211,13 +211,13 @@ def part_inputs(captures: Iterable[Path]) -> list[Path]:
     first: dict[tuple[str, str], Path] = {}
     for capture in sorted(c for c in captures if Path(c).is_dir()):
         for folder in sorted(p for p in Path(capture).iterdir() if p.is_dir()):
-            meta = _folder_meta(folder)
+            meta = folder_meta(folder)
             if meta is not None and not meta.get("input_only"):
                 first.setdefault((str(meta["part_id"]), context_of(meta)), folder)
     return [first[k] for k in sorted(first)]
 
 
-def _folder_meta(folder: Path) -> dict[str, Any] | None:
+def folder_meta(folder: Path) -> dict[str, Any] | None:
     """The meta of one example of an input folder (None when it holds none readable)."""
     for path in sorted(folder.glob("*-*.npz")):
         try:

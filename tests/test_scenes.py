@@ -145,6 +145,21 @@ def test_same_seed_same_scenes_other_seed_other(parts: list[ScenePart],
     assert other.pose_a.tolist() != scenes.pose_a.tolist()
 
 
+def test_a_part_added_changes_only_the_scenes_it_joins(parts: list[ScenePart],
+                                                      scenes: pd.DataFrame) -> None:
+    """A block added to the library (no axis: no concentric pool) joins a few pairs; every
+    other scene is drawn as before, poses and all, so the night's cache keeps its captures."""
+    block = scene_part("box-new", "brakes-clutches-couplings", bd.Box(30, 20, 10).wrapped)
+    again = generate_scenes([*parts, block], CFG).set_index("scene_id")
+    before = scenes.set_index("scene_id")
+    assert list(again.index) == list(before.index)
+    changed = [i for i in before.index if not again.loc[i].equals(before.loc[i])]
+    assert changed and all("box-new" in (again.loc[i, "part_a"], again.loc[i, "part_b"])
+                           for i in changed)
+    assert len(changed) <= 0.3 * len(before)
+    assert not [i for i in changed if again.loc[i, "intended"] == "concentric"]
+
+
 def test_splits_are_by_part(scenes: pd.DataFrame, parts: list[ScenePart]) -> None:
     split_of = assign_splits([p.part_id for p in parts], CFG.seed, CFG.val_fraction,
                              CFG.test_fraction)

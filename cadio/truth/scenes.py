@@ -20,8 +20,14 @@ Near-boundary pairs sit just inside or just outside a tolerance (the generator's
 any pair whose truth lies within the margins of a tolerance is flagged too.
 
 Parts, not pairs, are split into train/val/test (from a hash of the seed and the part id, so a
-part keeps its split when the catalog grows), and pairs only join parts of one split. The table
-written here (one row per scene, poses in mm) is what the capture stage renders.
+part keeps its split when the catalog grows), and pairs only join parts of one split. Each scene
+draws from a generator of its own, and a pair of two parts is the two that rank first under the
+scene's hash of their ids (``stable_pair``: a uniform draw), so a part added to the library
+changes the scenes it ranks first in, not every scene after it: the night's captures of the
+others stay in its cache. Concentric and clearance pairs are chosen among the pool's pairs
+that fit on one axis, with one generator for all of them: they are drawn again when a part
+that could be one joins. The table written here (one row per scene, poses in mm) is what the
+capture stage renders.
 """
 
 from __future__ import annotations
@@ -59,7 +65,6 @@ from cadio.truth.scene_poses import (
     directional,
     near_factor,
     parallel_or_perpendicular,
-    two,
 )
 from cadio.workspace import Workspace, atomic_write, read_features
 
@@ -201,9 +206,22 @@ def _relation_scenes(members: Sequence[ScenePart], offers: dict[str, Offers], sp
         if len(pool) < 2:  # a part beside itself would be one part to later stages
             unfit.append(relation.value)
             continue
-        rng = np.random.default_rng([cfg.seed, s, r])
-        rows += [_scene(pool, offers, relation, split, i, n, rng, cfg) for i in range(n)]
+        # a concentric pair is chosen among the pool's fitting pairs (``coaxial``), so its
+        # scenes share one generator and are drawn again when that pool changes
+        shared = np.random.default_rng([cfg.seed, s, r])
+        rows += [_scene(pool, offers, relation, split, i, n,
+                        shared if relation is Relation.CONCENTRIC else
+                        np.random.default_rng([cfg.seed, s, r, i]), cfg) for i in range(n)]
     return rows, unfit
+
+
+def stable_pair(pool: Sequence[ScenePart], *salt: Any) -> tuple[ScenePart, ScenePart]:
+    """Two different parts of the pool: the first and second under a hash of ``salt`` and
+    each part id (a uniform draw that a part added to the pool changes only where it ranks
+    first or second)."""
+    ranked = sorted(pool, key=lambda p: hashlib.sha256(
+        json.dumps([*map(str, salt), p.part_id]).encode()).hexdigest())
+    return ranked[0], ranked[1]
 
 
 def scenes_stamp(cfg: SceneConfig) -> dict[str, Any]:
@@ -265,10 +283,10 @@ def _contact_scenes(members: Sequence[ScenePart], offers: dict[str, Offers], spl
     n = _split_count(cfg, split, cfg.contact_pairs)
     if not n or len(members) < 2:
         return []
-    rng = np.random.default_rng([cfg.seed, s, len(Relation)])
     rows = []
     for i in range(n):
-        a, b = (members[k] for k in two(list(range(len(members))), rng))
+        rng = np.random.default_rng([cfg.seed, s, len(Relation), i])
+        a, b = stable_pair(members, cfg.seed, split, CONTACT, i)
         for p in (a, b):
             if p.part_id not in offers:
                 offers[p.part_id] = offers_of(p.model)
@@ -293,7 +311,7 @@ def _clearance_scenes(members: Sequence[ScenePart], offers: dict[str, Offers], s
             if is_eligible(p, Relation.CONCENTRIC, cfg, offers[p.part_id])]
     if len(pool) < 2:
         return []
-    rng = np.random.default_rng([cfg.seed, s, len(Relation) + 1])
+    rng = np.random.default_rng([cfg.seed, s, len(Relation) + 1])  # as concentric scenes'
     low, high = (f * cfg.tolerances.concentric_gap_mm for f in cfg.clearance_factors)
     rows = []
     for i in range(n):
@@ -311,7 +329,7 @@ def _scene(pool: Sequence[ScenePart], offers: Mapping[str, Offers], relation: Re
     if relation is Relation.CONCENTRIC:
         a, b, pose_a, pose_b = _concentric(pool, offers, side, rng, cfg)
     else:
-        a, b = (pool[k] for k in two(list(range(len(pool))), rng))  # never a part with itself
+        a, b = stable_pair(pool, cfg.seed, split, relation.value, i)  # never a part with itself
         if relation is Relation.COINCIDENT:
             lift = near_factor(side, cfg) * cfg.tolerances.contact_mm
             pose_a, pose_b = rest_on(offers[a.part_id], offers[b.part_id], lift, rng)
