@@ -16,6 +16,7 @@ import xml.etree.ElementTree as ET
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
 
 import pandas as pd
 
@@ -26,7 +27,7 @@ from reports.methods import completion_ours, product
 
 DEFAULT_THRESHOLDS = Path(__file__).with_name("thresholds.toml")
 CATEGORIES_COLUMNS = ("category", "metric", "value", "previous", "threshold", "status",
-                      "direction", "max_drop", "mean_last_n", "n")
+                      "direction", "max_drop", "mean_last_n", "n", "resampled")
 STATUSES = ("pass", "fail", "regressed", "no-threshold", "no-data", "too-few")
 ALL = "all"
 
@@ -225,14 +226,71 @@ METRICS: dict[str, tuple[Callable[[Path], pd.DataFrame], bool]] = {
 }
 
 
+# Metrics whose values lie in [0, 1]: a mean of n such values varies from sample to sample by
+# at most sqrt(v (1 - v) / n) (the variance of a [0, 1] variable of mean v is at most that).
+BOUNDED = frozenset(m for m in METRICS if m != "completion_chamfer_l1")
+RELATION_METRICS = ("relation_accuracy",)
+COMPLETION_METRICS = tuple(m for m in METRICS if m.startswith("completion_"))
+
+
 def run_metrics(run: Path) -> pd.DataFrame:
-    """Every metric of a run folder: columns category, metric, value, n (absent: no row)."""
+    """Every metric of a run folder: columns category, metric, value, n (absent: no row) and
+    sample (what the value was measured on, where the run says: ``run_samples``; else None)."""
     frames = [reader(run).assign(metric=name) for name, (reader, _) in METRICS.items()]
     frames = [f for f in frames if len(f)]
     if not frames:
-        return pd.DataFrame(columns=["category", "metric", "value", "n"])
+        return pd.DataFrame(columns=["category", "metric", "value", "n", "sample"])
     table = pd.concat(frames, ignore_index=True)[["category", "metric", "value", "n"]]
+    samples = run_samples(run)
+    table["sample"] = [samples.get((c, m)) for c, m in zip(table["category"], table["metric"],
+                                                           strict=True)]
     return table.astype({"category": "str", "metric": "str", "value": "float64"})
+
+
+Sample = frozenset[tuple[str, ...]]
+
+
+def run_samples(run: Path) -> dict[tuple[str, str], Sample]:
+    """Per category and metric, what a run measured it on: the pair views of the relations
+    (scene, view, parts), the parts, contexts and views of the completions. Two nights on one
+    sample differ only where the code or the models did; a library that grew draws some other
+    pair scenes and scores its new parts, and a small category's figure moves by that alone."""
+    out: dict[tuple[str, str], Sample] = {}
+    pairs = _read_parquet(run / "relations_pairs.parquet")
+    if not pairs.empty:
+        given, method = product()
+        rows = pairs[(pairs["input"] == given) & (pairs["method"] == method)]
+        for category, sample in _samples(rows, ["scene", "view", "part_a", "part_b"]).items():
+            out |= {(category, m): sample for m in RELATION_METRICS}
+    parts = _read_parquet(run / "completion_parts.parquet")
+    if not parts.empty:
+        method, protocol = completion_ours()
+        rows = parts[(parts["method"] == method) & (parts["protocol"] == protocol)]
+        for category, sample in _samples(rows, ["part_id", "context", "n_views",
+                                                "view_deg"]).items():
+            out |= {(category, m): sample for m in COMPLETION_METRICS}
+    return out
+
+
+def _read_parquet(path: Path) -> pd.DataFrame:
+    return pd.read_parquet(path) if path.is_file() else pd.DataFrame()
+
+
+def _samples(rows: pd.DataFrame, keys: list[str]) -> dict[str, Sample]:
+    """Per category (and ``all``), the distinct ``keys`` of its rows."""
+    def sample(frame: pd.DataFrame) -> Sample:
+        return frozenset(frame[keys].astype(str).itertuples(index=False, name=None))
+    out = {str(c): sample(g) for c, g in rows.groupby("category")}
+    out[ALL] = sample(rows)
+    return out
+
+
+def changed_share(now: Sample | None, before: Sample | None) -> float:
+    """The share of either night's sample the other's lacks, the larger (0: the same sample;
+    NaN where either night does not say)."""
+    if not now or not before:
+        return math.nan
+    return max(len(now - before) / len(now), len(before - now) / len(before))
 
 
 # ---------------------------------------------------------------- checks and trends
@@ -250,21 +308,29 @@ def check_metrics(current: pd.DataFrame, history: Sequence[pd.DataFrame],
     means = _means(history)
     keys = list(dict.fromkeys([*_by_key(current), *previous]))
     values = _by_key(current)
-    counts = {(r.category, r.metric): int(r.n) for r in current.itertuples()}
+    counts = _column(current, "n")
+    samples = _column(current, "sample")
+    before_samples = _column(history[-1], "sample") if history else {}
+    before_counts = _column(history[-1], "n") if history else {}
     rows = []
     for category, metric in keys:
+        key = (category, metric)
         limit = thresholds.limit(metric, category)
-        value, before = values.get((category, metric), math.nan), previous.get((category, metric),
-                                                                              math.nan)
+        value, before = values.get(key, math.nan), previous.get(key, math.nan)
         higher = METRICS[metric][1]
+        changed = changed_share(samples.get(key), before_samples.get(key))
+        if changed > 0 and limit.max_drop is not None:
+            limit = Limit(limit.floor, limit.max_drop + _spread(
+                metric, before, changed, int(counts.get(key, 0)),
+                int(before_counts.get(key, 0))))
         rows.append({"category": category, "metric": metric, "value": value,
                      "previous": before, "threshold": _nan(limit.floor),
                      "status": _status(value, before, limit, higher,
-                                       counts.get((category, metric), 0) >= thresholds.min_n),
+                                       int(counts.get(key, 0)) >= thresholds.min_n),
                      "direction": "higher" if higher else "lower",
                      "max_drop": _nan(limit.max_drop),
-                     "mean_last_n": means.get((category, metric), math.nan),
-                     "n": counts.get((category, metric), 0)})
+                     "mean_last_n": means.get(key, math.nan),
+                     "n": int(counts.get(key, 0)), "resampled": changed})
     frame = pd.DataFrame(rows, columns=list(CATEGORIES_COLUMNS))
     order = {m: i for i, m in enumerate(METRICS)}
     frame = frame.assign(_c=frame["category"] == ALL, _m=frame["metric"].map(order))
@@ -274,6 +340,27 @@ def check_metrics(current: pd.DataFrame, history: Sequence[pd.DataFrame],
 
 def _by_key(table: pd.DataFrame) -> dict[tuple[str, str], float]:
     return {(r.category, r.metric): float(r.value) for r in table.itertuples()}
+
+
+def _column(table: pd.DataFrame, column: str) -> dict[tuple[str, str], Any]:
+    if column not in table.columns:
+        return {}
+    return {(str(c), str(m)): v for c, m, v in zip(table["category"], table["metric"],
+                                                   table[column], strict=True)
+            if not (isinstance(v, float) and math.isnan(v))}
+
+
+def _spread(metric: str, previous: float, changed: float, n: int, n_before: int) -> float:
+    """How far a [0, 1] mean can move by the draw alone when ``changed`` of its sample was
+    drawn anew: twice the largest standard error of the difference of the two means over n
+    and ``n_before`` values, of which only the changed share differs (about a 95% bound);
+    unbounded where the metric is not in [0, 1] or a count is unknown: a figure on another
+    sample is then held to its floor only."""
+    if metric not in BOUNDED or n <= 0 or n_before <= 0 or math.isnan(previous):
+        return math.inf
+    v = min(max(previous, 0.0), 1.0)
+    # (and never more than the changed share: values in [0, 1] move a mean no further)
+    return min(changed, 2.0 * math.sqrt(v * (1 - v) * changed * (1 / n + 1 / n_before)))
 
 
 def _means(history: Sequence[pd.DataFrame]) -> dict[tuple[str, str], float]:

@@ -59,6 +59,53 @@ def test_checks_pass_fail_regress_and_follow_the_direction_of_each_metric() -> N
     assert _status(steady, "all", "completion_iou") == "pass"
 
 
+def test_a_drop_on_another_sample_is_held_to_the_draw_s_spread_on_the_same_to_max_drop() -> None:
+    """A small pair category whose pair scenes were drawn anew (a part joined the library)
+    moves by the draw alone: 0.875 -> 0.829 over 24 pair views is no regression; on the
+    same sample the same drop is one (the code or the models changed); a fall past the draw's
+    spread is one on any sample."""
+    def night(accuracy: float, scenes: range) -> pd.DataFrame:
+        sample = frozenset((f"s{k}", "0", "a", "b") for k in scenes)
+        return pd.DataFrame([{"category": "a+b", "metric": "relation_accuracy",
+                              "value": accuracy, "n": 24, "sample": sample}])
+
+    limits = Thresholds(limits={"relation_accuracy": Limit(floor=0.7, max_drop=0.03)})
+    old, new, most = range(24), range(100, 124), range(3, 27)
+    moved = check_metrics(night(0.829, new), [night(0.875, old)], limits)
+    assert moved["status"].tolist() == ["pass"] and moved["resampled"].tolist() == [1.0]
+    assert moved["max_drop"].iloc[0] == pytest.approx(0.03 + 2 * math.sqrt(
+        0.875 * 0.125 * 2 / 24))
+    same = check_metrics(night(0.829, old), [night(0.875, old)], limits)
+    assert same["status"].tolist() == ["regressed"] and same["resampled"].tolist() == [0.0]
+    # three pair views of 24 drawn anew move the mean less: a drop of 0.115 regresses there
+    few = check_metrics(night(0.76, most), [night(0.875, old)], limits)
+    assert few["status"].tolist() == ["regressed"]
+    assert few["resampled"].iloc[0] == pytest.approx(3 / 24)
+    fell = check_metrics(night(0.60, new), [night(0.875, old)],
+                         Thresholds(limits={"relation_accuracy": Limit(max_drop=0.03)}))
+    assert fell["status"].tolist() == ["regressed"]
+
+
+def test_a_run_s_samples_name_what_each_figure_was_measured_on(tmp_path: Path) -> None:
+    """A category's sample changes when one of its pair views does, not when another
+    category's does."""
+    from reports.methods import product
+    from reports.trends import run_samples
+
+    given, method = product()
+    rows = [{"scene": f"s{k}", "view": 0, "part_a": "p", "part_b": f"q{k}", "category": c,
+             "input": given, "method": method} for k, c in enumerate(["a+b", "a+b", "c+d"])]
+    pd.DataFrame(rows).to_parquet(tmp_path / "relations_pairs.parquet")
+    first = run_samples(tmp_path)
+    rows[0]["part_b"] = "other"
+    pd.DataFrame(rows).to_parquet(tmp_path / "relations_pairs.parquet")
+    second = run_samples(tmp_path)
+    key = ("a+b", "relation_accuracy")
+    assert first[key] != second[key] and first[("all", "relation_accuracy")] != \
+        second[("all", "relation_accuracy")]
+    assert first[("c+d", "relation_accuracy")] == second[("c+d", "relation_accuracy")]
+
+
 def test_few_samples_no_threshold_and_vanished_categories_are_reported_not_checked() -> None:
     current = _metrics(iou=0.1, accuracy=0.1, n=3)
     checks = check_metrics(current, [], Thresholds(LIMITS.limits, LIMITS.categories, min_n=10))
