@@ -11,11 +11,14 @@ other as the design puts them, in the directions the mate constrains:
 
 The residual of each is read from a's pose relative to b's, as built against as designed, so
 that a shift of the whole assembly moves no residual. Its threshold is the larger of the mate's
-tolerance (``Tolerances``) and three standard deviations of the residual, from both parts'
-pose uncertainties (``cadio.inspect.uncertainty``). Status: ``holds``, ``broken`` (a residual
-past its threshold), ``not observable`` (no residual broken, but one of them lies along a
-direction the view does not constrain: never a pass) or ``not inspectable`` (a part shows too
-little of itself, or is missing, which breaks its mates).
+tolerance (``Tolerances``) and three standard deviations of the residual along its own
+direction (the offset's across the axis, the axis a tilt turns about), from both parts' pose
+uncertainties (``cadio.inspect.uncertainty``): a pin sure across X but not across Y, moved 1 mm
+along X, is off its axis. From several views each part is also held against its partner where
+the rest of the assembly puts the partner (``cadio.inspect.consensus``). Status: ``holds``,
+``broken`` (a residual past its threshold), ``not observable`` (no residual broken, but one of
+them lies along a direction the view does not constrain: never a pass) or ``not inspectable``
+(a part shows too little of itself, or is missing, which breaks its mates).
 """
 
 from __future__ import annotations
@@ -23,13 +26,16 @@ from __future__ import annotations
 import math
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from cadio.inspect.uncertainty import PoseUncertainty, point_motion
 from cadio.records import FloatArray
 from cadio.tolerances import DEFAULT_TOLERANCES, Tolerances
+
+if TYPE_CHECKING:
+    from cadio.inspect.consensus import Rest
 
 HOLDS, BROKEN, NOT_OBSERVABLE, NOT_INSPECTABLE = (
     "holds", "broken", "not observable", "not inspectable")
@@ -142,27 +148,56 @@ class _Frame:
 
 
 def mate_as_built(row: Mapping[str, Any], parts: Mapping[int, PartAsBuilt],
-                  design: Mapping[int, FloatArray], limits: Limits) -> MateAsBuilt:
+                  design: Mapping[int, FloatArray], limits: Limits,
+                  rest: Mapping[int, Rest] | None = None) -> MateAsBuilt:
     """One face mate of the design as built.
+
+    Each part of the mate is also held against its partner where the rest of the assembly
+    puts the partner (``rest``: per part, the consensus of the others, ``consensus.Rest``):
+    a part moved off its place breaks its mate there even where the partner's own pose is too
+    unsure to tell (a frame against a small pin), or too little of the partner is seen. The
+    mate is broken where any of these readings is; its residuals are the reading that broke
+    it most, or else the two registered parts'.
 
     Args:
         row: a face row of the assembly's mates table (index_a, index_b, face_a, face_b,
             relation, axis, origin: the axis or a's outward normal and a point, assembly frame).
         parts: each part as the scan shows it, by index.
         design: each part's designed pose (part -> assembly, mm), by index.
+        rest: per part, where the rest of the assembly puts the others (None: no such reading).
     """
     a, b = int(row["index_a"]), int(row["index_b"])
     key = (a, b, int(row["face_a"]), int(row["face_b"]), str(row["relation"]))
+    frame = _Frame(_unit(row["axis"]), np.asarray(row["origin"], dtype=np.float64))
+    pair = (design[a], design[b])
     missing = [p for p in (parts.get(a), parts.get(b)) if p is None or p.problem]
+    if any(p is not None and p.problem == "missing" for p in missing):
+        gone = next(p for p in missing if p is not None and p.problem == "missing")
+        return MateAsBuilt(*key, status=BROKEN, reason=f"part {gone.index}: missing")
+    readings: list[tuple[str, tuple[Residual, ...]]] = []
+    for one, other in ((a, b), (b, a)):
+        mine = parts.get(one)
+        if rest is None or one not in rest or mine is None or mine.problem:
+            continue
+        placed = rest[one].place(other)
+        held = (mine, placed) if one == a else (placed, mine)
+        readings.append((f"part {one} against part {other} where the rest of the assembly "
+                         f"puts it", _residuals(key[4], frame, held, pair, limits)))
+    broken = [(max(r.value / r.threshold for r in res if r.broken and r.observable), why, res)
+              for why, res in readings if _status(res) == BROKEN]
     if missing:
         part = missing[0]
+        if broken:
+            _, why, res = max(broken, key=lambda item: item[0])
+            return MateAsBuilt(*key, status=BROKEN, residuals=res, reason=why)
         why = "a part is not in the scan" if part is None else f"part {part.index}: {part.problem}"
-        status = BROKEN if part is not None and part.problem == "missing" else NOT_INSPECTABLE
-        return MateAsBuilt(*key, status=status, reason=why)
+        return MateAsBuilt(*key, status=NOT_INSPECTABLE, reason=why)
     pa, pb = parts[a], parts[b]
     assert pa.pose is not None and pb.pose is not None
-    frame = _Frame(_unit(row["axis"]), np.asarray(row["origin"], dtype=np.float64))
-    residuals = _residuals(key[4], frame, (pa, pb), (design[a], design[b]), limits)
+    residuals = _residuals(key[4], frame, (pa, pb), pair, limits)
+    if _status(residuals) != BROKEN and broken:
+        _, why, res = max(broken, key=lambda item: item[0])
+        return MateAsBuilt(*key, status=BROKEN, residuals=res, reason=why)
     return MateAsBuilt(*key, status=_status(residuals), residuals=residuals)
 
 
@@ -199,10 +234,15 @@ def _residuals(relation: str, frame: _Frame, parts: tuple[PartAsBuilt, PartAsBui
     to_world = pb.pose @ np.linalg.inv(db)
     world_d = to_world[:3, :3] @ d
     across = _across(world_d)
+    # each residual is held to the sigma along its own direction (the offset across the axis,
+    # the axis the tilt turns about), or the least sure across direction where it is nil
+    tilt = _direction(to_world[:3, :3] @ np.cross(d, moved_d), across)
+    turn_sigma = max(_sigma(parts, points, u, turn=True) for u in tilt)
     if relation == "concentric":
-        distance = float(np.linalg.norm(offset - (offset @ d) * d))
-        shift_sigma = max(_sigma(parts, points, u, turn=False) for u in across)
-        turn_sigma = max(_sigma(parts, points, u, turn=True) for u in across)
+        across_offset = offset - (offset @ d) * d
+        distance = float(np.linalg.norm(across_offset))
+        shift_sigma = max(_sigma(parts, points, u, turn=False)
+                          for u in _direction(to_world[:3, :3] @ across_offset, across))
         return (Residual("axis_distance_mm", distance,
                          max(limits.axis_mm, limits.sigmas * shift_sigma), shift_sigma),
                 Residual("axis_angle_deg", angle,
@@ -210,7 +250,6 @@ def _residuals(relation: str, frame: _Frame, parts: tuple[PartAsBuilt, PartAsBui
                          math.degrees(turn_sigma)))
     plane = abs(float(offset @ d))
     shift_sigma = _sigma(parts, points, world_d, turn=False)
-    turn_sigma = max(_sigma(parts, points, u, turn=True) for u in across)
     return (Residual("plane_offset_mm", plane,
                      max(limits.plane_mm, limits.sigmas * shift_sigma), shift_sigma),
             Residual("normal_angle_deg", angle,
@@ -221,6 +260,14 @@ def _residuals(relation: str, frame: _Frame, parts: tuple[PartAsBuilt, PartAsBui
 def _place(pose: FloatArray, point: FloatArray) -> FloatArray:
     placed: FloatArray = pose[:3, :3] @ point + pose[:3, 3]
     return placed
+
+
+def _direction(v: FloatArray, fallback: tuple[FloatArray, ...]) -> tuple[FloatArray, ...]:
+    """``v`` as a unit vector, or ``fallback`` where it is nil."""
+    norm = float(np.linalg.norm(v))
+    if norm < 1e-9:
+        return fallback
+    return (v / norm,)
 
 
 def _across(d: FloatArray) -> tuple[FloatArray, FloatArray]:
@@ -251,11 +298,11 @@ def _sigma(parts: tuple[PartAsBuilt, PartAsBuilt], points: tuple[FloatArray, Flo
 
 
 def assembly_as_built(rows: Sequence[Mapping[str, Any]], parts: Mapping[int, PartAsBuilt],
-                      design: Mapping[int, FloatArray],
-                      limits: Limits | None = None) -> list[MateAsBuilt]:
-    """Every face mate (concentric, coincident) of the design as built."""
+                      design: Mapping[int, FloatArray], limits: Limits | None = None,
+                      rest: Mapping[int, Rest] | None = None) -> list[MateAsBuilt]:
+    """Every face mate (concentric, coincident) of the design as built (``mate_as_built``)."""
     chosen = limits or Limits.of()
-    return [mate_as_built(r, parts, design, chosen) for r in rows
+    return [mate_as_built(r, parts, design, chosen, rest) for r in rows
             if r["level"] == "face" and r["relation"] in ("concentric", "coincident")]
 
 

@@ -29,6 +29,7 @@ from cadio.inspect.asbuilt import (
     assembly_as_built,
     verdict,
 )
+from cadio.inspect.consensus import rest_in
 from cadio.inspect.routes import RouteConfig, by_design, explained_share
 from cadio.inspect.scan import scan_of
 from cadio.inspect.stage import assembly_model
@@ -163,7 +164,7 @@ def check_recording(assembly: str, recording: Path, ws: Workspace,
     model = assembly_model(assembly, ws)
     mates = pd.read_parquet(ws.mates(assembly))
     try:
-        _, parts, _ = by_design(model, scan, cfg.route)
+        nominal, parts, _ = by_design(model, scan, cfg.route)
     except ValueError as exc:
         raise InputFileError(recording, str(exc)) from exc
     found = [p for p in parts.values() if p.pose is not None]
@@ -174,7 +175,8 @@ def check_recording(assembly: str, recording: Path, ws: Workspace,
                               f"{len(scan.points)} points the camera saw (at least "
                               f"{cfg.min_explained:.0%} needed)")
     built = assembly_as_built(mates.to_dict("records"), parts, dict(enumerate(model.design)),
-                              Limits.of(cfg.tolerances))
+                              Limits.of(cfg.tolerances),
+                              rest_in(model, parts, nominal, len(scan.cameras)))
     warnings = tuple(sorted({w for f in frames for w in f.meta.get("warnings", ())}))
     return RecordingInspection(assembly, str(recording), verdict(built), tuple(built), parts,
                                tuple(p.part_id for p in model.parts), explained, len(frames),

@@ -36,6 +36,7 @@ from cadio.inspect.surface import (
     visible,
     voxel_down,
 )
+from cadio.inspect.uncertainty import small_motion
 from cadio.records import FloatArray, apply_pose
 
 # open3d's registration module (its stubs ask for arguments its functions default)
@@ -185,25 +186,6 @@ def reaches(part: PartSurface, cfg: RegisterConfig) -> list[float]:
     """The correspondence distances of ICP's scales, mm, coarse to fine."""
     voxel = voxel_of(part, cfg)
     return [*(s * voxel for s in cfg.scales if s * voxel > cfg.fine_mm), cfg.fine_mm]
-
-
-def _motion(delta: FloatArray, centre: FloatArray) -> FloatArray:
-    """(4, 4): rotation ``delta[:3]`` (axis-angle) about ``centre``, then ``delta[3:]``."""
-    rot = _rodrigues(delta[:3])
-    out = np.eye(4)
-    out[:3, :3] = rot
-    out[:3, 3] = centre - rot @ centre + delta[3:]
-    return out
-
-
-def _rodrigues(w: FloatArray) -> FloatArray:
-    theta = float(np.linalg.norm(w))
-    if theta < 1e-12:
-        return np.eye(3)
-    k = w / theta
-    kx = np.array([[0, -k[2], k[1]], [k[2], 0, -k[0]], [-k[1], k[0], 0]])
-    rot: FloatArray = np.eye(3) + np.sin(theta) * kx + (1 - np.cos(theta)) * kx @ kx
-    return rot
 
 
 def _scored(part: PartSurface, scan: FloatArray, pose: FloatArray,
@@ -441,7 +423,7 @@ def _steps(model: FloatArray, normals: FloatArray, scans: FloatArray, tree: cKDT
     delta[:, :3] *= np.minimum(1.0, (reach / radius) / np.maximum(turn, 1e-12))[:, None]
     delta[:, 3:] *= np.minimum(1.0, reach / np.maximum(shift, 1e-12))[:, None]
     delta[~ok] = 0.0
-    steps = np.stack([_motion(d, centre) for d in delta])
+    steps = np.stack([small_motion(d, centre) for d in delta])
     return steps, ok
 
 

@@ -30,6 +30,7 @@ from cadio.camera.noise import D435
 from cadio.camera.render import CaptureConfig, PlacedPart, render_views
 from cadio.catalog import read_catalog
 from cadio.inspect.asbuilt import Limits, MateAsBuilt, PartAsBuilt, assembly_as_built
+from cadio.inspect.consensus import rest_in
 from cadio.inspect.defects import DefectPlan, Variant, plan_variants
 from cadio.inspect.routes import (
     AssemblyModel,
@@ -310,8 +311,11 @@ def inspect_capture(model: AssemblyModel, path: Path, mates: pd.DataFrame, cfg: 
         baseline_parts = {i: PartAsBuilt(i, designed[i], parts[i].uncertainty,
                                          "" if parts[i].problem == "missing" else
                                          parts[i].problem) for i in parts}
-        mates_built = assembly_as_built(rows, parts, dict(enumerate(model.design)), limits)
-        baseline = assembly_as_built(rows, baseline_parts, dict(enumerate(model.design)), limits)
+        views_seen = len(scan.cameras)
+        mates_built = assembly_as_built(rows, parts, dict(enumerate(model.design)), limits,
+                                        rest_in(model, parts, nominal, views_seen))
+        baseline = assembly_as_built(rows, baseline_parts, dict(enumerate(model.design)), limits,
+                                     rest_in(model, baseline_parts, nominal, views_seen))
         found: list[Found] = []
         clock = time.perf_counter()
         if search and searched.segments:

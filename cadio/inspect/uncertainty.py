@@ -96,3 +96,23 @@ def point_motion(point: FloatArray, centre: FloatArray) -> FloatArray:
     r = np.asarray(point, dtype=np.float64) - centre
     cross = np.array([[0, r[2], -r[1]], [-r[2], 0, r[0]], [r[1], -r[0], 0]])
     return np.hstack([cross, np.eye(3)])
+
+
+def small_motion(delta: FloatArray, centre: FloatArray) -> FloatArray:
+    """(4, 4): rotation ``delta[:3]`` (axis-angle) about ``centre``, then ``delta[3:]``
+    (the small motions of ``pose_uncertainty``'s covariance, composed)."""
+    rot = _rotation(delta[:3])
+    out = np.eye(4)
+    out[:3, :3] = rot
+    out[:3, 3] = centre - rot @ centre + delta[3:]
+    return out
+
+
+def _rotation(w: FloatArray) -> FloatArray:
+    theta = float(np.linalg.norm(w))
+    if theta < 1e-12:
+        return np.eye(3)
+    k = w / theta
+    kx = np.array([[0, -k[2], k[1]], [k[2], 0, -k[0]], [-k[1], k[0], 0]])
+    rot: FloatArray = np.eye(3) + np.sin(theta) * kx + (1 - np.cos(theta)) * kx @ kx
+    return rot
