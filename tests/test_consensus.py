@@ -11,13 +11,14 @@ from cadio.inspect.asbuilt import (
     BROKEN,
     HOLDS,
     NOT_INSPECTABLE,
+    NOT_OBSERVABLE,
     Limits,
     PartAsBuilt,
     assembly_as_built,
     mate_as_built,
 )
 from cadio.inspect.consensus import rest_of_assembly
-from cadio.inspect.uncertainty import PoseUncertainty, small_motion
+from cadio.inspect.uncertainty import PoseUncertainty, pose_uncertainty, small_motion
 
 
 def _moved(deg: float, axis: tuple[float, float, float], t: tuple[float, float, float]
@@ -125,3 +126,21 @@ def test_a_residual_is_held_to_the_sigma_along_its_own_direction() -> None:
     assert mate.row()["axis_distance_mm_threshold"] < 1.0
     along_y = _part(1, _moved(0, (0, 0, 1), (0, 1.0, 20)), (0.1, 1.0, 0.1))
     assert mate_as_built(PIN, {0: frame, 1: along_y}, design, Limits.of()).status == HOLDS
+
+
+def test_a_mate_holds_only_where_every_direction_across_it_is_seen() -> None:
+    """A pin whose fit leaves its slide along Y open: off its axis along X it is broken (that
+    direction is seen); within its threshold it is not observable, never a pass."""
+    design = {0: np.eye(4), 1: DESIGN[1]}
+    frame = _part(0, np.eye(4), (0.05, 0.05, 0.05))
+
+    def blind_y(pose: np.ndarray) -> PartAsBuilt:
+        hessian = np.diag([1e4, 1e4, 1e4, 1e4, 0.0, 1e4])
+        return PartAsBuilt(1, pose, pose_uncertainty(hessian, 0.5, 100, pose[:3, 3], 10.0, 1.0))
+
+    off = mate_as_built(PIN, {0: frame, 1: blind_y(_moved(0, (0, 0, 1), (2.0, 0, 20)))},
+                        design, Limits.of())
+    assert off.status == BROKEN
+    on = mate_as_built(PIN, {0: frame, 1: blind_y(_moved(0, (0, 0, 1), (0.1, 0, 20)))},
+                       design, Limits.of())
+    assert on.status == NOT_OBSERVABLE

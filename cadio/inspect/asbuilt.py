@@ -57,20 +57,29 @@ class PartAsBuilt:
 
 @dataclass(frozen=True)
 class Residual:
-    """One constrained direction of a mate: its value, threshold and standard deviation."""
+    """One constrained direction of a mate: its value, threshold and standard deviation along
+    the residual's own direction; ``seen``: every direction it spans is observed (an axis
+    offset spans both directions across the axis)."""
 
     name: str
     value: float
     threshold: float
     sigma: float
+    seen: bool = True
 
     @property
     def broken(self) -> bool:
         return self.value > self.threshold
 
     @property
-    def observable(self) -> bool:
+    def measured(self) -> bool:
+        """Its own direction is observed: past its threshold, it is broken."""
         return math.isfinite(self.sigma)
+
+    @property
+    def observable(self) -> bool:
+        """Every direction it spans is observed: within its threshold, it holds."""
+        return self.measured and self.seen
 
 
 # The residuals a mate can have, in the order the files list them.
@@ -183,7 +192,7 @@ def mate_as_built(row: Mapping[str, Any], parts: Mapping[int, PartAsBuilt],
         held = (mine, placed) if one == a else (placed, mine)
         readings.append((f"part {one} against part {other} where the rest of the assembly "
                          f"puts it", _residuals(key[4], frame, held, pair, limits)))
-    broken = [(max(r.value / r.threshold for r in res if r.broken and r.observable), why, res)
+    broken = [(max(r.value / r.threshold for r in res if r.broken and r.measured), why, res)
               for why, res in readings if _status(res) == BROKEN]
     if missing:
         part = missing[0]
@@ -208,7 +217,7 @@ def _unit(v: Any) -> FloatArray:
 
 
 def _status(residuals: Sequence[Residual]) -> str:
-    if any(r.broken and r.observable for r in residuals):
+    if any(r.broken and r.measured for r in residuals):
         return BROKEN
     if not all(r.observable for r in residuals):
         return NOT_OBSERVABLE
@@ -235,26 +244,26 @@ def _residuals(relation: str, frame: _Frame, parts: tuple[PartAsBuilt, PartAsBui
     world_d = to_world[:3, :3] @ d
     across = _across(world_d)
     # each residual is held to the sigma along its own direction (the offset across the axis,
-    # the axis the tilt turns about), or the least sure across direction where it is nil
+    # the axis the tilt turns about), or the least sure across direction where it is nil; it
+    # holds only where every direction across is observed
+    turn_seen = all(math.isfinite(_sigma(parts, points, u, turn=True)) for u in across)
     tilt = _direction(to_world[:3, :3] @ np.cross(d, moved_d), across)
     turn_sigma = max(_sigma(parts, points, u, turn=True) for u in tilt)
+    turn = Residual("axis_angle_deg" if relation == "concentric" else "normal_angle_deg", angle,
+                    max(limits.axis_deg if relation == "concentric" else limits.plane_deg,
+                        limits.sigmas * math.degrees(turn_sigma)),
+                    math.degrees(turn_sigma), turn_seen)
     if relation == "concentric":
         across_offset = offset - (offset @ d) * d
-        distance = float(np.linalg.norm(across_offset))
         shift_sigma = max(_sigma(parts, points, u, turn=False)
                           for u in _direction(to_world[:3, :3] @ across_offset, across))
-        return (Residual("axis_distance_mm", distance,
-                         max(limits.axis_mm, limits.sigmas * shift_sigma), shift_sigma),
-                Residual("axis_angle_deg", angle,
-                         max(limits.axis_deg, limits.sigmas * math.degrees(turn_sigma)),
-                         math.degrees(turn_sigma)))
-    plane = abs(float(offset @ d))
+        shift_seen = all(math.isfinite(_sigma(parts, points, u, turn=False)) for u in across)
+        return (Residual("axis_distance_mm", float(np.linalg.norm(across_offset)),
+                         max(limits.axis_mm, limits.sigmas * shift_sigma), shift_sigma,
+                         shift_seen), turn)
     shift_sigma = _sigma(parts, points, world_d, turn=False)
-    return (Residual("plane_offset_mm", plane,
-                     max(limits.plane_mm, limits.sigmas * shift_sigma), shift_sigma),
-            Residual("normal_angle_deg", angle,
-                     max(limits.plane_deg, limits.sigmas * math.degrees(turn_sigma)),
-                     math.degrees(turn_sigma)))
+    return (Residual("plane_offset_mm", abs(float(offset @ d)),
+                     max(limits.plane_mm, limits.sigmas * shift_sigma), shift_sigma), turn)
 
 
 def _place(pose: FloatArray, point: FloatArray) -> FloatArray:
