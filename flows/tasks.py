@@ -23,6 +23,7 @@ from datetime import UTC, datetime
 from pathlib import Path
 from typing import Any
 
+import numpy as np
 import pandas as pd
 from prefect import task
 from prefect.context import TaskRunContext
@@ -582,6 +583,17 @@ def inspect_config(options: InspectionOptions, tolerances: Tolerances) -> Inspec
                          defects=plan, search=options.search, tolerances=tolerances)
 
 
+def _largest_first(mates: list[MatesSummary], catalog: pd.DataFrame) -> list[MatesSummary]:
+    """The assemblies to inspect, the costliest first (its parts' box diagonals together: the
+    points registration reads grow with their surfaces), so that two workers end together
+    instead of one taking the largest last."""
+    diagonal = np.linalg.norm(np.stack(catalog["bbox_max"].to_numpy())
+                              - np.stack(catalog["bbox_min"].to_numpy()), axis=1) \
+        if len(catalog) else np.zeros(0)
+    size = pd.Series(diagonal, index=catalog.index).groupby(catalog["source"]).sum()
+    return sorted(mates, key=lambda m: -float(size.get(m.source, 0.0)))
+
+
 @task(name="inspect", **_CACHED)
 def inspect_task(assembly: str, workspace: str, cfg: InspectConfig,
                  key: str) -> AssemblyInspection:
@@ -627,7 +639,7 @@ def inspect_stage(mates: list[MatesSummary], run: Run, options: InspectionOption
     cfg = inspect_config(options, tolerances)
     catalog = read_catalog(ws.catalog)
     futures = []
-    for summary in (m for m in mates if m.ok):
+    for summary in _largest_first([m for m in mates if m.ok], catalog):
         parts = catalog[catalog["source"] == summary.source]["part_id"].astype(str)
         files = [ws.mesh(p) for p in sorted(parts)] + [Path(summary.path)]
         key = content_digest(files, cfg=cfg, epoch=run.epoch, version=INSPECT_VERSION,

@@ -382,3 +382,18 @@ def test_a_part_added_to_the_library_changes_its_own_batch_alone() -> None:
         changed = [b for b in after if b not in before]
         assert 1 <= len(changed) <= 2 and any(added in b for b in changed)
         assert sum(len(b) for b in changed) <= 61
+
+
+def test_the_costliest_assembly_is_inspected_first() -> None:
+    """Two workers end together when the largest assembly starts first, not last."""
+    from types import SimpleNamespace
+
+    from flows.tasks import _largest_first
+
+    catalog = pd.DataFrame({"source": ["small.step", "large.step", "large.step", "mid.step"],
+                            "bbox_min": [[0.0, 0, 0]] * 4,
+                            "bbox_max": [[10.0, 0, 0], [300.0, 0, 0], [200.0, 0, 0],
+                                         [400.0, 0, 0]]})
+    mates = [SimpleNamespace(source=s) for s in ("small.step", "mid.step", "large.step")]
+    order = _largest_first(mates, catalog)  # type: ignore[arg-type]
+    assert [m.source for m in order] == ["large.step", "mid.step", "small.step"]
