@@ -587,11 +587,20 @@ def _largest_first(mates: list[MatesSummary], catalog: pd.DataFrame) -> list[Mat
     """The assemblies to inspect, the costliest first (its parts' box diagonals together: the
     points registration reads grow with their surfaces), so that two workers end together
     instead of one taking the largest last."""
-    diagonal = np.linalg.norm(np.stack(catalog["bbox_max"].to_numpy())
-                              - np.stack(catalog["bbox_min"].to_numpy()), axis=1) \
-        if len(catalog) else np.zeros(0)
-    size = pd.Series(diagonal, index=catalog.index).groupby(catalog["source"]).sum()
+    size = pd.Series([_diagonal(lo, hi) for lo, hi in zip(catalog["bbox_min"],
+                                                          catalog["bbox_max"], strict=True)],
+                     index=catalog.index, dtype=np.float64).groupby(catalog["source"]).sum()
     return sorted(mates, key=lambda m: -float(size.get(m.source, 0.0)))
+
+
+def _diagonal(lo: Any, hi: Any) -> float:
+    """A box's diagonal, mm; 0 for a part without one (a solid that failed to read)."""
+    try:
+        out = float(np.linalg.norm(np.asarray(hi, dtype=np.float64)
+                                   - np.asarray(lo, dtype=np.float64)))
+    except (TypeError, ValueError):
+        return 0.0
+    return out if np.isfinite(out) else 0.0
 
 
 @task(name="inspect", **_CACHED)

@@ -390,10 +390,11 @@ def test_the_costliest_assembly_is_inspected_first() -> None:
 
     from flows.tasks import _largest_first
 
-    catalog = pd.DataFrame({"source": ["small.step", "large.step", "large.step", "mid.step"],
-                            "bbox_min": [[0.0, 0, 0]] * 4,
+    catalog = pd.DataFrame({"source": ["small.step", "large.step", "large.step", "mid.step",
+                                       "mid.step", "small.step"],
+                            "bbox_min": [[0.0, 0, 0]] * 4 + [[], None],
                             "bbox_max": [[10.0, 0, 0], [300.0, 0, 0], [200.0, 0, 0],
-                                         [400.0, 0, 0]]})
+                                         [400.0, 0, 0], [], None]})  # two failed solids
     mates = [SimpleNamespace(source=s) for s in ("small.step", "mid.step", "large.step")]
     order = _largest_first(mates, catalog)  # type: ignore[arg-type]
     assert [m.source for m in order] == ["large.step", "mid.step", "small.step"]
