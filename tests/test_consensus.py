@@ -144,3 +144,14 @@ def test_a_mate_holds_only_where_every_direction_across_it_is_seen() -> None:
     on = mate_as_built(PIN, {0: frame, 1: blind_y(_moved(0, (0, 0, 1), (0.1, 0, 20)))},
                        design, Limits.of())
     assert on.status == NOT_OBSERVABLE
+
+
+def test_a_fit_without_inliers_is_left_out_of_the_consensus() -> None:
+    where = np.eye(4)
+    parts = _built(where, {0: _moved(0, (0, 0, 1), (0, 4.0, 0))})
+    lost = pose_uncertainty(np.eye(6), math.inf, 0, np.zeros(3), 10.0)  # no inliers: no sigma
+    parts[3] = PartAsBuilt(3, DESIGN[3], lost)
+    rest = _rest(parts, where)
+    assert 3 not in rest and 0 in rest
+    mate = mate_as_built(PIN, parts, DESIGN, Limits.of(), rest)
+    assert mate.status == BROKEN and abs(mate.row()["axis_distance_mm"] - 4.0) < 0.2

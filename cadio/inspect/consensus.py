@@ -91,7 +91,8 @@ def rest_of_assembly(parts: Mapping[int, PartAsBuilt], design: Mapping[int, Floa
     designed = {i: nominal @ design[i] for i in design}
     world_centres = {i: designed[i][:3, :3] @ centres[i] + designed[i][:3, 3] for i in design}
     seen = {i: p for i, p in parts.items()
-            if p.pose is not None and p.uncertainty is not None and not p.problem}
+            if p.pose is not None and p.uncertainty is not None and not p.problem
+            and np.all(np.isfinite(p.uncertainty.covariance))}  # a fit without inliers: none
     if len(seen) < min_parts + 1:
         return {}
     origin = np.mean([world_centres[i] for i in seen], axis=0)
