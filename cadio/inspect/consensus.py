@@ -49,11 +49,11 @@ MIN_SHARE = 1e-6
 
 @dataclass(frozen=True)
 class Rest:
-    """The consensus of every part but ``left_out``: the correction of the nominal (world
-    motion, (4, 4)), its covariance (6, 6 over turn about ``centre`` and shift), and the
-    parts' designed places in the world (part -> world, at the uncorrected nominal)."""
+    """The consensus of every part but one: the correction of the nominal (world motion,
+    (4, 4)), its covariance (6, 6 over turn about ``centre`` and shift), and the parts'
+    designed places in the world (part -> world, at the uncorrected nominal), their scales
+    for turns and their centroids there."""
 
-    left_out: int
     correction: FloatArray
     covariance: FloatArray
     centre: FloatArray
@@ -110,8 +110,8 @@ def rest_of_assembly(parts: Mapping[int, PartAsBuilt], design: Mapping[int, Floa
         if found is None:
             continue
         delta, covariance = found
-        out[left] = Rest(left, small_motion(delta, origin), covariance, origin, designed,
-                         dict(radii), world_centres)
+        out[left] = Rest(small_motion(delta, origin), covariance, origin, designed, radii,
+                         world_centres)
     return out
 
 
