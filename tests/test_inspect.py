@@ -19,6 +19,7 @@ from cadio.inspect.asbuilt import (
     verdict,
 )
 from cadio.inspect.register import RegisterConfig, global_search, refine
+from cadio.inspect.scan import Scan, consistency
 from cadio.inspect.surface import Camera, part_surface, visible
 from cadio.inspect.symmetry import Symmetry, pose_error, symmetry_of
 from cadio.inspect.uncertainty import pose_uncertainty
@@ -240,6 +241,30 @@ def test_global_search_finds_a_part_without_any_prior_pose() -> None:
     best = global_search(surface, scan, cameras, RegisterConfig(seed=1))[0]
     mm, deg = pose_error(best.pose, truth, symmetry_of(surface.samples))
     assert mm < 0.2 and deg < 0.2, (mm, deg, best.seed)
+
+
+def test_a_surface_lying_on_another_segment_s_depth_is_that_segment_s_not_the_hypothesis_s(
+        ) -> None:
+    cam = _camera()
+    label = np.ones((480, 640), dtype=np.int64)
+    label[:, 320:] = 2  # the left half of the image is segment 1's, the right half 2's
+    scan = Scan(np.zeros((0, 3)), np.zeros(0, dtype=np.int64), (cam,), depths=(
+        np.full((480, 640), 300.0),), labels=(label,))
+
+    def at(us: range, depth: float) -> np.ndarray:  # world points at pixels (u, 240)
+        k = cam.intrinsics
+        local = np.array([[(u - k.cx) * depth / k.fx, 0.0, depth] for u in us])
+        rot, t = cam.world_to_camera[:3, :3], cam.world_to_camera[:3, 3]
+        return (local - t) @ rot
+
+    own, others = at(range(100, 200), 300.0), at(range(400, 500), 300.0)
+    assert consistency(np.vstack([own, others]), scan) == 1.0  # the depth agrees everywhere
+    assert consistency(np.vstack([own, others]), scan, segment=1) == pytest.approx(0.5)
+    assert consistency(others, scan, segment=2) == 1.0
+    # behind the other segment's surface it is hidden there, and counts neither way
+    assert consistency(np.vstack([own, at(range(400, 500), 303.0)]), scan, segment=1) == 1.0
+    # the camera saw through it: free space, whoever's pixel it is
+    assert consistency(at(range(100, 200), 290.0), scan, segment=1) == 0.0
 
 
 def test_copies_of_a_shape_are_scored_as_the_part_whose_points_they_registered() -> None:

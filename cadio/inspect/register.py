@@ -9,8 +9,10 @@ Two seeds, as inspection software does it:
 - ``global_search``, which never sees the design: FPFH features of the CAD samples and of the
   scan, RANSAC over feature matches with fixed seeds, several hypotheses (more for small parts,
   and each flipped half a turn about its principal axes, the ambiguity a small part's few
-  pixels leave), each refined as above; the best by inlier share of the scan, then by how much
-  of the visible CAD the scan covers, then by the inlier RMS.
+  pixels leave), the best few of them ranked again by how much of the part's surface the
+  depth does not see through (where a judge is given), each refined as above; the best by
+  inlier share of the scan, then by how much of the visible CAD the scan covers, then by the
+  inlier RMS.
 
 Every fit carries the point-to-plane Hessian of its last step (``Fit.hessian``): what the
 points constrain, from which ``cadio.inspect.uncertainty`` reads the pose's covariance and the
@@ -72,6 +74,12 @@ class RegisterConfig:
     orientations: int = 48
     coarse_iterations: int = 5  # ICP steps that score a candidate before the best are refined
     coarse_points: int = 300  # scan points that score a candidate (a seeded draw)
+    # Of the candidates within ``judged_within`` of the best coarse score, the first
+    # ``judged`` are ranked again by how much of the part's surface (``judged_points``
+    # samples) the depth does not contradict, where a judge is given (``_judged``).
+    judged: int = 24
+    judged_within: float = 0.1
+    judged_points: int = 500
     # The spread orientations are tried only when no candidate's coarse score (the inlier
     # share of the scan) reaches this.
     good_enough: float = 0.85
@@ -290,9 +298,30 @@ def global_search(part: PartSurface, scan: FloatArray, cameras: Sequence[Camera]
     scored += [(*fit, seed) for fit, (_, seed) in
                zip(_coarse(part, few, [p for p, _ in starts], reach, cfg), starts, strict=True)]
     scored.sort(key=lambda item: item[0], reverse=True)
+    if judge is not None:
+        scored = _judged(part, scored, judge, cfg)
     best = _distinct(scored, part.diameter / 10, cfg.keep)
     return sorted((replace(refine(part, scan, pose, cameras, cfg, judge=judge), seed=seed)
                    for pose, seed in best), key=Fit.rank, reverse=True)
+
+
+def _judged(part: PartSurface, scored: list[tuple[tuple[float, float], FloatArray, str]],
+            judge: Judge, cfg: RegisterConfig
+            ) -> list[tuple[tuple[float, float], FloatArray, str]]:
+    """The ranked candidates with the best few (within ``judged_within`` of the best inlier
+    share, ``judged`` at most) ranked again by that share times how much of the part's
+    surface at the candidate's pose the depth does not contradict: a cylinder that shows a
+    short stretch of itself fits it anywhere along its length, and only where the rest of it
+    lies hidden is the depth not seen through it."""
+    if not scored:
+        return scored
+    top = scored[0][0][0]
+    head = [item for item in scored[:cfg.judged] if item[0][0] >= top - cfg.judged_within]
+    samples = part.samples[::max(1, len(part.samples) // cfg.judged_points)]
+    rescored = [((round(score[0] * judge(apply_pose(pose, samples)), 2), score[1]), pose, seed)
+                for score, pose, seed in head]
+    rescored.sort(key=lambda item: item[0], reverse=True)
+    return rescored + scored[len(head):]
 
 
 def coarse_scores(part: PartSurface, scan: FloatArray, poses: Sequence[FloatArray],

@@ -98,9 +98,15 @@ class RouteConfig:
     found_coverage: float = 0.5
     # A segment is registered to a shape only where the shape's diameter allows its extent;
     # the shapes are tried smallest first, and a fit this good (inlier share of the segment,
-    # share of its visible CAD the depth does not contradict) ends the search.
+    # share of its visible CAD the depth does not contradict) ends the search. Where the scan
+    # is segmented, the second share is of the visible CAD neither the depth nor another
+    # segment contradicts (``scan.consistency``), and ``good_owned`` takes its place: a part
+    # pressed against others loses its rim to them (a washer under its nut and on its flange
+    # keeps about 0.65 of it; a bolt's end beside its nut 0.87-0.89; a nut laid over that end
+    # and onto the nut beside it 0.38-0.56, on the held-out flange).
     extent_slack_mm: float = 3.0
     good_fit: tuple[float, float] = (0.9, 0.9)
+    good_owned: float = 0.6
     # ...except that a segment smaller than ``alike_below_mm`` is tried on every shape up to
     # ``alike_window`` times its extent first: a nut and a bolt's end, a ball and a roller of
     # one size all fit a small segment well, and the first is not the likeliest.
@@ -340,7 +346,7 @@ def by_search(model: AssemblyModel, scan: Scan, cfg: RouteConfig = RouteConfig()
     for segment, idx in sorted(scan.segments.items()):
         points = scan.points[idx]
         if len(points) >= 10:
-            best = best_shape(candidates, points, scan, cfg)
+            best = best_shape(candidates, points, scan, cfg, segment)
             if best is not None:
                 by_segment[segment] = best
     return [replace(f, sigma_mm=_uncertainty(model.parts[f.index], f.fit, cfg,
@@ -349,7 +355,7 @@ def by_search(model: AssemblyModel, scan: Scan, cfg: RouteConfig = RouteConfig()
 
 
 def best_shape(candidates: Sequence[tuple[str, PartSurface]], points: FloatArray, scan: Scan,
-               cfg: RouteConfig) -> tuple[str, Fit] | None:
+               cfg: RouteConfig, segment: int | None = None) -> tuple[str, Fit] | None:
     """The candidate shape (a key and a surface of it) that fits a segment best, found without
     any prior pose. Shapes the segment could be (no smaller than its extent) are tried nearest
     its size first, and the search stops at a good fit (past the shapes a small segment is
@@ -359,6 +365,8 @@ def best_shape(candidates: Sequence[tuple[str, PartSurface]], points: FloatArray
     fitting = sorted((c for c in candidates if extent <= c[1].diameter + cfg.extent_slack_mm),
                      key=lambda c: c[1].diameter)
     fitness, coverage = cfg.good_fit
+    if segment is not None:
+        coverage = cfg.good_owned
     alike = cfg.alike_window * extent + cfg.extent_slack_mm if extent < cfg.alike_below_mm \
         else 0.0
     best: tuple[str, Fit] | None = None
@@ -368,9 +376,23 @@ def best_shape(candidates: Sequence[tuple[str, PartSurface]], points: FloatArray
             break
         fit = global_search(surface, points, scan.cameras, cfg.register,
                             lambda seen: consistency(seen, scan))[0]
-        if best is None or fit.rank() > best[1].rank():
+        if segment is not None:  # the shapes compete on what their surface claims
+            seen, _ = visible(surface, fit.pose, scan.cameras, cfg.register.stride)
+            fit = replace(fit, consistent=consistency(seen, scan, segment=segment))
+        if best is None or (_better(fit, best[1]) if segment is not None
+                            else fit.rank() > best[1].rank()):
             best = (shape, fit)
     return best
+
+
+def _better(fit: Fit, than: Fit, within: float = 0.05) -> bool:
+    """Whether a segment's fit to one shape beats its fit to another: by the share of the
+    segment it explains times the share of its surface no depth nor other segment
+    contradicts, and where those are within ``within`` of each other, by the lower inlier RMS
+    (a shape a little smaller than the segment's part covers all it shows of itself, at twice
+    the sensor's residual)."""
+    score, other = fit.fitness * fit.consistent, than.fitness * than.consistent
+    return score > other + within or (score >= other - within and fit.rmse_mm < than.rmse_mm)
 
 
 def _shape_members(model: AssemblyModel) -> dict[str, list[int]]:

@@ -40,7 +40,8 @@ class Scan:
 
     points: (n, 3); view: (n,) the view each came from; segments: instance id -> the indices
     of its points (only where the frames carried instance ids); support: the plane removed
-    (unit normal, offset: n . x = offset), or None.
+    (unit normal, offset: n . x = offset), or None; labels: per camera (h, w) the instance id
+    of each pixel (0: none or the support), only where the frames carried ids.
     """
 
     points: FloatArray
@@ -49,6 +50,7 @@ class Scan:
     segments: dict[int, IntArray] = field(default_factory=dict)
     support: tuple[FloatArray, float] | None = None
     depths: tuple[FloatArray, ...] = ()  # per camera: (h, w) mm, NaN where nothing returned
+    labels: tuple[IntArray, ...] = ()
 
     def of_views(self, views: Iterable[int]) -> Scan:
         """The part of the scan seen by these views (their cameras kept in order)."""
@@ -58,7 +60,8 @@ class Scan:
         segments = {k: index[v[keep[v]]] for k, v in self.segments.items() if keep[v].any()}
         return Scan(self.points[keep], self.view[keep],
                     tuple(self.cameras[v] for v in chosen), segments, self.support,
-                    tuple(self.depths[v] for v in chosen) if self.depths else ())
+                    tuple(self.depths[v] for v in chosen) if self.depths else (),
+                    tuple(self.labels[v] for v in chosen) if self.labels else ())
 
     def without(self, used: npt.NDArray[np.bool_]) -> Scan:
         """The scan without the points of ``used`` (n,) bool."""
@@ -66,7 +69,7 @@ class Scan:
         index = np.cumsum(keep) - 1
         segments = {k: index[v[keep[v]]] for k, v in self.segments.items() if keep[v].any()}
         return Scan(self.points[keep], self.view[keep], self.cameras, segments, self.support,
-                    self.depths)
+                    self.depths, self.labels)
 
 
 def scan_of(frames: Sequence[RgbdFrame], cfg: ScanConfig = ScanConfig()) -> Scan:
@@ -102,17 +105,28 @@ def scan_of(frames: Sequence[RgbdFrame], cfg: ScanConfig = ScanConfig()) -> Scan
     segments = {int(i): np.flatnonzero(label == i) for i in np.unique(label) if i > 0}
     depths = tuple(np.where(_valid(f), f.depth.astype(np.float64) * MM_PER_M, np.nan)
                    for f in frames)
-    return Scan(cloud, view.astype(np.int64), cameras, segments, support, depths)
+    labels = tuple(np.asarray(f.instance, dtype=np.int64) for f in frames) \
+        if all(f.instance is not None for f in frames) else ()
+    return Scan(cloud, view.astype(np.int64), cameras, segments, support, depths, labels)
 
 
-def consistency(points: FloatArray, scan: Scan, tolerance_mm: float = 4.0) -> float:
+def consistency(points: FloatArray, scan: Scan, tolerance_mm: float = 4.0,
+                segment: int | None = None, behind_mm: float = 1.5) -> float:
     """How well a hypothesis's surface points (n, 3, world mm: what the cameras would see of a
     part at a pose) agree with the depth the cameras returned: of the points whose pixel holds
     a depth, the share not contradicted by it. A point is contradicted when the camera saw
     farther than it (free space where the part would stand); nearer is another part hiding it,
-    and counts neither way. 1.0 where nothing can be checked."""
+    and counts neither way.
+
+    With ``segment`` (the instance of a segmented scan the hypothesis is of), a point is
+    supported only where its pixel is the segment's; one whose pixel another instance holds
+    at its depth (not ``behind_mm`` behind it) is contradicted too: that surface is the other
+    part's. A nut's shape laid over a stud's end, its faces on the real nut beside it, agrees
+    with the depth everywhere; the stud, whose hidden length lies behind the nut, does not
+    lose by it. 1.0 where nothing can be checked."""
     supported = contradicted = 0
-    for camera, depth in zip(scan.cameras, scan.depths, strict=True):
+    labels = scan.labels if segment is not None and scan.labels else (None,) * len(scan.depths)
+    for camera, depth, label in zip(scan.cameras, scan.depths, labels, strict=True):
         uv, z = camera.project(points)
         k = camera.intrinsics
         u, v = np.rint(uv[:, 0]).astype(np.int64), np.rint(uv[:, 1]).astype(np.int64)
@@ -120,8 +134,13 @@ def consistency(points: FloatArray, scan: Scan, tolerance_mm: float = 4.0) -> fl
         seen = depth[v[inside], u[inside]]
         known = np.isfinite(seen)
         gap = seen[known] - z[inside][known]
-        supported += int((np.abs(gap) <= tolerance_mm).sum())
-        contradicted += int((gap > tolerance_mm).sum())
+        agrees = np.abs(gap) <= tolerance_mm
+        farther = gap > tolerance_mm
+        if label is not None:
+            other = label[v[inside], u[inside]][known] != segment
+            agrees, farther = agrees & ~other, farther | (other & (gap >= -behind_mm))
+        supported += int(agrees.sum())
+        contradicted += int(farther.sum())
     total = supported + contradicted
     return supported / total if total else 1.0
 
