@@ -101,12 +101,13 @@ class RouteConfig:
     # share of its visible CAD the depth does not contradict) ends the search. Where the scan
     # is segmented, the second share is of the visible CAD neither the depth nor another
     # segment contradicts (``scan.consistency``), and ``good_owned`` takes its place: a part
-    # pressed against others loses its rim to them (a washer under its nut and on its flange
-    # keeps about 0.65 of it; a bolt's end beside its nut 0.87-0.89; a nut laid over that end
-    # and onto the nut beside it 0.38-0.56, on the held-out flange).
+    # pressed against others loses some of its rim to them (on the held-out flange a washer
+    # under its nut keeps 0.88 of its surface, a stud's end beside its nut 0.96, and a nut's
+    # shape laid over that end and onto the nut beside it 0.54-0.70).
     extent_slack_mm: float = 3.0
     good_fit: tuple[float, float] = (0.9, 0.9)
-    good_owned: float = 0.6
+    good_owned: float = 0.8
+    many_times: float = 3.0
     # ...except that a segment smaller than ``alike_below_mm`` is tried on every shape up to
     # ``alike_window`` times its extent first: a nut and a bolt's end, a ball and a roller of
     # one size all fit a small segment well, and the first is not the likeliest.
@@ -369,19 +370,25 @@ def best_shape(candidates: Sequence[tuple[str, PartSurface]], points: FloatArray
         coverage = cfg.good_owned
     alike = cfg.alike_window * extent + cfg.extent_slack_mm if extent < cfg.alike_below_mm \
         else 0.0
+    # past ``many_times`` the segment's extent a fit the depth alone does not contradict ends
+    # the search too
+    many = cfg.many_times * extent + cfg.extent_slack_mm
     best: tuple[str, Fit] | None = None
+    unseen = 0.0  # the best fit's share of its visible CAD the depth alone does not contradict
     for shape, surface in fitting:
-        if best is not None and best[1].fitness >= fitness and best[1].consistent >= coverage \
-                and surface.diameter > alike:
+        if best is not None and best[1].fitness >= fitness and surface.diameter > alike and (
+                best[1].consistent >= coverage
+                or (surface.diameter > many and unseen >= cfg.good_fit[1])):
             break
         fit = global_search(surface, points, scan.cameras, cfg.register,
                             lambda seen: consistency(seen, scan))[0]
+        plain = fit.consistent
         if segment is not None:  # the shapes compete on what their surface claims
             seen, _ = visible(surface, fit.pose, scan.cameras, cfg.register.stride)
             fit = replace(fit, consistent=consistency(seen, scan, segment=segment))
         if best is None or (_better(fit, best[1]) if segment is not None
                             else fit.rank() > best[1].rank()):
-            best = (shape, fit)
+            best, unseen = (shape, fit), plain
     return best
 
 

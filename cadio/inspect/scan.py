@@ -111,7 +111,7 @@ def scan_of(frames: Sequence[RgbdFrame], cfg: ScanConfig = ScanConfig()) -> Scan
 
 
 def consistency(points: FloatArray, scan: Scan, tolerance_mm: float = 4.0,
-                segment: int | None = None, behind_mm: float = 1.5) -> float:
+                segment: int | None = None) -> float:
     """How well a hypothesis's surface points (n, 3, world mm: what the cameras would see of a
     part at a pose) agree with the depth the cameras returned: of the points whose pixel holds
     a depth, the share not contradicted by it. A point is contradicted when the camera saw
@@ -120,10 +120,11 @@ def consistency(points: FloatArray, scan: Scan, tolerance_mm: float = 4.0,
 
     With ``segment`` (the instance of a segmented scan the hypothesis is of), a point is
     supported only where its pixel is the segment's; one whose pixel another instance holds
-    at its depth (not ``behind_mm`` behind it) is contradicted too: that surface is the other
-    part's. A nut's shape laid over a stud's end, its faces on the real nut beside it, agrees
-    with the depth everywhere; the stud, whose hidden length lies behind the nut, does not
-    lose by it. 1.0 where nothing can be checked."""
+    at its depth or beyond it (within the tolerance) is contradicted too: that surface is the
+    other part's, or free space in front of it. A nut's shape laid over a stud's end, its
+    faces on the real nut beside it, agrees with the depth everywhere; the stud, whose hidden
+    length lies behind the nut, loses nothing by it, nor a ball behind its cage. 1.0 where
+    nothing can be checked."""
     supported = contradicted = 0
     labels = scan.labels if segment is not None and scan.labels else (None,) * len(scan.depths)
     for camera, depth, label in zip(scan.cameras, scan.depths, labels, strict=True):
@@ -138,7 +139,7 @@ def consistency(points: FloatArray, scan: Scan, tolerance_mm: float = 4.0,
         farther = gap > tolerance_mm
         if label is not None:
             other = label[v[inside], u[inside]][known] != segment
-            agrees, farther = agrees & ~other, farther | (other & (gap >= -behind_mm))
+            agrees, farther = agrees & ~other, farther | (other & (gap >= 0))
         supported += int(agrees.sum())
         contradicted += int(farther.sum())
     total = supported + contradicted
