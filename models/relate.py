@@ -219,8 +219,9 @@ def relate_views(views: Sequence[PairView], models: RelationModels,
         features = pair_features_many([v.evidence_clouds(name) for v in having], mm,
                                       cloud_keys)
         slack = np.array([v.slack.get(name, 0.0) for v in having])
-        if slack.any():  # a registration's poses: read within their uncertainty
-            features = within_pose(features, slack)
+        turn = np.array([v.turn_slack.get(name, 0.0) for v in having])
+        if slack.any() or turn.any():  # a registration's poses: read within their uncertainty
+            features = within_pose(features, slack, turn)
         centres = np.stack([v.observer_centres(name) for v in having])
         if name in observers:  # kept for the networks of the inputs that read it
             own = network_evidence(features, points, centres, tests_for(name))
@@ -435,11 +436,12 @@ def relate_inspection(folder: Path, ws: Workspace, models: RelationModels,
         mine = scored[scored["index"].astype(int).isin(ids)]
         registered = {ids[int(r.index)]: np.array(r.pose).reshape(4, 4)
                       for r in mine.itertuples()}
-        sigmas = dict(zip([ids[int(i)] for i in mine["index"]],
-                          mine.get("sigma_mm", pd.Series(0.0, index=mine.index)).astype(float),
-                          strict=True))
+        named = [ids[int(i)] for i in mine["index"]]
+        sigmas, turns = ({"registered": dict(zip(named, mine.get(
+            column, pd.Series(0.0, index=mine.index)).astype(float), strict=True))}
+            for column in ("sigma_mm", "sigma_deg"))
         views_of = posed_pair_views(
             known, {"registered": registered, "registered_cad": registered,
-                    "truth": dict(known.truth)}, cameras, ws, cfg, {"registered": sigmas})
+                    "truth": dict(known.truth)}, cameras, ws, cfg, sigmas, turns)
         rows += relate_views(views_of, models)
     return pd.DataFrame(rows)

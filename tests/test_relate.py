@@ -257,3 +257,19 @@ def test_evidence_within_a_pose_s_uncertainty_reads_its_lengths_less_the_slack()
     others = [i for n, i in col.items() if n not in POSE_LENGTHS]
     np.testing.assert_array_equal(out[:, others], raw[:, others])  # radii, angles: as measured
     np.testing.assert_array_equal(within_pose(raw, np.zeros(3)), raw)
+
+
+def test_evidence_within_a_pose_s_turn_reads_its_angles_nearer_to_aligned_or_square() -> None:
+    from cadio.evidence.pair_features import PAIR_FEATURES
+    from models.geometric import POSE_ANGLES, POSE_LENGTHS, within_pose
+
+    col = {n: PAIR_FEATURES.index(n) for n in PAIR_FEATURES}
+    raw = np.full((3, len(PAIR_FEATURES)), 2.0, dtype=np.float32)
+    raw[:, col["dom_angle_deg"]] = (5.0, 84.0, 45.0)
+    raw[:, col["face_angle_deg"]] = (5.0, 1.0, 30.0)
+    out = within_pose(raw, np.zeros(3), [4.0, 4.0, 0.0])
+    assert out[:, col["dom_angle_deg"]].tolist() == [1.0, 88.0, 45.0]  # parallel, square
+    assert out[:, col["face_angle_deg"]].tolist() == [1.0, 0.0, 30.0]
+    others = [i for n, i in col.items() if n not in (*POSE_ANGLES, *POSE_LENGTHS,
+                                                      "dom_angle_deg")]
+    np.testing.assert_array_equal(out[:, others], raw[:, others])

@@ -86,7 +86,9 @@ class PairView:
     (``truth``: the CAD's); the other inputs' centres are their points' means. slack: input
     name -> millimetres within which its poses place the two parts (a registration's: the
     two poses' uncertainty, ``posed_pair_views``); the evidence's lengths are read within it
-    (``models.geometric.within_pose``). An input without one is read as measured.
+    (``models.geometric.within_pose``). An input without one is read as measured. turn_slack:
+    likewise, degrees, within which its poses turn the two parts' faces against each other;
+    the evidence's angles are read within it.
     """
 
     scene: str
@@ -103,6 +105,7 @@ class PairView:
     evidence: dict[str, tuple[Cloud, Cloud]] = field(default_factory=dict)
     centres: dict[str, FloatArray] = field(default_factory=dict)
     slack: dict[str, float] = field(default_factory=dict)
+    turn_slack: dict[str, float] = field(default_factory=dict)
 
     def observer_centres(self, name: str) -> FloatArray:
         """(2, 3) float64: the two parts' centres in the observer frame (``observer_points``),
@@ -387,7 +390,8 @@ class PosedScene:
 def posed_pair_views(known: PosedScene, posed: Mapping[str, Mapping[str, FloatArray]],
                      cameras: Sequence[FloatArray], ws: Workspace,
                      cfg: PairConfig = DEFAULT_PAIRS,
-                     sigmas: Mapping[str, Mapping[str, float]] | None = None
+                     sigmas: Mapping[str, Mapping[str, float]] | None = None,
+                     turn_sigmas: Mapping[str, Mapping[str, float]] | None = None
                      ) -> list[PairView]:
     """Pair views of parts whose poses an input gives directly (a registration's): for every
     camera (world -> camera, metres) and labelled pair, the truth of the view from the parts'
@@ -396,7 +400,8 @@ def posed_pair_views(known: PosedScene, posed: Mapping[str, Mapping[str, FloatAr
     solids' centroids), world metres. A pair whose two parts an input has no pose for lacks
     that input; a view without any input for the pair gives none. ``sigmas``: per input, each
     pose's shift uncertainty (part id -> mm); a pair of that input is read within the two
-    combined (``PairView.slack``), and a pose without a finite one at the CAD's tolerances."""
+    combined (``PairView.slack``), and a pose without a finite one at the CAD's tolerances;
+    ``turn_sigmas`` likewise each pose's turn uncertainty (degrees, ``PairView.turn_slack``)."""
     scale = 1e-3
     placed = {pid: PosedPart(pid, {"pose_mm": pose}, ws, scale, cfg.n_points,
                               cfg.evidence_points) for pid, pose in known.truth.items()}
@@ -412,6 +417,7 @@ def posed_pair_views(known: PosedScene, posed: Mapping[str, Mapping[str, FloatAr
                         known.contacts.get((a, b), NO_CONTACT), cfg.margins)
             points, evidence, centres = {}, {}, {}
             slacks: dict[str, float] = {}
+            turns: dict[str, float] = {}
             for name, parts in inputs.items():
                 if a in parts and b in parts:
                     pa, pb = parts[a], parts[b]
@@ -419,17 +425,19 @@ def posed_pair_views(known: PosedScene, posed: Mapping[str, Mapping[str, FloatAr
                     evidence[name] = (pa.dense, pb.dense)
                     centres[name] = np.stack([pa.centre, pb.centre])
                     slacks |= _slack(sigmas or {}, name, a, b)
+                    turns |= _slack(turn_sigmas or {}, name, a, b)
             if points:
                 out.append(PairView(known.scene, view, a, b, pair_category(
                     known.categories.get(a, "?"), known.categories.get(b, "?")),
                     np.array(rr.truth, dtype=bool), rr.near_boundary(), np.asarray(w2c),
-                    scale, points, np.array(rr.near, dtype=bool), evidence, centres, slacks))
+                    scale, points, np.array(rr.near, dtype=bool), evidence, centres, slacks,
+                    turns))
     return out
 
 
 def _slack(sigmas: Mapping[str, Mapping[str, float]], name: str, a: str, b: str
            ) -> dict[str, float]:
-    """The pair's slack in input ``name``: its two poses' shift sigmas combined; none where the
+    """The pair's slack in input ``name``: its two poses' sigmas combined; none where the
     input has no sigmas, 0 where either is not finite (the CAD's tolerances)."""
     if name not in sigmas:
         return {}

@@ -193,7 +193,8 @@ def _score(model: Any, variant: Variant, path: Path, found: Sequence[Inspected],
         tables["found"] += [{**base, "index": f.index, "part_id": names[f.index],
                              "segment": f.segment, "fitness": f.fit.fitness,
                              "coverage": f.fit.coverage, "rmse_mm": f.fit.rmse_mm,
-                             "sigma_mm": f.sigma_mm, "pose": f.fit.pose.ravel().tolist(),
+                             "sigma_mm": f.sigma_mm, "sigma_deg": f.sigma_deg,
+                             "pose": f.fit.pose.ravel().tolist(),
                              "scored_index": scored.get(f.segment, (-1, None))[0],
                              "scored_pose": _ravel(scored.get(f.segment, (-1, None))[1])}
                             for f in inspected.found]

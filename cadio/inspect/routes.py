@@ -322,13 +322,15 @@ def _uncertainty(part: PartSurface, fit: Fit, cfg: RouteConfig, views: int
 @dataclass(frozen=True)
 class Found:
     """A segment registered by the search route: its instance, the part index it was given,
-    its fit, and the standard deviation of its pose's shift in the least held observable
-    direction (``PoseUncertainty.shift_sigma_mm``; inf where the fit holds no inliers)."""
+    its fit, and the standard deviations of its pose's shift and turn in the least held
+    observable directions (``PoseUncertainty.shift_sigma_mm``, ``turn_sigma_deg``; inf where
+    the fit holds no inliers)."""
 
     segment: int
     index: int
     fit: Fit
     sigma_mm: float = math.inf
+    sigma_deg: float = math.inf
 
 
 def by_search(model: AssemblyModel, scan: Scan, cfg: RouteConfig = RouteConfig()
@@ -350,9 +352,11 @@ def by_search(model: AssemblyModel, scan: Scan, cfg: RouteConfig = RouteConfig()
             best = best_shape(candidates, points, scan, cfg, segment)
             if best is not None:
                 by_segment[segment] = best
-    return [replace(f, sigma_mm=_uncertainty(model.parts[f.index], f.fit, cfg,
-                                             len(scan.cameras)).shift_sigma_mm())
-            for f in name_parts(model, by_segment)]
+    out = []
+    for f in name_parts(model, by_segment):
+        sure = _uncertainty(model.parts[f.index], f.fit, cfg, len(scan.cameras))
+        out.append(replace(f, sigma_mm=sure.shift_sigma_mm(), sigma_deg=sure.turn_sigma_deg()))
+    return out
 
 
 def best_shape(candidates: Sequence[tuple[str, PartSurface]], points: FloatArray, scan: Scan,

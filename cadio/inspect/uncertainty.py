@@ -59,6 +59,15 @@ class PoseUncertainty:
             return math.inf
         return math.sqrt(max(float(np.linalg.eigvalsh(shift).max()), 0.0))
 
+    def turn_sigma_deg(self) -> float:
+        """The standard deviation of the part's turn about its least held observable axis,
+        degrees (a turn the view cannot see, a revolved part's roll, moves none of its faces'
+        directions); inf where the covariance is not finite."""
+        turn = self.covariance[:3, :3]
+        if not np.all(np.isfinite(turn)):
+            return math.inf
+        return math.degrees(math.sqrt(max(float(np.linalg.eigvalsh(turn).max()), 0.0)))
+
     def _scale(self, d: FloatArray) -> FloatArray:
         out: FloatArray = d * np.array([1 / self.radius_mm] * 3 + [1.0] * 3)
         return out
