@@ -87,8 +87,8 @@ class PairView:
     name -> millimetres within which its poses place the two parts (a registration's: the
     two poses' uncertainty, ``posed_pair_views``); the evidence's lengths are read within it
     (``models.geometric.within_pose``). An input without one is read as measured. turn_slack:
-    likewise, degrees, within which its poses turn the two parts' faces against each other;
-    the evidence's angles are read within it.
+    likewise, degrees, within which its poses turn the two parts against each other; the
+    angle of their dominant directions is read within it.
     """
 
     scene: str
