@@ -87,6 +87,7 @@ from models.evaluate import Scores, complete_isolated, folder_meta, part_inputs
 from models.relate import (
     RelateBatch,
     RelateInspectionJob,
+    reading_digest,
     relate_inspection_job,
     relate_isolated,
 )
@@ -544,7 +545,7 @@ def relate_stage(captured: list[CaptureSummary], run: Run, relations_models: str
         files = [*b, *inputs, *mates, *_models(relations_models), *_models(completion_models)]
         name = content_digest(files, labels=labels, epoch=run.epoch, version=RELATE_VERSION,
                               evidence=evidence_digest(), methods=RELATION_METHODS.digest(),
-                              inputs=INPUTS.digest())
+                              inputs=INPUTS.digest(), reading=reading_digest())
         out = ws.root / "relations" / f"{name[:32]}.parquet"
         present = out.is_file() and out.with_name(f"{out.stem}-joints.parquet").is_file()
         futures.append(_refreshed(relate_task, present).submit(
@@ -670,7 +671,8 @@ def inspect_stage(mates: list[MatesSummary], run: Run, options: InspectionOption
             continue
         key = content_digest([Path(done.folder) / "found.parquet", *_models(relations_models)],
                              version=INSPECT_VERSION, evidence=evidence_digest(),
-                             methods=RELATION_METHODS.digest(), inputs=INPUTS.digest())
+                             methods=RELATION_METHODS.digest(), inputs=INPUTS.digest(),
+                             reading=reading_digest())
         related.append(relate_inspection_task.submit(done.folder, run.workspace,
                                                      relations_models, key))
     return [f.result() for f in futures], sorted(f.result() for f in related)

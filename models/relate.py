@@ -76,6 +76,22 @@ class RelationModels:
                 for (m, i), c in sorted(self.cards.items())}
 
 
+def reading_digest() -> str:
+    """SHA-256 of the code that reads pair views into relation rows (this module, the pair
+    views and the geometric tests, which read a registration's poses within their
+    uncertainty): a night's cached relations are redone when it changes, as its evidence's
+    are (``evidence_digest``)."""
+    import hashlib
+
+    from cadio.evidence import pairs
+    from models import geometric
+
+    digest = hashlib.sha256()
+    for source in (__file__, pairs.__file__, geometric.__file__):
+        digest.update(Path(source or "").read_bytes())
+    return digest.hexdigest()
+
+
 def load_relation_models(folder: Path = SHIPPED_RELATIONS) -> RelationModels:
     """Every relation checkpoint (``<method>-<input>.pt``) of a folder; none when absent. A
     checkpoint that does not load is left out with its reason (the baseline still runs)."""

@@ -272,3 +272,15 @@ def test_evidence_within_a_pose_s_turn_reads_its_dominant_directions_nearer_to_a
     assert out[:, col["dom_angle_deg"]].tolist() == [1.0, 88.0, 45.0]  # parallel, square
     others = [i for n, i in col.items() if n not in (*POSE_LENGTHS, "dom_angle_deg")]
     np.testing.assert_array_equal(out[:, others], raw[:, others])
+
+
+def test_a_change_to_the_code_reading_pair_views_changes_the_relations_cache_key(
+        tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    import models.geometric
+    from models.relate import reading_digest
+
+    before = reading_digest()
+    changed = tmp_path / "geometric.py"
+    changed.write_bytes(Path(models.geometric.__file__).read_bytes() + b"\n# a tolerance\n")
+    monkeypatch.setattr(models.geometric, "__file__", str(changed))
+    assert reading_digest() != before
