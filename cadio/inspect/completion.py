@@ -171,7 +171,11 @@ def _search(points: FloatArray, views: list[int], cad: CaptureCad, cfg: RouteCon
         return None
     # ICP's finest reach follows the points' spacing: a small part of a large scene has few
     spacing = float(np.median(cKDTree(points).query(points, k=2)[0][:, 1]))
-    cfg = replace(cfg, register=replace(cfg.register,
+    # ...and its candidates are not ranked again by the depth seen through them
+    # (``RegisterConfig.judged``): on the held-out night's views of scenes scaled to 0.3 m
+    # that took the registered completion's IoU from 0.847 to 0.823; it serves the
+    # inspection's real-size segments (a stud showing a short stretch of itself)
+    cfg = replace(cfg, register=replace(cfg.register, judged=0,
                                         fine_mm=max(cfg.register.fine_mm, 2 * spacing)))
     scan = Scan(points, np.zeros(len(points), dtype=np.int64),
                 tuple(cad.cameras[v] for v in views), depths=tuple(cad.depths[v] for v in views))

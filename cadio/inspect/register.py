@@ -298,7 +298,7 @@ def global_search(part: PartSurface, scan: FloatArray, cameras: Sequence[Camera]
     scored += [(*fit, seed) for fit, (_, seed) in
                zip(_coarse(part, few, [p for p, _ in starts], reach, cfg), starts, strict=True)]
     scored.sort(key=lambda item: item[0], reverse=True)
-    if judge is not None:
+    if judge is not None and cfg.judged:
         scored = _judged(part, scored, judge, cfg)
     best = _distinct(scored, part.diameter / 10, cfg.keep)
     return sorted((replace(refine(part, scan, pose, cameras, cfg, judge=judge), seed=seed)
