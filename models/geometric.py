@@ -177,12 +177,6 @@ class GeometricTests:
 # registered pose's uncertainty blurs (``within_pose``); radii and residuals are the parts' own.
 POSE_LENGTHS = ("gap_mm", "face_offset_mm", "contact_axis_offset_mm", "axis_offset_mm",
                 "cyl_offset_mm", "coax_spread_mm", "coax_face_gap_mm")
-# The angle of the two parts' dominant directions (parallel, perpendicular) is read within
-# their turn uncertainty, towards the nearer of 0 and 90 degrees. The angles of the faces a
-# concentric or coincident mate pairs are not: read within the turn, the held-out night's
-# concentric F1 of ``registered`` fell from 0.92 to 0.85 (0.88 to 0.65 where both parts show
-# a fifth of themselves), coincident from 0.942 to 0.937, their lengths' slack already
-# passing faces the poses cannot tell apart.
 
 
 def within_pose(features: npt.NDArray[np.floating], slack_mm: npt.ArrayLike,
@@ -193,7 +187,10 @@ def within_pose(features: npt.NDArray[np.floating], slack_mm: npt.ArrayLike,
     degrees: the dominant directions' angle that much nearer to 0 or 90 degrees. The
     ``registered`` input's poses carry millimetres and degrees where the CAD's tolerances are
     0.1 mm and 3 degrees: read at those, its coincident mates held in 2 of 10 pair views, and
-    its parallel pairs F1 0.89 against 0.96 within the turn (held-out night)."""
+    its parallel pairs F1 0.89 against 0.96 within the turn (held-out night). The angles of
+    the faces a concentric or coincident mate pairs are not read within the turn: so read,
+    that night's concentric F1 fell from 0.92 to 0.85 and coincident from 0.942 to 0.937,
+    their lengths' slack already passing faces the poses cannot tell apart."""
     out = np.array(features, dtype=np.float32)
     slack = np.asarray(slack_mm, dtype=np.float32)
     for name in POSE_LENGTHS:

@@ -453,11 +453,12 @@ def relate_inspection(folder: Path, ws: Workspace, models: RelationModels,
         registered = {ids[int(r.index)]: np.array(r.pose).reshape(4, 4)
                       for r in mine.itertuples()}
         named = [ids[int(i)] for i in mine["index"]]
-        sigmas, turns = ({"registered": dict(zip(named, mine.get(
-            column, pd.Series(0.0, index=mine.index)).astype(float), strict=True))}
-            for column in ("sigma_mm", "sigma_deg"))
+        sigma = {column: dict(zip(named, mine.get(column, pd.Series(0.0, index=mine.index))
+                                  .astype(float), strict=True))
+                 for column in ("sigma_mm", "sigma_deg")}
         views_of = posed_pair_views(
             known, {"registered": registered, "registered_cad": registered,
-                    "truth": dict(known.truth)}, cameras, ws, cfg, sigmas, turns)
+                    "truth": dict(known.truth)}, cameras, ws, cfg,
+            {"registered": sigma["sigma_mm"]}, {"registered": sigma["sigma_deg"]})
         rows += relate_views(views_of, models)
     return pd.DataFrame(rows)
