@@ -137,6 +137,27 @@ def test_a_shifted_part_is_caught_and_the_design_baseline_catches_nothing(
     assert any(m.status == BROKEN for m in inspected.mates if moved in (m.index_a, m.index_b))
 
 
+def test_a_part_the_depth_sees_through_is_missing_however_few_points_the_design_shows(
+        ws: Workspace, model: AssemblyModel) -> None:
+    """With the points a missing call needs above what the design shows of any part, a part
+    left out is still missing where the camera sees through nearly all of its place, and
+    "too little of it seen" without that rule; of the intact assembly, none is missing."""
+    mates = _mates(ws)
+    face = mates[(mates["level"] == "face") & (mates["relation"] == "coincident")]
+    gone = int(face.iloc[0]["index_a"])
+    few = replace(QUIET, route=replace(QUIET.route, missing_min_points=10**9))
+    path = capture_variant(model, Variant(ASSEMBLY, "missing-test", (
+        Defect(gone, "missing", 0.0),)), ws, QUIET)
+    assert inspect_capture(model, path, mates, few, fixture=np.eye(4))[0] \
+        .parts[gone].problem == "missing"
+    unsure = replace(few, route=replace(few.route, absent_sure=0.0))
+    assert inspect_capture(model, path, mates, unsure, fixture=np.eye(4))[0] \
+        .parts[gone].problem == "too little of it seen"
+    intact = capture_variant(model, Variant(ASSEMBLY, "intact"), ws, QUIET)
+    parts = inspect_capture(model, intact, mates, few, fixture=np.eye(4))[0].parts
+    assert not [i for i, p in parts.items() if p.problem == "missing"]
+
+
 def test_the_search_route_never_reads_the_design_poses(ws: Workspace,
                                                        model: AssemblyModel) -> None:
     path = capture_variant(model, Variant(ASSEMBLY, "intact"), ws, QUIET)
