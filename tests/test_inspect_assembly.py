@@ -158,6 +158,25 @@ def test_a_part_the_depth_sees_through_is_missing_however_few_points_the_design_
     assert not [i for i, p in parts.items() if p.problem == "missing"]
 
 
+def test_a_part_the_depth_agrees_with_where_it_stands_is_not_missing_for_a_failed_fit(
+        ws: Workspace, model: AssemblyModel) -> None:
+    """With every refinement taken as covering too little of its part, the parts of the intact
+    assembly are not inspectable, never missing (the depth agrees with where they stand); a
+    part left out is missing all the same."""
+    mates = _mates(ws)
+    failed = replace(QUIET, route=replace(QUIET.route, missing_coverage=1.01))
+    intact = capture_variant(model, Variant(ASSEMBLY, "intact"), ws, QUIET)
+    parts = inspect_capture(model, intact, mates, failed, fixture=np.eye(4))[0].parts
+    assert {p.problem for p in parts.values()} == {"too little of it seen",
+                                                  "too little of it visible"}
+    face = mates[(mates["level"] == "face") & (mates["relation"] == "coincident")]
+    gone = int(face.iloc[0]["index_a"])
+    path = capture_variant(model, Variant(ASSEMBLY, "missing-test", (
+        Defect(gone, "missing", 0.0),)), ws, QUIET)
+    assert inspect_capture(model, path, mates, failed, fixture=np.eye(4))[0] \
+        .parts[gone].problem == "missing"
+
+
 def test_the_search_route_never_reads_the_design_poses(ws: Workspace,
                                                        model: AssemblyModel) -> None:
     path = capture_variant(model, Variant(ASSEMBLY, "intact"), ws, QUIET)

@@ -208,8 +208,12 @@ def _place_parts(model: AssemblyModel, scan: Scan, nominal: FloatArray, cfg: Rou
                                     else "too little of it seen")
             continue
         if fit.coverage < cfg.missing_coverage:
+            # the refinement covers too little of it: gone, unless the depth agrees with its
+            # designed place (a fit pulled off a part that stands there is no evidence it is
+            # gone: a pillow block's bearing seen from one view was called missing there)
             placed[i] = PartAsBuilt(i, None, None, "missing" if expected[i] >=
-                                    cfg.missing_min_points else "too little of it seen")
+                                    cfg.missing_min_points and here < cfg.found_above
+                                    else "too little of it seen")
             continue
         placed[i] = PartAsBuilt(i, fit.pose, _uncertainty(part, fit, cfg,
                                                           len(scan.cameras)))
