@@ -82,7 +82,8 @@ class RouteConfig:
                                                                          iterations=30))
     # A part the design shows fewer scan-sized points of than this is not inspectable; one it
     # shows but the scan covers less than ``missing_coverage`` of, after its refinement, is
-    # missing.
+    # missing, unless the depth agrees with ``found_above`` of its designed place (it stands
+    # there, and its fit went astray: not inspectable).
     min_visible: int = 60
     missing_coverage: float = 0.15
     # A part is called missing only where the design shows this many of its points: of one
