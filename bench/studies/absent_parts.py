@@ -24,8 +24,8 @@ from pathlib import Path
 
 import numpy as np
 import pandas as pd
+from near_views import assemblies  # the study beside this one: the night's assemblies
 
-from cadio.catalog import read_catalog
 from cadio.inspect.routes import by_design, expected_points
 from cadio.inspect.scan import consistency, scan_of
 from cadio.inspect.stage import (
@@ -38,13 +38,6 @@ from cadio.inspect.stage import (
 from cadio.inspect.surface import occluders, visible
 from cadio.recordings.mcap_io import read_capture
 from cadio.workspace import Workspace
-
-
-def assemblies(ws: Workspace) -> list[str]:
-    """The workspace's assemblies whose mates the night wrote."""
-    catalog = read_catalog(ws.catalog)
-    names = sorted({Path(str(s)).stem for s in catalog[catalog["n_solids"] > 1]["source"]})
-    return [n for n in names if ws.mates(n).is_file()]
 
 
 def agreements(ws: Workspace, assembly: str, cfg: InspectConfig) -> list[dict[str, object]]:
