@@ -15,7 +15,7 @@ One row per pair view x input x method x relation (``reports.relations.PAIR_COLU
 from __future__ import annotations
 
 import logging
-from collections.abc import Mapping, Sequence
+from collections.abc import Hashable, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -50,6 +50,7 @@ from models.relations import RelationNet
 from models.relations_train import (
     RelationData,
     load_relation_model,
+    nearest_of_pairs,
     predict_relations,
 )
 
@@ -157,6 +158,19 @@ class PairBatch:
     centres: npt.NDArray[np.floating] | None = None
     tests: GeometricTests = field(default_factory=GeometricTests)
     observed: Observed | None = None
+    # per set of points a network reads (by id, the array kept with it): each point's distance
+    # to the other part's nearest, measured once for every network of the batch
+    _near: dict[int, tuple[npt.NDArray[np.float32], npt.NDArray[np.float32]]] = field(
+        default_factory=dict, repr=False, compare=False)
+
+    def nearest(self, points: npt.NDArray[np.float32]) -> npt.NDArray[np.float32]:
+        """(N, 2, k) ``nearest_of_pairs`` of ``points`` (the batch's or its observed ones)."""
+        held = self._near.get(id(points))
+        if held is None or held[0] is not points:
+            held = (points, nearest_of_pairs(np.asarray(points, dtype=np.float32),
+                                             np.asarray(self.mm_per_unit, dtype=np.float64)))
+            self._near[id(points)] = held
+        return held[1]
 
     def evidence(self) -> npt.NDArray[np.float32]:
         """The raw evidence (measured here where the batch carries none)."""
@@ -194,7 +208,8 @@ def decide(batch: PairBatch, method: RelationMethod | str,
     if batch.observed is not None and reads_observed(net.cfg.evidence):
         points, evidence = batch.observed[0], with_observed(evidence, batch.observed[1])
     data = RelationData(points, np.zeros((len(points), len(RELATIONS)), dtype=bool),
-                        np.asarray(batch.mm_per_unit, dtype=np.float64), evidence)
+                        np.asarray(batch.mm_per_unit, dtype=np.float64), evidence,
+                        batch.nearest(points))
     pred = predict_relations(net, data, decision=decision)
     return (pred.decided, pred.confidence, violations(pred.raw_ab, pred.raw_ba),
             pred.joint() or joints_of(pred.decided))
@@ -221,6 +236,11 @@ def relate_views(views: Sequence[PairView], models: RelationModels,
     # input -> id(view) -> the view's points and network evidence of that input
     seen: dict[str, dict[int, tuple[npt.NDArray[np.float32], npt.NDArray[np.float32]]]] = {}
     observers = {i.observed_by for i in INPUTS.entries() if i.observed_by}
+    # the exact inputs' clouds (CAD samples at a pose) are the same in every view of a pair,
+    # and in every input that gives the part the same pose (a registration's poses read at
+    # its uncertainty and at the CAD's tolerances): each distinct pair is measured once
+    content: dict[int, tuple[npt.NDArray[Any], str]] = {}
+    measured: dict[tuple[Hashable, Hashable], npt.NDArray[np.float32]] = {}
     for spec in INPUTS.entries():
         name = spec.name
         having = [v for v in views if name in v.points]
@@ -230,10 +250,11 @@ def relate_views(views: Sequence[PairView], models: RelationModels,
         mm = np.array([1.0 / v.scale_m_per_mm for v in having])
         keys = [((v.scene, v.part_a, v.view), (v.scene, v.part_b, v.view)) for v in having]
         # exact evidence is measured on each part's CAD samples, the same in every view
-        cloud_keys = [((name, v.scene, v.part_a), (name, v.scene, v.part_b)) if spec.exact
-                      else k for v, k in zip(having, keys, strict=True)]
-        features = pair_features_many([v.evidence_clouds(name) for v in having], mm,
-                                      cloud_keys)
+        clouds = [v.evidence_clouds(name) for v in having]
+        cloud_keys = [(_content_key(a, m, content), _content_key(b, m, content)) if spec.exact
+                      else k for (a, b), m, k in zip(clouds, mm, keys, strict=True)]
+        features = pair_features_many(clouds, mm, cloud_keys,
+                                      memo=measured if spec.exact else None)
         slack = np.array([v.slack.get(name, 0.0) for v in having])
         turn = np.array([v.turn_slack.get(name, 0.0) for v in having])
         if slack.any() or turn.any():  # a registration's poses: read within their uncertainty
@@ -253,6 +274,22 @@ def relate_views(views: Sequence[PairView], models: RelationModels,
             if decided is not None:
                 rows += _rows(having, name, method.name, *decided)
     return rows
+
+
+def _content_key(cloud: npt.NDArray[Any], mm_per_unit: float,
+                 known: dict[int, tuple[npt.NDArray[Any], str]]) -> Hashable:
+    """A key of a cloud by its content and scale: a digest, kept per array in ``known`` (one
+    input's pair views share its parts' arrays; the array is kept with it, so that its id
+    names it while the digest is kept)."""
+    import hashlib
+
+    held = known.get(id(cloud))
+    if held is None or held[0] is not cloud:
+        data = np.ascontiguousarray(cloud)
+        held = (cloud, f"{data.shape}:{data.dtype}:"
+                + hashlib.blake2b(data.tobytes(), digest_size=16).hexdigest())
+        known[id(cloud)] = held
+    return (held[1], float(mm_per_unit))
 
 
 def _rows(views: Sequence[PairView], name: str, method: str, decided: npt.NDArray[np.bool_],

@@ -470,7 +470,8 @@ def encode_features(features: npt.NDArray[np.floating],
 def pair_features_many(points: npt.NDArray[np.floating] | Sequence[Sequence[npt.NDArray[Any]]],
                        mm_per_unit: npt.ArrayLike,
                        keys: Sequence[tuple[Hashable, Hashable]] | None = None,
-                       cloud: Callable[[FloatArray, FloatArray | None], PartCloud] | None = None
+                       cloud: Callable[[FloatArray, FloatArray | None], PartCloud] | None = None,
+                       memo: dict[tuple[Hashable, Hashable], npt.NDArray[np.float32]] | None = None
                        ) -> npt.NDArray[np.float32]:
     """(N, ``N_PAIR_FEATURES``) features of pairs (N, 2, k, 3) in any unit, or of N pairs of
     clouds of any sizes (k_a, 3), (k_b, 3). Every feature is invariant under a rigid motion of
@@ -480,9 +481,12 @@ def pair_features_many(points: npt.NDArray[np.floating] | Sequence[Sequence[npt.
     Args:
         mm_per_unit: (N,) millimetres of the parts per unit of ``points``.
         keys: per row, a key of each part's cloud: a cloud met again (a part of an assembly in
-            many pairs) gets its normals once.
+            many pairs) gets its normals once, and a pair of clouds met again (the CAD samples
+            of two parts, the same in every view of them) is measured once.
         cloud: how a part's points (mm) and exact normals (or None) become a ``PartCloud``;
             ``part_cloud`` by default.
+        memo: the features of pairs already measured, by their two keys, read and filled here
+            (shared by calls whose keys name the same clouds); with ``keys`` only.
     """
     mm = np.broadcast_to(np.asarray(mm_per_unit, dtype=np.float64), (len(points),))
     cache: dict[Hashable, PartCloud] = {}
@@ -499,7 +503,15 @@ def pair_features_many(points: npt.NDArray[np.floating] | Sequence[Sequence[npt.
             cache[key] = fit(arr[..., :3] * mm[i], arr[..., 3:6] if arr.shape[-1] == 6 else None)
         return cache[key]
 
+    measured: dict[tuple[Hashable, Hashable], npt.NDArray[np.float32]] = \
+        {} if memo is None else memo
     out = np.zeros((len(points), N_PAIR_FEATURES), dtype=np.float32)
     for i in range(len(points)):
-        out[i] = pair_features(part(i, 0), part(i, 1))
+        if keys is None:
+            out[i] = pair_features(part(i, 0), part(i, 1))
+            continue
+        pair = (keys[i][0], keys[i][1])
+        if pair not in measured:
+            measured[pair] = pair_features(part(i, 0), part(i, 1))
+        out[i] = measured[pair]
     return out
