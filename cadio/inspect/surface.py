@@ -203,7 +203,12 @@ def voxel_down(points: FloatArray, voxel_mm: float) -> FloatArray:
     if len(points) == 0 or voxel_mm <= 0:
         return points
     keys = np.floor(points / voxel_mm).astype(np.int64)
-    _, inverse, counts = np.unique(keys, axis=0, return_inverse=True, return_counts=True)
+    # the voxels as one integer each, in the order of their rows (x, then y, then z): a
+    # row-wise unique sorts the same, several times slower
+    keys -= keys.min(axis=0)
+    span = keys.max(axis=0) + 1
+    packed = (keys[:, 0] * span[1] + keys[:, 1]) * span[2] + keys[:, 2]
+    _, inverse, counts = np.unique(packed, return_inverse=True, return_counts=True)
     sums = np.zeros((len(counts), 3))
     np.add.at(sums, inverse.ravel(), points)
     down: FloatArray = sums / counts[:, None]
