@@ -142,6 +142,33 @@ def test_features_are_symmetric_and_cached(solids) -> None:  # type: ignore[no-u
     assert np.allclose(out[0], _features(solids, "plate", "pin"), atol=1e-4)
 
 
+
+def test_a_pair_of_clouds_met_again_is_measured_once(solids, monkeypatch) -> None:  # type: ignore[no-untyped-def]
+    """The CAD samples of two parts are the same in every view of them: the pair's evidence
+    is measured once, in one call and, through a shared memo, in later ones."""
+    import cadio.evidence.pair_features as features
+
+    a, b, c = (_points(solids[k], s) / 1000.0 for k, s in (("plate", 1), ("pin", 2),
+                                                          ("block", 3)))
+    measured = []
+
+    def counted(x, y, *args):  # type: ignore[no-untyped-def]
+        measured.append(1)
+        return pair_features(x, y, *args)
+
+    plain = pair_features_many([(a, b), (a, c)], [1000.0, 1000.0])
+    monkeypatch.setattr(features, "pair_features", counted)
+    memo: dict = {}
+    views = pair_features_many([(a, b), (a, c), (a, b)], [1000.0] * 3,
+                               [("p", "q"), ("p", "r"), ("p", "q")], memo=memo)
+    assert len(measured) == 2 and np.array_equal(views[0], views[2])
+    assert np.array_equal(views[:2], plain)
+    later = pair_features_many([(a, c)], [1000.0], [("p", "r")], memo=memo)
+    assert len(measured) == 2 and np.array_equal(later[0], plain[1])
+    # without keys every row is measured
+    pair_features_many([(a, b), (a, b)], [1000.0, 1000.0])
+    assert len(measured) == 4
+
 def test_clouds_of_any_sizes_and_frames_give_the_features_of_the_stacked_pair(solids) -> None:  # type: ignore[no-untyped-def]
     a, b = _points(solids["plate"], 1), _points(solids["pin"], 2)
     stacked = pair_features_many(np.stack([np.stack([a, b])]), [1.0])[0]

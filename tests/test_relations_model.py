@@ -485,3 +485,43 @@ def test_deciding_a_completed_pair_hands_its_network_the_observed_points() -> No
     geometric, by_itself = decide(both, "geometric", None), decide(alone, "geometric", None)
     assert geometric is not None and by_itself is not None
     np.testing.assert_array_equal(geometric[0], by_itself[0])
+
+
+def test_the_networks_of_a_batch_measure_its_nearest_distances_once(monkeypatch) -> None:  # type: ignore[no-untyped-def]
+    """Every network of a batch reads each point's distance to the other part: measured once
+    per set of points (the batch's, or the observed ones a network reads instead), and each
+    network's answer is the one it gives measuring them itself."""
+    import models.relate as relate
+    from cadio.evidence.pair_features import pair_features_many
+    from models.geometric import evidence_names, network_evidence, tests_for, with_observed
+    from models.relate import PairBatch, decide
+    from models.relation_decision import Decision
+    from models.relations_train import nearest_of_pairs
+
+    names = tuple(evidence_names("completed"))
+    nets = [random_net(seed, pair_features=len(names), evidence=names) for seed in (3, 4)]
+    gen = np.random.default_rng(3)
+    completed, seen = (gen.normal(size=(3, 2, 40, 3)).astype(np.float32) for _ in range(2))
+    mm = np.array([1.0, 2.0, 0.5])
+    raw, raw_seen = pair_features_many(completed, mm), pair_features_many(seen, mm)
+    observed = network_evidence(raw_seen, seen, None, tests_for("partial"))
+    batch = PairBatch(completed, mm, None, raw, None, tests_for("completed"), (seen, observed))
+    measured: list[int] = []
+
+    def counted(points, scale):  # type: ignore[no-untyped-def]
+        measured.append(id(points))
+        return nearest_of_pairs(points, scale)
+
+    monkeypatch.setattr(relate, "nearest_of_pairs", counted)
+    for net in nets:
+        got = decide(batch, "ltn", (net, Decision.default()))
+        want = predict_relations(net, RelationData(
+            seen, np.zeros((3, 10), bool), mm,
+            with_observed(network_evidence(raw, completed, None, tests_for("completed")),
+                          observed)))
+        assert got is not None
+        np.testing.assert_array_equal(got[0], want.decided)
+        np.testing.assert_allclose(got[1], want.confidence)
+    assert len(measured) == 1
+    np.testing.assert_array_equal(batch.nearest(completed), nearest_of_pairs(completed, mm))
+    assert len(measured) == 2 and batch.nearest(completed) is batch.nearest(completed)
