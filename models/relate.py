@@ -249,7 +249,6 @@ def relate_views(views: Sequence[PairView], models: RelationModels,
         points = np.stack([v.observer_points(name) for v in having])
         mm = np.array([1.0 / v.scale_m_per_mm for v in having])
         keys = [((v.scene, v.part_a, v.view), (v.scene, v.part_b, v.view)) for v in having]
-        # exact evidence is measured on each part's CAD samples, the same in every view
         clouds = [v.evidence_clouds(name) for v in having]
         cloud_keys = [(_content_key(a, m, content), _content_key(b, m, content)) if spec.exact
                       else k for (a, b), m, k in zip(clouds, mm, keys, strict=True)]
