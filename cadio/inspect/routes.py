@@ -28,7 +28,7 @@ from scipy.spatial import cKDTree
 from cadio.inspect.asbuilt import PartAsBuilt
 from cadio.inspect.register import Fit, RegisterConfig, global_search, refine
 from cadio.inspect.scan import Scan, consistency
-from cadio.inspect.surface import Occluders, PartSurface, occluders, visible
+from cadio.inspect.surface import Camera, Occluders, PartSurface, occluders, visible
 from cadio.inspect.symmetry import Symmetry
 from cadio.inspect.uncertainty import PoseUncertainty, pose_uncertainty
 from cadio.records import FloatArray, Mesh, apply_pose
@@ -612,8 +612,8 @@ def onto_alike(part: PartSurface, other: PartSurface) -> FloatArray:
     return align_samples(part, other)
 
 
-def visible_share(model: AssemblyModel, poses: Mapping[int, FloatArray], scan: Scan
-                  ) -> dict[int, float]:
+def visible_share(model: AssemblyModel, poses: Mapping[int, FloatArray],
+                  cameras: Sequence[Camera]) -> dict[int, float]:
     """Per part at its pose, the share of its surface samples the cameras see, the other parts
     hiding it (a sample is seen when the ray to it first meets it there)."""
     import open3d as o3d
@@ -632,7 +632,7 @@ def visible_share(model: AssemblyModel, poses: Mapping[int, FloatArray], scan: S
         pts = apply_pose(poses[i], part.samples[::10])
         normals = part.normals[::10] @ poses[i][:3, :3].T
         seen = np.zeros(len(pts), dtype=bool)
-        for cam in scan.cameras:
+        for cam in cameras:
             to = pts - cam.centre
             dist = np.linalg.norm(to, axis=1)
             dirs = to / dist[:, None]

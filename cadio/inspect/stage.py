@@ -45,7 +45,7 @@ from cadio.inspect.routes import (
     visible_share,
 )
 from cadio.inspect.scan import Scan, scan_of
-from cadio.inspect.surface import part_surface
+from cadio.inspect.surface import camera_of, part_surface
 from cadio.inspect.symmetry import Symmetry, pose_error, symmetry_of
 from cadio.recordings.foxglove_mcap import DEPTH_M, DEPTH_MM, CaptureWriter
 from cadio.recordings.mcap_io import read_capture
@@ -399,10 +399,10 @@ def _read_as(model: AssemblyModel, found: Found, index: int) -> FloatArray:
 def shares(model: AssemblyModel, path: Path, truth: dict[str, Any],
            views: Sequence[int] | None = None) -> dict[int, float]:
     """Per part, the share of its surface the capture's cameras (or ``views`` of them) see
-    where it truly stands (the other parts hiding it)."""
-    frames = list(read_capture(path))
-    scan = scan_of(frames)
+    where it truly stands (the other parts hiding it). Only the cameras are read: what they
+    see of a part is the other parts' doing, not the depth's."""
+    cameras = [camera_of(f.intrinsics, f.world_to_camera) for f in read_capture(path)]
     if views is not None:
-        scan = scan.of_views(views)
+        cameras = [cameras[v] for v in views]
     poses = {int(i): np.array(p) for i, p in truth["poses"].items()}
-    return visible_share(model, poses, scan)
+    return visible_share(model, poses, cameras)
