@@ -81,7 +81,7 @@ def inspect_assembly(assembly: str, ws: Workspace, cfg: InspectConfig, key: str
                                     variant.name == "intact", fixture=np.eye(4))
             clock["inspect"] += time.perf_counter() - start
             start = time.perf_counter()
-            _score(model, variant, path, found, ws, tables)
+            score_capture(model, variant, path, found, ws, tables)
             if variant.name == "intact":
                 folder.mkdir(parents=True, exist_ok=True)
                 _deviation(model, path, found[0], folder / f"deviation-{assembly}.npz", cfg)
@@ -167,8 +167,8 @@ def inspect_recording_rows(assembly: str, recording: Path, ws: Workspace, cfg: I
                               {"inspect": time.perf_counter() - start})
 
 
-def _score(model: Any, variant: Variant, path: Path, found: Sequence[Inspected],
-           ws: Workspace, tables: dict[str, list[dict[str, Any]]]) -> None:
+def score_capture(model: Any, variant: Variant, path: Path, found: Sequence[Inspected],
+                  ws: Workspace, tables: dict[str, list[dict[str, Any]]]) -> None:
     """The rows of one capture's inspections (each set of views)."""
     truth = read_truth(ws, path.stem)
     for inspected in found:
