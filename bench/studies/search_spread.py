@@ -6,19 +6,20 @@ points. Its figures (the registered relations' F1 against the CAD's mates, its p
 turn on those draws, and on a machine's last floating-point bits. A change of the search must
 be judged against that spread, not against one night. This runs the search route on the
 intact captures a night already made (any ``mateqa nightly`` workspace that inspected its
-assemblies) once per seed (``RegisterConfig.seed``) and per stride (``RegisterConfig.stride``,
-every stride-th pixel of a hypothesis's visible surface), all views and the night's single
+assemblies) once per seed (``RegisterConfig.seed``) and per variant of its knobs (other
+``RegisterConfig`` fields: by default ``stride`` 1 and 2, every stride-th pixel of a
+hypothesis's visible surface), all views and the night's single
 view as the night does, and relates the registered poses as the night does
 (``models.relate.relate_inspection`` with the shipped relation networks). Each run's rows go
-to ``inspect/study-spread/<stride>-<seed>/<assembly>/`` of the workspace (the night's own are
+to ``inspect/study-spread/<variant>-<seed>/<assembly>/`` of the workspace (the night's own are
 not touched); the script prints per run the search's time, its pose errors and ltn's F1 of
 the ``registered`` input against the CAD's mates (every pair view, and those where both parts
-show 20% of their surface), then per stride each figure's least, median and greatest over the
+show 20% of their surface), then per variant each figure's least, median and greatest over the
 seeds.
 
 Usage:
     .venv/bin/python bench/studies/search_spread.py --workspace WORKSPACE \\
-        [--seeds 0 1 2] [--strides 1 2] [--jobs 2] [--method ltn]
+        [--seeds 0 1 2] [--variants stride=1 stride=2,keep=2] [--jobs 2] [--method ltn]
 
 Nothing is asserted: it prints the tables.
 """
@@ -47,10 +48,19 @@ def intact_captures(ws_root: Path) -> list[tuple[str, str]]:
     return sorted(out)
 
 
-def run_one(ws_root: str, assembly: str, capture: str, seed: int, stride: int,
+def knobs(variant: str) -> dict[str, int | float]:
+    """``RegisterConfig`` fields of a variant: "stride=2,keep=2" (empty: the defaults)."""
+    out: dict[str, int | float] = {}
+    for item in filter(None, variant.split(",")):
+        name, value = item.split("=")
+        out[name.strip()] = float(value) if "." in value else int(value)
+    return out
+
+
+def run_one(ws_root: str, assembly: str, capture: str, seed: int, variant: str,
             relations: str) -> dict[str, object]:
     """The search route on one intact capture (all views, and the single view) at a seed and
-    stride, its rows written as the night writes them, then its relations."""
+    a variant of its knobs, its rows written as the night writes them, then its relations."""
     from cadio.inspect.defects import Variant
     from cadio.inspect.evaluate import score_capture
     from cadio.inspect.routes import by_search
@@ -63,7 +73,7 @@ def run_one(ws_root: str, assembly: str, capture: str, seed: int, stride: int,
     ws = Workspace(Path(ws_root))
     base = InspectConfig()
     route = replace(base.route, register=replace(base.route.register, seed=seed,
-                                                 stride=stride))
+                                                 **knobs(variant)))
     model = assembly_model(assembly, ws)
     path = ws.capture(capture)
     whole = scan_of(list(read_capture(path)))
@@ -78,13 +88,13 @@ def run_one(ws_root: str, assembly: str, capture: str, seed: int, stride: int,
                                                    ("mates", "poses", "defects", "parts",
                                                     "found", "shares")}
     score_capture(model, Variant(assembly, "intact"), path, inspected, ws, tables)
-    folder = ws.root / "inspect" / STUDY / f"{stride}-{seed}" / assembly
+    folder = ws.root / "inspect" / STUDY / f"{variant or 'defaults'}-{seed}" / assembly
     folder.mkdir(parents=True, exist_ok=True)
     for name in ("poses", "found", "shares"):
         pd.DataFrame(tables[name]).to_parquet(folder / f"{name}.parquet", index=False)
     rows = relate_inspection(folder, ws, load_relation_models(Path(relations)))
     rows.to_parquet(folder / "relations.parquet", index=False)
-    return {"assembly": assembly, "seed": seed, "stride": stride, "search_s": seconds,
+    return {"assembly": assembly, "seed": seed, "variant": variant, "search_s": seconds,
             "folder": str(folder)}
 
 
@@ -104,7 +114,8 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--workspace", type=Path, required=True)
     parser.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2])
-    parser.add_argument("--strides", type=int, nargs="+", default=[1, 2])
+    parser.add_argument("--variants", nargs="+", default=["stride=1", "stride=2"],
+                        help="RegisterConfig fields per variant, e.g. stride=2,keep=2")
     parser.add_argument("--jobs", type=int, default=2)
     parser.add_argument("--method", default="ltn")
     parser.add_argument("--relations", type=Path,
@@ -113,33 +124,32 @@ def main() -> None:
     args = parser.parse_args()
     root = args.workspace.resolve()
     captures = intact_captures(root)
-    runs = [(stride, seed) for stride in args.strides for seed in args.seeds]
+    runs = [(variant, seed) for variant in args.variants for seed in args.seeds]
     with ProcessPoolExecutor(args.jobs) as pool:
-        futures = [pool.submit(run_one, str(root), a, c, seed, stride,
-                               str(args.relations))
-                   for stride, seed in runs for a, c in captures]
+        futures = [pool.submit(run_one, str(root), a, c, seed, variant, str(args.relations))
+                   for variant, seed in runs for a, c in captures]
         done = pd.DataFrame([f.result() for f in futures])
     rows = []
-    for (stride, seed), group in done.groupby(["stride", "seed"], sort=True):
+    for (variant, seed), group in done.groupby(["variant", "seed"], sort=False):
         poses, f1 = figures([Path(f) for f in group["folder"]], args.method)
         each = ", ".join(f"{a} {s:.0f}" for a, s in zip(group["assembly"], group["search_s"],
                                                           strict=True))
-        print(f"\n## stride {stride}, seed {seed}: search {group['search_s'].sum():.0f} s "
+        print(f"\n## {variant or 'defaults'}, seed {seed}: search {group['search_s'].sum():.0f} s "
               f"({each})\n")
         print(poses.round(3).to_string(index=False), "\n")
         print(f1.pivot_table(index="relation", columns="visible", values="f1").round(3)
               .to_string(), "\n")
-        rows += [{"stride": stride, "seed": seed, "figure": f"f1 {r.visible} {r.relation}",
+        rows += [{"variant": variant, "seed": seed, "figure": f"f1 {r.visible} {r.relation}",
                   "value": r.f1} for r in f1.itertuples()]
-        rows += [{"stride": stride, "seed": seed, "figure": f"pose {r.views} {q}",
+        rows += [{"variant": variant, "seed": seed, "figure": f"pose {r.views} {q}",
                   "value": getattr(r, q)} for r in poses.itertuples()
                  for q in ("median_mm", "p90_mm", "median_deg", "p90_deg")]
-        rows.append({"stride": stride, "seed": seed, "figure": "search s",
+        rows.append({"variant": variant, "seed": seed, "figure": "search s",
                      "value": group["search_s"].sum()})
     table = pd.DataFrame(rows)
     table.to_csv(root / "inspect" / STUDY / "figures.csv", index=False)
-    spread = table.groupby(["figure", "stride"])["value"].agg(["min", "median", "max"]) \
-        .unstack("stride")
+    spread = table.groupby(["figure", "variant"], sort=False)["value"] \
+        .agg(["min", "median", "max"]).unstack("variant")
     print("## Over the seeds: least, median, greatest\n")
     print(spread.round(3).to_string())
 
