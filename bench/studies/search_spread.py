@@ -8,9 +8,9 @@ be judged against that spread, not against one night. This runs the search route
 intact captures a night already made (any ``mateqa nightly`` workspace that inspected its
 assemblies) once per seed (``RegisterConfig.seed``) and per variant of its knobs (other
 ``RegisterConfig`` fields: by default ``stride`` 1 and 2, every stride-th pixel of a
-hypothesis's visible surface), all views and the night's single
-view as the night does, and relates the registered poses as the night does
-(``models.relate.relate_inspection`` with the shipped relation networks). Each run's rows go
+hypothesis's visible surface), all views and the night's single view as the night does, and
+relates the registered poses as the night does (``models.relate.relate_inspection`` with the
+shipped relation networks). Each run's rows go
 to ``inspect/study-spread/<variant>-<seed>/<assembly>/`` of the workspace (the night's own are
 not touched); the script prints per run the search's time, its pose errors and ltn's F1 of
 the ``registered`` input against the CAD's mates (every pair view, and those where both parts
@@ -62,7 +62,7 @@ def run_one(ws_root: str, assembly: str, capture: str, seed: int, variant: str,
     """The search route on one intact capture (all views, and the single view) at a seed and
     a variant of its knobs, its rows written as the night writes them, then its relations."""
     from cadio.inspect.defects import Variant
-    from cadio.inspect.evaluate import score_capture
+    from cadio.inspect.evaluate import TABLES, score_capture
     from cadio.inspect.routes import by_search
     from cadio.inspect.scan import scan_of
     from cadio.inspect.stage import ALL_VIEWS, InspectConfig, Inspected, assembly_model
@@ -84,9 +84,7 @@ def run_one(ws_root: str, assembly: str, capture: str, seed: int, variant: str,
     inspected = [Inspected(capture, views, np.eye(4), {}, [], [], by_search(model, scan, route))
                  for views, scan in sets]
     seconds = time.perf_counter() - clock
-    tables: dict[str, list[dict[str, object]]] = {t: [] for t in
-                                                   ("mates", "poses", "defects", "parts",
-                                                    "found", "shares")}
+    tables: dict[str, list[dict[str, object]]] = {t: [] for t in TABLES}
     score_capture(model, Variant(assembly, "intact"), path, inspected, ws, tables)
     folder = ws.root / "inspect" / STUDY / f"{variant or 'defaults'}-{seed}" / assembly
     folder.mkdir(parents=True, exist_ok=True)
