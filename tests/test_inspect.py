@@ -221,6 +221,23 @@ def _seen(surface: object, pose: np.ndarray, cameras: list[Camera]) -> np.ndarra
     return points
 
 
+def test_what_a_camera_sees_is_cast_only_within_the_part_s_bounding_cone() -> None:
+    cameras = [_camera(), _camera((250.0, 150.0, 200.0)), _camera((-40.0, -90.0, 420.0))]
+    for mesh in (_l_mesh(), _cylinder_mesh(4, 90), _box_mesh(60, 30, 10)):
+        for deg, axis, shift in ((0, (0, 0, 1), (0, 0, 0)), (70, (1, 2, 0.5), (30, -20, 10)),
+                                 (140, (0, 1, 1), (-60, 40, -25))):
+            pose = _pose(deg, axis, shift)
+            coned = part_surface("p", mesh)
+            whole = part_surface("p", mesh)
+            whole.__dict__["radius"] = 1e9  # a cone wider than the window: every pixel cast
+            assert coned.radius < 0.6 * coned.diameter
+            for stride in (1, 3):
+                a, na = visible(coned, pose, cameras, stride)
+                b, nb = visible(whole, pose, cameras, stride)
+                assert len(a) > 50
+                assert np.array_equal(a, b) and np.array_equal(na, nb)
+
+
 def test_refine_brings_a_part_back_from_a_few_millimetres_and_degrees() -> None:
     surface = part_surface("l", _l_mesh())
     cameras = [_camera(), _camera((250.0, 150.0, 200.0))]

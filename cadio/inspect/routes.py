@@ -303,11 +303,17 @@ def _explained(part: PartSurface, pose: FloatArray, scan: Scan, cfg: RouteConfig
                hidden_by: tuple[Occluders, int] | None = None) -> npt.NDArray[np.bool_]:
     """(n,) bool: the scan's points within the fine distance of what the cameras see of the
     part at ``pose``."""
+    explained = np.zeros(len(scan.points), dtype=bool)
     model_pts, _ = visible(part, pose, scan.cameras, cfg.register.stride, hidden_by)
     if not len(model_pts):
-        return np.zeros(len(scan.points), dtype=bool)
-    dist, _ = cKDTree(model_pts).query(scan.points, distance_upper_bound=cfg.register.fine_mm)
-    explained: npt.NDArray[np.bool_] = np.isfinite(dist)
+        return explained
+    # only points within the part's reach of its centre can be that near what it shows
+    reach = part.radius + cfg.register.fine_mm + 1e-3
+    near = np.flatnonzero(np.sum((scan.points - apply_pose(pose, part.centre)) ** 2, axis=1)
+                          <= reach * reach)
+    dist, _ = cKDTree(model_pts).query(scan.points[near],
+                                       distance_upper_bound=cfg.register.fine_mm)
+    explained[near] = np.isfinite(dist)
     return explained
 
 

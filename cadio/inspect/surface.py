@@ -70,6 +70,11 @@ class PartSurface:
     _scene: list[Any] = field(default_factory=list, repr=False)
 
     @cached_property
+    def radius(self) -> float:
+        """The largest distance of the mesh from ``centre`` (every point of it lies within)."""
+        return float(np.sqrt(np.max(np.sum((self.mesh.vertices - self.centre) ** 2, axis=1))))
+
+    @cached_property
     def facet_normals(self) -> FloatArray:
         """(m, 3) the outward unit normal of each triangle of the mesh."""
         return facet_normals(self.mesh)
@@ -150,8 +155,7 @@ def visible(part: PartSurface, pose: FloatArray, cameras: Sequence[Camera],
         origin, dirs = rays
         local_o = apply_pose(to_part, origin[None])[0]
         local_d = dirs @ to_part[:3, :3].T
-        cast = part.raycaster().cast_rays(o3d.core.Tensor.from_numpy(np.ascontiguousarray(
-            np.hstack([np.broadcast_to(local_o, local_d.shape), local_d]), np.float32)))
+        cast = part.raycaster().cast_rays(o3d.core.Tensor.from_numpy(_rays(local_o, local_d)))
         t = cast["t_hit"].numpy()
         hit = np.isfinite(t)
         if not hit.any():
@@ -159,8 +163,7 @@ def visible(part: PartSurface, pose: FloatArray, cameras: Sequence[Camera],
         if hidden_by is not None:  # (only the rays that meet the part are cast again)
             others, index = hidden_by
             rows = np.flatnonzero(hit)
-            t_first, first = others.first(np.hstack([np.broadcast_to(origin, (len(rows), 3)),
-                                                     dirs[rows]]).astype(np.float32))
+            t_first, first = others.first(_rays(origin, dirs[rows]))
             hit[rows] = (first == index) | (t[rows] <= t_first + 1.0)
             if not hit.any():
                 continue
@@ -175,10 +178,19 @@ def visible(part: PartSurface, pose: FloatArray, cameras: Sequence[Camera],
     return np.concatenate(points), np.concatenate(normals)
 
 
+def _rays(origin: FloatArray, dirs: FloatArray) -> npt.NDArray[np.float32]:
+    """(n, 6) float32 rays for open3d's ray casting: one origin (3,), directions (n, 3)."""
+    out = np.empty((len(dirs), 6), dtype=np.float32)
+    out[:, :3] = origin
+    out[:, 3:] = dirs
+    return out
+
+
 def _rays_over(part: PartSurface, pose: FloatArray, cam: Camera, stride: int
                ) -> tuple[FloatArray, FloatArray] | None:
     """The camera's centre and unit ray directions (world) of the pixels over the part's
-    projected bounding sphere; None where it is behind the camera or off the image."""
+    projected bounding sphere that can meet the part (within its ``radius`` of its centre);
+    None where it is behind the camera or off the image."""
     centre = apply_pose(pose, part.centre)
     (uv,), (z,) = cam.project(centre[None])
     if not np.isfinite(z) or z <= 0.5 * part.diameter:
@@ -189,13 +201,37 @@ def _rays_over(part: PartSurface, pose: FloatArray, cam: Camera, stride: int
     v0, v1 = int(max(0, uv[1] - radius_px)), int(min(k.height - 1, uv[1] + radius_px))
     if u0 > u1 or v0 > v1:
         return None
-    u, v = np.meshgrid(np.arange(u0, u1 + 1, stride), np.arange(v0, v1 + 1, stride))
-    cam_dirs = np.column_stack([(u.ravel() - k.cx) / k.fx, (v.ravel() - k.cy) / k.fy,
-                                np.ones(u.size)])
-    cam_dirs /= np.linalg.norm(cam_dirs, axis=1, keepdims=True)
+    cam_dirs = _pixel_rays(k)[v0:v1 + 1:stride, u0:u1 + 1:stride].reshape(-1, 3)
+    # a ray meets the part only within the cone from the camera around its bounding sphere
+    # (a tenth of a micrometre wider): the window's corners, and all of it for a long part
+    # seen end on, need no cast
+    towards = apply_pose(cam.world_to_camera, centre[None])[0]
+    distance = float(np.linalg.norm(towards))
+    reach = part.radius + 1e-4
+    if distance > reach:
+        cone = np.sqrt(1.0 - (reach / distance) ** 2)
+        cam_dirs = cam_dirs[cam_dirs @ (towards / distance) >= cone - 1e-9]
     rot = cam.world_to_camera[:3, :3]
     dirs: FloatArray = cam_dirs @ rot  # camera -> world: R^T d
     return cam.centre, dirs
+
+
+_PIXEL_RAYS: dict[CameraIntrinsics, FloatArray] = {}
+
+
+def _pixel_rays(k: CameraIntrinsics) -> FloatArray:
+    """(height, width, 3) the unit ray of every pixel in the camera's frame, once per
+    intrinsics."""
+    table = _PIXEL_RAYS.get(k)
+    if table is None:
+        if len(_PIXEL_RAYS) > 8:
+            _PIXEL_RAYS.clear()
+        u, v = np.meshgrid(np.arange(k.width), np.arange(k.height))
+        table = np.stack([(u - k.cx) / k.fx, (v - k.cy) / k.fy, np.ones(u.shape)], axis=-1)
+        table /= np.linalg.norm(table, axis=-1, keepdims=True)
+        table.setflags(write=False)
+        _PIXEL_RAYS[k] = table
+    return table
 
 
 def voxel_down(points: FloatArray, voxel_mm: float) -> FloatArray:
