@@ -238,6 +238,24 @@ def test_what_a_camera_sees_is_cast_only_within_the_part_s_bounding_cone() -> No
                 assert np.array_equal(a, b) and np.array_equal(na, nb)
 
 
+def test_registration_s_nearest_points_are_scipy_s() -> None:
+    from pykdtree.kdtree import KDTree
+    from scipy.spatial import cKDTree
+
+    surface = part_surface("l", _l_mesh())
+    seen = _seen(surface, _pose(40, (1, 1, 0), (3, -2, 1)), [_camera()])
+    rng = np.random.default_rng(0)
+    for model, reach in ((surface.samples, 8.0), (seen, 3.0)):
+        scan = seen + rng.normal(0.0, 1.5, seen.shape)
+        ours, theirs = KDTree(model).query(scan, distance_upper_bound=reach), \
+            cKDTree(model).query(scan, distance_upper_bound=reach)
+        near = np.isfinite(theirs[0])
+        assert 0.2 < near.mean() < 1.0
+        assert np.array_equal(np.isfinite(ours[0]), near)
+        assert np.array_equal(ours[0][near], theirs[0][near])
+        assert np.array_equal(ours[1][near].astype(np.int64), theirs[1][near])
+
+
 def test_refine_brings_a_part_back_from_a_few_millimetres_and_degrees() -> None:
     surface = part_surface("l", _l_mesh())
     cameras = [_camera(), _camera((250.0, 150.0, 200.0))]

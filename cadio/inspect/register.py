@@ -28,7 +28,7 @@ from typing import Any
 import numpy as np
 import open3d as o3d
 from numpy.typing import NDArray
-from scipy.spatial import cKDTree
+from pykdtree.kdtree import KDTree
 
 from cadio.inspect.surface import (
     Camera,
@@ -173,7 +173,7 @@ def _icp(model: FloatArray, normals: FloatArray, scan: FloatArray, pose: FloatAr
          centre: FloatArray, reach: float, cfg: RegisterConfig) -> FloatArray:
     """``cfg.iterations`` Gauss-Newton steps at one scale. The visible CAD stays put (one
     tree) and the scan moves by each step's inverse; the part's pose takes the steps."""
-    tree = cKDTree(model)
+    tree = KDTree(model)
     moved = scan
     total = np.eye(4)
     for _ in range(cfg.iterations):
@@ -201,12 +201,12 @@ def _scored(part: PartSurface, scan: FloatArray, pose: FloatArray,
             hidden_by: tuple[Occluders, int] | None = None, judge: Judge | None = None) -> Fit:
     """The fit at ``pose``: fitness and coverage at the finest distance, RMS, Hessian."""
     reach = cfg.fine_mm
-    tree = cKDTree(scan) if len(scan) else None
+    tree = KDTree(scan) if len(scan) else None
     model, normals = visible(part, pose, cameras, cfg.stride, hidden_by)
     centre = apply_pose(pose, part.centre)
     if len(model) < 6:
         return Fit(pose, 0.0, 0.0, float("inf"), 0, np.zeros((6, 6)), centre, len(model))
-    near = cKDTree(model)
+    near = KDTree(model)
     dist, idx = near.query(scan, distance_upper_bound=reach)
     keep = np.isfinite(dist)
     covered = tree.query(model, distance_upper_bound=reach)[0] if tree is not None else \
@@ -349,16 +349,16 @@ def _distinct(scored: Sequence[tuple[tuple[float, float], FloatArray, str]], apa
     return out
 
 
-_TREES: dict[int, tuple[PartSurface, cKDTree]] = {}
+_TREES: dict[int, tuple[PartSurface, KDTree]] = {}
 
 
-def _tree(part: PartSurface) -> cKDTree:
+def _tree(part: PartSurface) -> KDTree:
     """The k-d tree of a part's samples in its own frame, built once per part."""
     cached = _TREES.get(id(part))
     if cached is None or cached[0] is not part:
         if len(_TREES) > 512:
             _TREES.clear()
-        cached = (part, cKDTree(part.samples))
+        cached = (part, KDTree(part.samples))
         _TREES[id(part)] = cached
     return cached[1]
 
@@ -403,7 +403,7 @@ def _coarse(part: PartSurface, scan: FloatArray, poses: Sequence[FloatArray], re
     return out
 
 
-def _steps(model: FloatArray, normals: FloatArray, scans: FloatArray, tree: cKDTree,
+def _steps(model: FloatArray, normals: FloatArray, scans: FloatArray, tree: KDTree,
            centre: FloatArray, reach: float, kernel: float
            ) -> tuple[FloatArray, NDArray[np.bool_]]:
     """One Gauss-Newton step of the part (4, 4, world) for each of k candidates: scans

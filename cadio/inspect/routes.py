@@ -22,8 +22,8 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 import numpy.typing as npt
+from pykdtree.kdtree import KDTree
 from scipy.optimize import linear_sum_assignment
-from scipy.spatial import cKDTree
 
 from cadio.inspect.asbuilt import PartAsBuilt
 from cadio.inspect.register import Fit, RegisterConfig, global_search, refine
@@ -311,8 +311,8 @@ def _explained(part: PartSurface, pose: FloatArray, scan: Scan, cfg: RouteConfig
     reach = part.radius + cfg.register.fine_mm + 1e-3
     near = np.flatnonzero(np.sum((scan.points - apply_pose(pose, part.centre)) ** 2, axis=1)
                           <= reach * reach)
-    dist, _ = cKDTree(model_pts).query(scan.points[near],
-                                       distance_upper_bound=cfg.register.fine_mm)
+    dist, _ = KDTree(model_pts).query(scan.points[near],
+                                      distance_upper_bound=cfg.register.fine_mm)
     explained[near] = np.isfinite(dist)
     return explained
 
