@@ -47,7 +47,7 @@ from typing import Any
 
 import numpy as np
 import numpy.typing as npt
-from scipy.spatial import cKDTree
+from pykdtree.kdtree import KDTree
 
 from cadio.evidence.fits import (
     DEFAULT_FEATURES,
@@ -272,7 +272,7 @@ def face_pairs(a: PartCloud, b: PartCloud, reach: float,
     out = []
     cos = math.cos(math.radians(FACE_PAIR_DEG))
     members_b = b.plane_members()
-    trees: dict[int, cKDTree] = {}
+    trees: dict[int, KDTree] = {}
     for i, ia in enumerate(a.plane_members()):
         na = a.planes[i][0]
         for j, ib in enumerate(members_b):
@@ -281,11 +281,13 @@ def face_pairs(a: PartCloud, b: PartCloud, reach: float,
                     or len(ib) < cfg.min_contact:
                 continue
             if j not in trees:
-                trees[j] = cKDTree(b.points[ib])
-            near_a = ia[trees[j].query(a.points[ia], k=1)[0] <= reach]
+                trees[j] = KDTree(np.asarray(b.points[ib], dtype=np.float64))
+            near_a = ia[trees[j].query(np.asarray(a.points[ia], dtype=np.float64), k=1)[0]
+                        <= reach]
             if len(near_a) < cfg.min_contact:
                 continue
-            near_b = ib[cKDTree(a.points[ia]).query(b.points[ib], k=1)[0] <= reach]
+            near_b = ib[KDTree(np.asarray(a.points[ia], dtype=np.float64)).query(
+                np.asarray(b.points[ib], dtype=np.float64), k=1)[0] <= reach]
             if len(near_b) < cfg.min_contact:
                 continue
             normal = na if na @ nb >= 0 else -na
