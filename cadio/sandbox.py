@@ -14,18 +14,24 @@ function (by its qualified name) and payload of each job, and its result, travel
 a socket pair that only the worker inherits; the worker's end closing is how the supervisor sees
 it die.
 
-A worker costs 3-4 s of CPU before its first job (OCP, open3d and the job's module), and a night
-runs pool after pool (ingest batches, mates, export). So a pool that ran its jobs to the end
-leaves its live, idle workers to the next pool of this process started in the same context
-(memory limit, umask, working folder, import path and environment: what a worker takes from its
-supervisor when it starts). A kept worker leaves by itself after ``KEEP_IDLE_S`` without a job
-or when this process ends (its socket closes); ``release_idle_workers`` stops the kept ones at
-once. A pool closed early (its caller stopped iterating) keeps nothing.
+A worker costs 3-6 s of CPU before its first job (OCP, open3d, torch and the job's module), and
+a night runs pool after pool (ingest batches, mates, captures, completion, relations,
+inspection, export). So a pool that ran its jobs to the end leaves its live, idle workers to
+the next pool of this process started in the same context (umask, working folder, import path
+and environment, its libraries' threads included: what a worker takes from its supervisor when
+it starts). The memory limit is a job's, not a worker's: it is sent with each job, and a kept
+worker serves a pool of its limit or a larger one, or of a smaller one where it maps at most
+half of that now (lowering a limit under what an earlier job left mapped would fail the next
+job's allocations), so that the stages' pools of different limits share their workers. A kept
+worker leaves by itself after ``KEEP_IDLE_S`` without a job or when this process ends (its
+socket closes); ``release_idle_workers`` stops the kept ones at once. A pool closed early (its
+caller stopped iterating) keeps nothing.
 """
 
 from __future__ import annotations
 
 import logging
+import math
 import os
 import resource
 import signal
@@ -155,11 +161,13 @@ def release_idle_workers() -> int:
     return len(kept)
 
 
-def _context(memory_mb: int, threads: int | None = None) -> tuple[object, ...]:
-    """What a worker inherits from this process when it starts, beside its memory limit and
-    threads: a kept worker serves a later pool only where all of it is still the same."""
-    return (memory_mb, threads, _umask(), os.getcwd(), tuple(sys.path),
-            tuple(sorted(os.environ.items())))
+def _context(threads: int | None = None) -> tuple[object, ...]:
+    """What a worker inherits from this process when it starts (its environment as
+    ``threads`` sets it): a kept worker serves a later pool only where all of it is still the
+    same. Pools that ask for no threads and for as many as this process's environment already
+    sets share their workers."""
+    environment = _environment(threads) or os.environ
+    return (_umask(), os.getcwd(), tuple(sys.path), tuple(sorted(environment.items())))
 
 
 THREAD_VARIABLES = ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS")
@@ -186,16 +194,20 @@ def _umask() -> int:
     return mask
 
 
-def _take_idle(context: tuple[object, ...]) -> _Worker[Any] | None:
-    """A kept worker of this context that is alive and not about to leave, or None."""
+def _take_idle(context: tuple[object, ...], memory_mb: int) -> _Worker[Any] | None:
+    """A kept worker of this context that may run under ``memory_mb`` (module docstring),
+    alive and not about to leave (the most recently idle first), or None. Those about to leave
+    are stopped on the way."""
     with _IDLE_LOCK:
         kept = _IDLE.get(context, [])
-        while kept:
-            worker = kept.pop()  # the most recently idle
-            if worker.alive() and time.monotonic() - worker.idle_since < (
-                    KEEP_IDLE_S - _TAKE_MARGIN_S):
+        for worker in kept[::-1]:
+            fresh = time.monotonic() - worker.idle_since < KEEP_IDLE_S - _TAKE_MARGIN_S
+            if not (worker.alive() and fresh):
+                kept.remove(worker)
+                worker.kill()
+            elif worker.memory_mb <= memory_mb or worker.mapped_mb() <= memory_mb / 2:
+                kept.remove(worker)
                 return worker
-            worker.kill()
     return None
 
 
@@ -224,6 +236,7 @@ class _Worker(Generic[P]):
                 _LIVE.add(self.process)
             self.conn = Connection(mine.detach())
         self.send(list(sys.path))
+        self.memory_mb = memory_mb  # the limit of its last job (it sets each job's)
         self.job: Job[P] | None = None
         self.started = self.idle_since = 0.0
 
@@ -236,9 +249,20 @@ class _Worker(Generic[P]):
     def alive(self) -> bool:
         return self.process.poll() is None
 
-    def submit(self, fn: Callable[[P], Any], job: Job[P]) -> None:
-        self.job, self.started = job, time.monotonic()
-        self.send((fn, job.payload))
+    def mapped_mb(self) -> float:
+        """Its address space now, MB (what a memory limit holds); infinite where unknown."""
+        try:
+            with open(f"/proc/{self.process.pid}/status") as status:
+                for line in status:
+                    if line.startswith("VmSize:"):
+                        return int(line.split()[1]) / 1024
+        except (OSError, ValueError, IndexError):
+            pass
+        return math.inf
+
+    def submit(self, fn: Callable[[P], Any], job: Job[P], memory_mb: int) -> None:
+        self.job, self.started, self.memory_mb = job, time.monotonic(), memory_mb
+        self.send((fn, job.payload, memory_mb))
 
     def kill(self) -> None:
         if self.alive():
@@ -260,7 +284,7 @@ class _Pool(Generic[P, R]):
         self.fn, self.limits = fn, limits
         self.workers: list[_Worker[P]] = []
         self.queue: deque[Job[P]] = deque()
-        self.context = _context(limits.memory_mb, limits.threads)
+        self.context = _context(limits.threads)
 
     def run(self, queue: deque[Job[P]]) -> Iterator[Outcome[P, R]]:
         self.queue = queue
@@ -278,11 +302,11 @@ class _Pool(Generic[P, R]):
             worker.kill()  # died between jobs: reap it and close its socket
             self.workers.remove(worker)
         while len(self.workers) < min(self.limits.workers, len(queue) + self._busy()):
-            kept = _take_idle(self.context)
+            kept = _take_idle(self.context, self.limits.memory_mb)
             self.workers.append(kept or _Worker(self.limits.memory_mb, self.limits.threads))
         for worker in self.workers:
             if worker.job is None and queue:
-                worker.submit(self.fn, queue.popleft())
+                worker.submit(self.fn, queue.popleft(), self.limits.memory_mb)
 
     def _busy(self) -> int:
         return sum(w.job is not None for w in self.workers)
@@ -338,7 +362,10 @@ class _Pool(Generic[P, R]):
                 for worker in idle:
                     worker.idle_since = now
                 kept.extend(idle)
-                surplus = kept[:max(0, len(kept) - self.limits.workers)]
+                # one pool's worth, or a worker a core: pools of one worker each run side by
+                # side (the completion's and the relations' batches, two tasks at once)
+                room = max(self.limits.workers, os.cpu_count() or 1)
+                surplus = kept[:max(0, len(kept) - room)]
                 del kept[:len(surplus)]
             self.workers = idle = surplus  # beyond one pool's worth: stopped below
         _stop(idle)
@@ -379,8 +406,9 @@ def _rebuild_error(key: str, value: tuple[str, str]) -> InputFileError:
 
 
 def _worker_main(conn: Connection, memory_mb: int) -> None:
-    """Entry point of a worker (after ``_BOOT``): limit memory, serve (function, payload) jobs
-    until told to stop, the supervisor's end closes or no job came for ``KEEP_IDLE_S``.
+    """Entry point of a worker (after ``_BOOT``): limit memory, serve (function, payload,
+    memory limit) jobs until told to stop, the supervisor's end closes or no job came for
+    ``KEEP_IDLE_S``.
 
     The worker leaves with ``os._exit``: every result is sent by then, and tearing down an
     interpreter that holds OCP and open3d costs about half a second of CPU (exit handlers do
@@ -389,7 +417,8 @@ def _worker_main(conn: Connection, memory_mb: int) -> None:
     _limit_memory(memory_mb)
     try:
         while conn.poll(KEEP_IDLE_S) and (job := conn.recv()) is not None:
-            fn, payload = job
+            fn, payload, memory_mb = job
+            _limit_memory(memory_mb)
             conn.send(_serve(fn, payload, memory_mb))
     except (EOFError, OSError):
         pass  # the supervisor is gone or gave up on this worker
@@ -414,5 +443,10 @@ def _serve(fn: Callable[[Any], Any], payload: Any, memory_mb: int) -> tuple[str,
 
 
 def _limit_memory(memory_mb: int) -> None:
+    """Hold this process's address space to ``memory_mb`` (the soft limit: a later job of a
+    larger limit raises it, up to the hard limit it inherited)."""
     limit = memory_mb * 1024 * 1024
-    resource.setrlimit(resource.RLIMIT_AS, (limit, limit))
+    _, hard = resource.getrlimit(resource.RLIMIT_AS)
+    if hard != resource.RLIM_INFINITY:
+        limit = min(limit, hard)
+    resource.setrlimit(resource.RLIMIT_AS, (limit, hard))

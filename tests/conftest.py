@@ -168,6 +168,13 @@ def prefect_api(tmp_path_factory: pytest.TempPathFactory):  # type: ignore[no-un
     stop_server(proc)
 
 
+# The threads of a test night's libraries: one per process (two test workers on two cores),
+# set in every variable the CAD workers set, so that the stages' worker pools of no thread
+# setting and of one thread share their workers (``cadio.sandbox``).
+ONE_THREAD = {name: "1" for name in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS",
+                                     "MKL_NUM_THREADS")}
+
+
 # The inspection of the test nights: one view, the design's route only. The search and the
 # planted defects are the tests' of cadio.inspect and of one night in test_flows; in every
 # night they would double its time.
@@ -193,7 +200,7 @@ def start_night(library: Path, workspace: Path, env: dict[str, str],
     log = Path(workspace).with_name(f"{Path(workspace).name}.log")
     with log.open("ab") as out:  # a file, not a pipe: nobody reads while the night runs
         proc = subprocess.Popen([sys.executable, "-c", code], cwd=Path(__file__).parents[1],
-                                env={**env, "OMP_NUM_THREADS": "1"}, stdout=out,
+                                env={**env, **ONE_THREAD}, stdout=out,
                                 stderr=subprocess.STDOUT, start_new_session=True)
     proc.log = log
     return proc

@@ -17,6 +17,9 @@ if TYPE_CHECKING:
     from cadio.sandbox import Limits
 
 
+_HELD: list[object] = []  # what ``hold:`` jobs left mapped in this worker
+
+
 def misbehave(payload: str) -> str:
     """Do what the payload says; ``ok:<x>`` returns x, ``pid`` the worker's process id."""
     if payload == "segfault":
@@ -30,6 +33,15 @@ def misbehave(payload: str) -> str:
         raise ValueError("bad payload")
     if payload == "pid":
         return str(os.getpid())
+    if payload.startswith("hold:"):  # map this many MB and keep them mapped after the job
+        import mmap
+
+        _HELD.append(mmap.mmap(-1, int(payload.removeprefix("hold:")) << 20))
+        return str(os.getpid())
+    if payload == "limit":  # the worker and the address-space limit its job runs under, MB
+        import resource
+
+        return f"{os.getpid()}:{resource.getrlimit(resource.RLIMIT_AS)[0] >> 20}"
     if payload.startswith("env:"):
         return os.environ.get(payload.removeprefix("env:"), "")
     if payload == "full-disk":  # a write the disk refuses, as a full one does

@@ -26,6 +26,7 @@ from typing import Any
 import numpy as np
 import pandas as pd
 import pytest
+from conftest import ONE_THREAD
 
 from cadio.cad.ingest import IngestConfig, discover, ingest
 from cadio.sandbox import Limits
@@ -342,7 +343,7 @@ def test_the_first_sigterm_stops_a_night_at_once_and_marks_its_runs(
              "--workspace", str(ws), "--views-per-scene", "1", "--pairs-per-relation", "1",
              "--workers", "1", "--no-fail-on-threshold"], cwd=ROOT, stdout=out,
             stderr=subprocess.STDOUT, start_new_session=True,
-            env={**prefect_api, "OMP_NUM_THREADS": "1"})
+            env={**prefect_api, **ONE_THREAD})
     meshes = ws / "meshes"
     _wait(lambda: night.poll() is not None or any(meshes.glob("*.ply")), "no mesh written")
     assert night.poll() is None, log.read_text()[-3000:]

@@ -13,14 +13,14 @@ from pathlib import Path
 
 import pandas as pd
 import pytest
-from conftest import finish_night, free_port, start_night
+from conftest import ONE_THREAD, finish_night, free_port, start_night
 
 pytestmark = pytest.mark.server
 
 ROOT = Path(__file__).resolve().parents[1]
 # The workers' own settings, untouched: their processes are daemonic, as on any cluster.
 WORKER_ENV = {k: v for k, v in os.environ.items() if not k.startswith("DASK_")}
-WORKER_ENV["OMP_NUM_THREADS"] = "1"
+WORKER_ENV.update(ONE_THREAD)
 COMPARED = ["completion_categories.csv", "relations_summary.csv", "assembly_mates.csv"]
 
 

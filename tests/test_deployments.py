@@ -20,7 +20,7 @@ from uuid import UUID
 
 import pandas as pd
 import pytest
-from conftest import TEST_INSPECTION, free_port
+from conftest import ONE_THREAD, TEST_INSPECTION, free_port
 
 from cadio.tolerances import DEFAULT_TOLERANCES
 
@@ -42,8 +42,9 @@ def served(tmp_path_factory: pytest.TempPathFactory) -> Iterator[dict[str, str]]
         proc = subprocess.Popen([sys.executable, "-m", "flows.cli", "serve", "--port",
                                  str(port), "--home", str(home)], cwd=ROOT, stdout=out,
                                 stderr=subprocess.STDOUT, start_new_session=True,
-                                env={**os.environ, "PREFECT_WORKER_QUERY_SECONDS": "2",
-                                      "PREFECT_SERVER_SERVICES_SCHEDULER_LOOP_SECONDS": "2"})
+                                env={**os.environ, **ONE_THREAD,
+                                     "PREFECT_WORKER_QUERY_SECONDS": "2",
+                                     "PREFECT_SERVER_SERVICES_SCHEDULER_LOOP_SECONDS": "2"})
     deadline = time.monotonic() + 300
     while "Ctrl-C stops" not in log.read_text() and time.monotonic() < deadline:
         assert proc.poll() is None, log.read_text()

@@ -14,6 +14,7 @@ from sandbox_targets import misbehave, run_in_daemon
 from cadio.errors import WorkerError
 from cadio.sandbox import (
     _IDLE,
+    THREAD_VARIABLES,
     Job,
     Limits,
     Outcome,
@@ -107,27 +108,42 @@ def test_a_pool_run_to_the_end_leaves_its_workers_to_the_next_pool() -> None:
     assert [p.pid for p in _workers()] == [int(first)]  # kept, idle
     (second,) = _run(["pid"], Limits(seconds=60, workers=1)).values()
     assert second == first  # no new interpreter: the kept worker served the next pool
-    (other,) = _run(["pid"], Limits(seconds=60, memory_mb=2048, workers=1)).values()
-    assert other != first  # a worker is only kept for pools of its memory limit
-    before = os.umask(0o027)  # ... and of the context it was started in
+    (lower,) = _run(["limit"], Limits(seconds=60, memory_mb=2048, workers=1)).values()
+    assert lower == f"{first}:2048"  # a lower limit than its last: it maps little, it serves
+    (raised,) = _run(["limit"], Limits(seconds=60, memory_mb=8192, workers=1)).values()
+    assert raised == f"{first}:8192"  # a higher one: served, the limit raised for the job
+    _run(["hold:4096"], Limits(seconds=60, memory_mb=8192, workers=1))
+    (other,) = _run(["limit"], Limits(seconds=60, memory_mb=2048, workers=1)).values()
+    new, limit = other.split(":")  # it maps more than half of 2048 MB now: a new worker
+    assert new != first and limit == "2048"
+    before = os.umask(0o027)  # ... and only workers started in the same context serve
     try:
         (masked,) = _run(["pid"], Limits(seconds=60, workers=1)).values()
     finally:
         os.umask(before)
-    assert masked not in (first, other)
-    both = _run(["pid", "ok:x"], Limits(seconds=60, workers=2))
-    assert first in both.values()
-    assert release_idle_workers() == 4 and _workers() == []
+    assert masked not in (first, new)
+    both = _run(["limit", "ok:x"], Limits(seconds=60, workers=2))
+    assert both["limit"] == f"{new}:6144"  # the kept worker mapping little; not the other
+    alive = len(_workers())
+    assert alive >= 3 and release_idle_workers() == alive and _workers() == []
 
 
-def test_a_worker_holds_its_libraries_to_the_threads_it_is_given() -> None:
+def test_a_worker_holds_its_libraries_to_the_threads_it_is_given(
+        monkeypatch: pytest.MonkeyPatch) -> None:
     release_idle_workers()
+    for name in THREAD_VARIABLES:
+        monkeypatch.delenv(name, raising=False)
     one = _run(["env:OMP_NUM_THREADS", "env:OPENBLAS_NUM_THREADS", "pid"],
                Limits(seconds=60, workers=1, threads=1))
     assert one["env:OMP_NUM_THREADS"] == one["env:OPENBLAS_NUM_THREADS"] == "1"
     inherited = _run(["env:OMP_NUM_THREADS", "pid"], Limits(seconds=60, workers=1))
-    assert inherited["env:OMP_NUM_THREADS"] == os.environ.get("OMP_NUM_THREADS", "")
+    assert inherited["env:OMP_NUM_THREADS"] == ""
     assert inherited["pid"] != one["pid"]  # a kept worker serves only pools of its threads
+    release_idle_workers()
+    for name in THREAD_VARIABLES:  # where this process holds them to one thread already,
+        monkeypatch.setenv(name, "1")  # pools of no setting and of one thread are alike
+    one = _run(["pid"], Limits(seconds=60, workers=1, threads=1))
+    assert _run(["pid"], Limits(seconds=60, workers=1)) == one
     release_idle_workers()
 
 

@@ -20,7 +20,7 @@ from pathlib import Path
 
 import psutil
 import pytest
-from conftest import free_port
+from conftest import ONE_THREAD, free_port
 
 from flows.server import (
     DATABASE,
@@ -222,7 +222,7 @@ def test_stop_server_leaves_the_server_to_a_night_that_uses_it(
          "--pairs-per-relation", "1", "--stop-server"], cwd=ROOT, stdout=subprocess.PIPE,
         stderr=subprocess.PIPE, text=True,
         env={**env, "MATEQA_SERVER_PORT": str(port), "MATEQA_PREFECT_HOME": str(home),
-             "OMP_NUM_THREADS": "1"})
+             **ONE_THREAD})
     marker = tmp_path / "running"
     try:
         deadline = time.monotonic() + 600

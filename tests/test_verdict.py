@@ -12,6 +12,7 @@ from pathlib import Path
 
 import pandas as pd
 import pytest
+from conftest import ONE_THREAD
 
 from reports.html import verdict_table
 from reports.run_report import write_run_report
@@ -174,7 +175,7 @@ def test_a_threshold_failure_prints_the_verdict_and_exits_3_without_a_traceback(
                 "--thresholds", str(strict), *extra]
         return subprocess.run([sys.executable, "-m", "flows.cli", *args], capture_output=True,
                               text=True, check=False, cwd=Path(__file__).parents[1],
-                              env={**os.environ, **prefect_api, "OMP_NUM_THREADS": "1"},
+                              env={**os.environ, **prefect_api, **ONE_THREAD},
                               timeout=900)
 
     failed = night()
