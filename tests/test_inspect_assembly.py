@@ -214,6 +214,29 @@ def test_the_search_route_never_reads_the_design_poses(ws: Workspace,
     assert all(0 < s < np.inf for s in sigmas) and np.median(sigmas) < 0.05
 
 
+def test_a_capture_of_one_view_is_inspected_once_as_all_its_views_and_as_that_view(
+        ws: Workspace, model: AssemblyModel, monkeypatch: pytest.MonkeyPatch) -> None:
+    import cadio.inspect.stage as stage
+
+    one = replace(QUIET, views=1, single_view=0)
+    path = capture_variant(model, Variant(ASSEMBLY, "intact"), ws, one)
+    calls: list[int] = []
+
+    def counted(*args: object, **kwargs: object) -> object:
+        calls.append(1)
+        return by_design(*args, **kwargs)
+
+    by_design = stage.by_design
+    monkeypatch.setattr(stage, "by_design", counted)
+    every, alone = inspect_capture(model, path, _mates(ws), one, fixture=np.eye(4))
+    assert (every.views, alone.views) == ("all", "0") and len(calls) == 1
+    assert alone.parts == every.parts and alone.mates == every.mates
+    two = inspect_capture(model, capture_variant(model, Variant(ASSEMBLY, "intact"), ws,
+                                                 replace(QUIET, single_view=0)),
+                          _mates(ws), replace(QUIET, single_view=0), fixture=np.eye(4))
+    assert [i.views for i in two] == ["all", "0"] and len(calls) == 3  # two views: each set
+
+
 def test_an_assembly_s_inspection_rows(ws: Workspace) -> None:
     cfg = replace(QUIET, defects=DefectPlan(shifts_mm=(5.0,), turns_deg=(), missing=True,
                                             parts_per_variant=1), single_view=0)
