@@ -6,6 +6,8 @@ from pathlib import Path
 
 import pytest
 
+from cadio.sandbox import THREAD_VARIABLES
+
 SHARED_STEP_DIR = Path(__file__).resolve().parents[2] / "shared" / "data" / "step"
 
 
@@ -171,8 +173,7 @@ def prefect_api(tmp_path_factory: pytest.TempPathFactory):  # type: ignore[no-un
 # The threads of a test night's libraries: one per process (two test workers on two cores),
 # set in every variable the CAD workers set, so that the stages' worker pools of no thread
 # setting and of one thread share their workers (``cadio.sandbox``).
-ONE_THREAD = {name: "1" for name in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS",
-                                     "MKL_NUM_THREADS")}
+ONE_THREAD = {name: "1" for name in THREAD_VARIABLES}
 
 
 # The inspection of the test nights: one view, the design's route only. The search and the

@@ -296,10 +296,12 @@ def inspect_capture(model: AssemblyModel, path: Path, mates: pd.DataFrame, cfg: 
     checked = whole if cfg.near_m or len(frames) <= cfg.views else \
         whole.of_views(list(range(cfg.views)))
     sets = [(ALL_VIEWS, checked, whole)]
+    alone = cfg.single_view if cfg.single_view is not None and cfg.single_view < len(
+        frames) else None
     # a capture of one view: that view alone is all of it, inspected once and said twice
-    if cfg.single_view is not None and cfg.single_view < len(frames) > 1:
-        one = whole.of_views([cfg.single_view])
-        sets.append((str(cfg.single_view), one, one))
+    if alone is not None and len(frames) > 1:
+        one = whole.of_views([alone])
+        sets.append((str(alone), one, one))
     rows = mates.to_dict("records")
     limits = Limits.of(cfg.tolerances)
     out = []
@@ -324,8 +326,8 @@ def inspect_capture(model: AssemblyModel, path: Path, mates: pd.DataFrame, cfg: 
         out.append(Inspected(path.stem, views, nominal, parts, mates_built, baseline, found,
                              {"design": design_s, "search": time.perf_counter() - clock},
                              fits))
-    if cfg.single_view == 0 and len(frames) == 1:
-        out.append(replace(out[0], views="0"))
+    if alone is not None and len(frames) == 1:
+        out.append(replace(out[0], views=str(alone)))
     return out
 
 
