@@ -77,9 +77,10 @@ class RouteConfig:
 
     register: RegisterConfig = field(default_factory=RegisterConfig)
     # From its place in the aligned design a part is a few millimetres off at most: it is
-    # refined at the fine distance only (a coarse one lets a neighbour's points pull it).
-    local: RegisterConfig = field(default_factory=lambda: RegisterConfig(scales=(),
-                                                                         iterations=30))
+    # refined at the fine distance only (a coarse one lets a neighbour's points pull it), each
+    # step kept only where it fits the points better (``register._icp``).
+    local: RegisterConfig = field(default_factory=lambda: RegisterConfig(
+        scales=(), iterations=30, monotone=True))
     # A part the design shows fewer scan-sized points of than this is not inspectable; one it
     # shows but the scan covers less than ``missing_coverage`` of, after its refinement, is
     # missing, unless the depth agrees with ``found_above`` of its designed place (it stands
