@@ -178,6 +178,25 @@ def test_a_part_the_depth_agrees_with_where_it_stands_is_not_missing_for_a_faile
         .parts[gone].problem == "missing"
 
 
+def test_a_part_whose_points_the_sensor_dropped_is_not_missing_where_the_depth_agrees(
+        ws: Workspace, model: AssemblyModel) -> None:
+    """A part the design shows whose every point is gone from the scan (a ball between its
+    neighbours shows a rim the sensor drops at the edges) while the depth images still agree
+    with where it stands is "too little of it seen", not missing."""
+    from cadio.inspect.routes import by_design
+
+    path = capture_variant(model, Variant(ASSEMBLY, "intact"), ws, QUIET)
+    scan = scan_of(list(read_capture(path)))
+    few = replace(QUIET.route, missing_min_points=10**9)
+    shown = [i for i, p in by_design(model, scan, few, np.eye(4))[1].items() if p.pose is not None]
+    assert shown
+    for i in shown:
+        dropped = np.zeros(len(scan.points), dtype=bool)
+        dropped[scan.segments[i + 1]] = True
+        parts = by_design(model, scan.without(dropped), few, np.eye(4))[1]
+        assert parts[i].problem == "too little of it seen", (i, parts[i].problem)
+
+
 def test_the_search_route_never_reads_the_design_poses(ws: Workspace,
                                                        model: AssemblyModel) -> None:
     path = capture_variant(model, Variant(ASSEMBLY, "intact"), ws, QUIET)

@@ -193,12 +193,17 @@ def _place_parts(model: AssemblyModel, scan: Scan, nominal: FloatArray, cfg: Rou
         # the points the design shows of this part, or of none (where a part moved off its
         # place shows): never a neighbour's, whose faces touch this one's
         offered = scan.points[~used & ((label == i) | (label < 0))]
+        here = _agreement(part, start, scan, cfg, (others, i))
         if len(offered) < 6:
-            placed[i] = PartAsBuilt(i, None, None, "missing")
+            # no points where the design shows it: gone where the design shows enough of it
+            # or the depth sees through its place; else too little seen (a ball between its
+            # neighbours shows a rim that the sensor drops at the edges)
+            placed[i] = PartAsBuilt(i, None, None, "missing" if expected[i] >=
+                                    cfg.missing_min_points or here < cfg.absent_sure
+                                    else "too little of it seen")
             continue
         fit = refine(part, offered, start, scan.cameras, cfg.local, (others, i))
         fits[i] = fit
-        here = _agreement(part, start, scan, cfg, (others, i))
         if here < cfg.absent_below and not (
                 fit.coverage >= cfg.found_coverage
                 and _agreement(part, fit.pose, scan, cfg, (others, i)) >= cfg.found_above):
