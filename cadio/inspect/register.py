@@ -100,7 +100,8 @@ class Fit:
     distance of the visible CAD; coverage: share of the visible CAD with a scan point that near;
     rmse_mm: the inliers' point-to-plane RMS; inliers: their number; hessian: (6, 6) J^T W J of
     the last step, rotation (radians, about ``centre``) then translation (mm); centre: (3,) the
-    part's centroid at ``pose``, world mm; visible: CAD points the cameras see at ``pose``.
+    part's centroid at ``pose``, world mm; visible: CAD points the cameras see at ``pose``;
+    seen: those points (at the fit's stride; None where it saw none).
     """
 
     pose: FloatArray
@@ -113,6 +114,7 @@ class Fit:
     visible: int
     seed: str = ""
     consistent: float = 1.0  # the share of the visible CAD the depth does not contradict
+    seen: FloatArray | None = field(default=None, repr=False, compare=False)
 
     def rank(self) -> tuple[float, float, float]:
         """Larger is better: the share of the scan it explains times the share of its
@@ -237,7 +239,7 @@ def _scored(part: PartSurface, scan: FloatArray, pose: FloatArray,
     jac = np.hstack([np.cross(m - centre, n), n])
     return Fit(pose, float(keep.mean()), float(np.isfinite(covered).mean()),
                float(np.sqrt(np.mean(r ** 2))), int(keep.sum()), jac.T @ jac, centre,
-               len(model), consistent=judge(model) if judge is not None else 1.0)
+               len(model), consistent=judge(model) if judge is not None else 1.0, seen=model)
 
 
 # ---------------------------------------------------------------- global search

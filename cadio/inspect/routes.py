@@ -226,7 +226,9 @@ def _place_parts(model: AssemblyModel, scan: Scan, nominal: FloatArray, cfg: Rou
                                                           len(scan.cameras)))
         # a part explains only points it was offered: a washer's rim under its nut lies
         # within the fine distance of the nut, and is the washer's
-        used |= _explained(part, fit.pose, scan, cfg, (others, i)) & ((label == i) | (label < 0))
+        seen = fit.seen if cfg.local.stride == cfg.register.stride else None
+        used |= _explained(part, fit.pose, scan, cfg, (others, i), seen) & \
+            ((label == i) | (label < 0))
     return placed, fits, int(used.sum())
 
 
@@ -306,17 +308,18 @@ def _agreement(part: PartSurface, pose: FloatArray, scan: Scan, cfg: RouteConfig
 
 
 def _explained(part: PartSurface, pose: FloatArray, scan: Scan, cfg: RouteConfig,
-               hidden_by: tuple[Occluders, int] | None = None) -> npt.NDArray[np.bool_]:
+               hidden_by: tuple[Occluders, int] | None = None,
+               seen: FloatArray | None = None) -> npt.NDArray[np.bool_]:
     """(n,) bool: the scan's points within the fine distance of what the cameras see of the
-    part at ``pose``."""
+    part at ``pose`` (``seen``: those points, where a fit at ``pose`` has cast them already)."""
     explained = np.zeros(len(scan.points), dtype=bool)
-    model_pts, _ = visible(part, pose, scan.cameras, cfg.register.stride, hidden_by)
+    model_pts = visible(part, pose, scan.cameras, cfg.register.stride, hidden_by)[0] \
+        if seen is None else seen
     if not len(model_pts):
         return explained
     # only points within the part's reach of its centre can be that near what it shows
     reach = part.radius + cfg.register.fine_mm + 1e-3
-    near = np.flatnonzero(np.sum((scan.points - apply_pose(pose, part.centre)) ** 2, axis=1)
-                          <= reach * reach)
+    near = scan.near(apply_pose(pose, part.centre), reach)
     dist, _ = KDTree(model_pts).query(scan.points[near],
                                       distance_upper_bound=cfg.register.fine_mm)
     explained[near] = np.isfinite(dist)

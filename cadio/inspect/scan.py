@@ -13,6 +13,7 @@ from __future__ import annotations
 
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass, field
+from functools import cached_property
 
 import numpy as np
 import numpy.typing as npt
@@ -62,6 +63,24 @@ class Scan:
                     tuple(self.cameras[v] for v in chosen), segments, self.support,
                     tuple(self.depths[v] for v in chosen) if self.depths else (),
                     tuple(self.labels[v] for v in chosen) if self.labels else ())
+
+    def near(self, centre: FloatArray, radius: float) -> IntArray:
+        """The indices of the points within ``radius`` of ``centre`` (ascending): the
+        exact test on the slab of points whose x lies that near, looked up in the points
+        sorted by x, not on every point (a part is small beside a scan of its assembly)."""
+        order, xs = self._by_x
+        c = np.asarray(centre, dtype=np.float64)
+        # (a slab a hair wider than the radius: every point the test passes lies in it)
+        lo, hi = np.searchsorted(xs, [c[0] - radius - 1e-6, c[0] + radius + 1e-6])
+        slab = order[lo:hi]
+        out: IntArray = np.sort(slab[np.sum((self.points[slab] - c) ** 2, axis=1)
+                                     <= radius * radius])
+        return out
+
+    @cached_property
+    def _by_x(self) -> tuple[IntArray, FloatArray]:
+        order = np.argsort(self.points[:, 0], kind="stable")
+        return order, self.points[order, 0]
 
     def without(self, used: npt.NDArray[np.bool_]) -> Scan:
         """The scan without the points of ``used`` (n,) bool."""
