@@ -43,8 +43,11 @@ def intact_captures(ws_root: Path) -> list[tuple[str, str]]:
     inspection of the workspace."""
     out = set()
     for found in sorted((ws_root / "inspect").glob("*/found.parquet")):
-        table = pd.read_parquet(found, columns=["assembly", "capture"])
-        out |= {(str(a), str(c)) for a, c in table.drop_duplicates().itertuples(index=False)}
+        table = pd.read_parquet(found)
+        if table.empty:  # an inspection without the search
+            continue
+        out |= {(str(a), str(c)) for a, c in
+                table[["assembly", "capture"]].drop_duplicates().itertuples(index=False)}
     return sorted(out)
 
 
