@@ -129,12 +129,12 @@ class InspectionOptions(_Group):
     distance_m: float = Field(default=0.6, ge=0.28, le=3.0, description="camera distance, "
                               "metres (a D435's working range; farther where an assembly "
                               "needs it to fit the view)")
-    near_m: float = Field(default=0.0, ge=0.0, le=3.0, description="a second ring of as many "
+    near_m: float = Field(default=0.3, ge=0.0, le=3.0, description="a second ring of as many "
                           "views this near, metres (the robot moving the camera in on the "
                           "assembly's middle; 0: none; a D435 measures from 0.28)")
     search_near_m: float = Field(default=0.3, ge=0.0, le=3.0, description="the intact "
-                                 "capture's near ring, metres, read by the search route alone "
-                                 "(the registered relations; 0: none)")
+                                 "capture's near ring where near_m is 0, metres, read by the "
+                                 "search route alone (the registered relations; 0: none)")
     noise: bool = Field(default=True, description="the inspection camera's sensor model (a "
                         "D435: noise growing with depth, millimetre steps, holes)")
     defects: bool = Field(default=True, description="also plant defects (parts shifted 1, 2 "

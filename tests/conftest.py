@@ -176,10 +176,10 @@ def prefect_api(tmp_path_factory: pytest.TempPathFactory):  # type: ignore[no-un
 ONE_THREAD = {name: "1" for name in THREAD_VARIABLES}
 
 
-# The inspection of the test nights: one view, the design's route only. The search and the
-# planted defects are the tests' of cadio.inspect and of one night in test_flows; in every
-# night they would double its time.
-TEST_INSPECTION = {"views": 1, "defects": False, "search": False}
+# The inspection of the test nights: one view, no near ring, the design's route only. The
+# search, the near ring and the planted defects are the tests' of cadio.inspect and of one
+# night in test_flows; in every night they would double its time.
+TEST_INSPECTION = {"views": 1, "near_m": 0.0, "defects": False, "search": False}
 
 
 def start_night(library: Path, workspace: Path, env: dict[str, str],

@@ -33,8 +33,8 @@ from cadio.truth.assemblies import assembly_jobs, mates_job
 from cadio.workspace import Workspace
 
 ASSEMBLY = "bolted-joint-m8"
-QUIET = InspectConfig(views=2, noise=False, defects=DefectPlan(shifts_mm=(), turns_deg=(),
-                                                               missing=False), search=False)
+QUIET = InspectConfig(views=2, near_m=None, noise=False,
+                      defects=DefectPlan(shifts_mm=(), turns_deg=(), missing=False), search=False)
 
 
 @pytest.fixture(scope="module")

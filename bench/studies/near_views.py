@@ -2,12 +2,13 @@
 
 A D435's noise grows with the square of the distance: 1.4 mm rms at 0.6 m, 0.34 mm at 0.3 m.
 This inspects every assembly of a night's workspace (its catalog and mates written: any
-``mateqa nightly`` workspace) twice with the night's inspection otherwise at its defaults:
-without near views, and with as many again at ``--near-m``. Each run's captures and rows go to
-``inspect/study-near-<m>-<assembly>/`` of the workspace (the night's own are not touched). It
-prints per run the stage's time, the pose errors of the intact captures (the design route,
-all views and one), the planted defects caught per kind and size (the product's method, the
-inspectable ones) and the false alarms on the intact parts.
+``mateqa nightly`` workspace) twice with the night's inspection otherwise at its defaults, the
+design route only: without near views, and with as many again at ``--near-m``. Each run works
+in a scratch workspace of its own under ``inspect/study-near/`` of the workspace (the
+catalog, meshes and mates copied there: the captures it renders carry the night's names, and
+the night's own are not touched). It prints per run the stage's time, the pose errors of the
+intact captures (the design route, all views and one), the planted defects caught per kind and
+size (the product's method) and the false alarms on the intact parts.
 
 Usage:
     .venv/bin/python bench/studies/near_views.py --workspace WORKSPACE [--near-m 0.3]
@@ -18,6 +19,7 @@ Nothing is asserted: it prints the tables.
 from __future__ import annotations
 
 import argparse
+import shutil
 import time
 from pathlib import Path
 
@@ -36,12 +38,26 @@ def assemblies(ws: Workspace) -> list[str]:
     return [n for n in names if ws.mates(n).is_file()]
 
 
-def study(ws: Workspace, near_m: float | None) -> None:
-    cfg = InspectConfig(near_m=near_m)
+def scratch(ws: Workspace, name: str) -> Workspace:
+    """A workspace under ``inspect/study-near/<name>`` holding the night's catalog, meshes
+    and mates (the study's captures and rows go there)."""
+    root = ws.root / "inspect" / "study-near" / name
+    if root.exists():
+        shutil.rmtree(root)
+    root.mkdir(parents=True)
+    shutil.copy2(ws.catalog, root / ws.catalog.name)
+    for folder in ("meshes", "mates"):
+        shutil.copytree(ws.root / folder, root / folder)
+    return Workspace(root)
+
+
+def study(night: Workspace, near_m: float | None) -> None:
+    ws = scratch(night, f"{near_m or 0}")
+    cfg = InspectConfig(near_m=near_m, search=False)
     tables: dict[str, list[pd.DataFrame]] = {"poses": [], "defects": [], "parts": []}
     clock = time.perf_counter()
     for assembly in assemblies(ws):
-        done = inspect_assembly(assembly, ws, cfg, f"study-near-{near_m or 0}-{assembly}")
+        done = inspect_assembly(assembly, ws, cfg, assembly)
         if done.error:
             print(f"{assembly}: {done.error}")
             continue
