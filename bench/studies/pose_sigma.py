@@ -10,7 +10,7 @@ whose threshold the sigma set (3 sigma above the tolerance, so sigma = threshold
 prints per set of views the quantiles of |residual| / sigma and the factor k by which the
 sigmas would have to grow for each quantile to match: k near 1 is calibrated, above 1 the
 sigmas are too small (false alarms), below 1 too large (defects missed). The
-``RouteConfig.several_views_sigma`` of the inspection was set from development workspaces
+``RouteConfig.several_views_sigma`` of the inspection is set from development workspaces
 this way; a workspace inspected with it should read k near 1.
 
 Usage:

@@ -71,8 +71,9 @@ class InspectConfig:
     # small part fills four times the pixels. The D435 measures from about 0.28 m. On the
     # held-out assemblies (all views, ``bench/studies/near_views.py``) the parts' pose error
     # is 0.11 mm at the median against 0.40 mm without it, shifts of 1, 2 and 5 mm are caught
-    # 8 of 9, 8 of 8 and 8 of 8 times (5 of 9, 8 of 8, 6 of 8), no intact part flagged either
-    # way; the design route takes 1.7 times as long (130 s against 75 s for the four).
+    # 8 of 9, 8 of 8 and 8 of 8 times (5 of 9, 8 of 8, 6 of 8; sigmas of several views as
+    # calibrated before the ring), no intact part flagged either way; the design route takes
+    # 1.7 times as long (130 s against 75 s for the four).
     near_m: float | None = 0.3
     # The intact capture's near ring for the search route where ``near_m`` is None (None:
     # none), whose relations are scored against the CAD's mates.
