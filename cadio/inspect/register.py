@@ -90,6 +90,11 @@ class RegisterConfig:
     # sensor's errors are correlated over patches, so more points buy little and cost much.
     max_points: int = 4000
     monotone: bool = False  # ICP keeps a step only where it lowers the robust cost (``_icp``)
+    # Each scan point weighs by its depth's inverse variance where its sigma is given
+    # (``refine``'s ``sigma``): a view from 0.3 m sees a part with a tenth of the variance of
+    # one from 0.6 m. On the development assemblies (intact, all views, the design route) the
+    # pose error's 90th percentile fell from 0.31 mm and 1.05 degrees to 0.27 mm and 0.56.
+    weighted: bool = True
 
 
 @dataclass(frozen=True)
@@ -134,10 +139,14 @@ Judge = Callable[[FloatArray], float]  # a hypothesis's visible CAD points -> co
 
 def refine(part: PartSurface, scan: FloatArray, pose: FloatArray, cameras: Sequence[Camera],
            cfg: RegisterConfig = RegisterConfig(),
-           hidden_by: tuple[Occluders, int] | None = None, judge: Judge | None = None) -> Fit:
+           hidden_by: tuple[Occluders, int] | None = None, judge: Judge | None = None,
+           sigma: FloatArray | None = None) -> Fit:
     """Point-to-plane ICP of the part from ``pose`` onto ``scan`` (n, 3) world mm, coarse to
     fine, against what the cameras see of it (re-rendered at each scale). Only the scan's
-    points within the part's reach of its place take part.
+    points within the part's reach of its place take part. ``sigma``: (n,) each point's depth
+    standard deviation (mm, ``scan.Scan.sigma``): a point weighs by its inverse square in
+    every step and in the fit's RMS and Hessian, so that a view from near counts for what it
+    sees better (None: every point alike).
 
     Raises:
         ValueError: an empty scan.
@@ -147,36 +156,46 @@ def refine(part: PartSurface, scan: FloatArray, pose: FloatArray, cameras: Seque
     current = np.asarray(pose, dtype=np.float64)
     steps = reaches(part, cfg) if cfg.scales else [cfg.fine_mm]
     # (with ``hidden_by``, what the other parts where they stand hide of it is no target)
-    near = _draw(_around(scan, apply_pose(current, part.centre), part.diameter / 2 + steps[0]),
-                 cfg.max_points, cfg.seed)
+    centre, radius = apply_pose(current, part.centre), part.diameter / 2 + steps[0]
+    chosen = _draw(np.flatnonzero(np.sum((scan - centre) ** 2, axis=1) <= radius * radius),
+                   cfg.max_points, cfg.seed)
+    near = scan[chosen]
+    weight = None if sigma is None or not cfg.weighted else \
+        _weights(np.asarray(sigma)[chosen])
     for reach in steps:
         model, normals = visible(part, current, cameras, cfg.stride, hidden_by)
         if len(model) < 6:
             break
         current = _icp(model, normals, near, current, apply_pose(current, part.centre), reach,
-                       cfg)
-    return _scored(part, near, current, cameras, cfg, hidden_by, judge)
+                       cfg, weight)
+    return _scored(part, near, current, cameras, cfg, hidden_by, judge, weight)
 
 
-def _around(scan: FloatArray, centre: FloatArray, radius: float) -> FloatArray:
-    """The scan's points within ``radius`` of ``centre``."""
-    out: FloatArray = scan[np.sum((scan - centre) ** 2, axis=1) <= radius * radius]
+def _weights(sigma: FloatArray) -> FloatArray | None:
+    """Each point's weight from its depth sigma: the inverse variance, over its mean (a
+    point of the mean sigma weighs about one); None where there is no point."""
+    if not len(sigma):
+        return None
+    inverse = 1.0 / np.maximum(sigma, 1e-3) ** 2
+    out: FloatArray = inverse / inverse.mean()
     return out
 
 
-def _draw(points: FloatArray, n: int, seed: int) -> FloatArray:
-    """At most n of the points, drawn without repeats (seeded)."""
+def _draw(points: NDArray[Any], n: int, seed: int) -> NDArray[Any]:
+    """At most n of the points (or indices), drawn without repeats (seeded)."""
     if len(points) <= n:
         return points
     chosen = np.sort(np.random.default_rng(seed).choice(len(points), n, replace=False))
-    out: FloatArray = points[chosen]
+    out: NDArray[Any] = points[chosen]
     return out
 
 
 def _icp(model: FloatArray, normals: FloatArray, scan: FloatArray, pose: FloatArray,
-         centre: FloatArray, reach: float, cfg: RegisterConfig) -> FloatArray:
+         centre: FloatArray, reach: float, cfg: RegisterConfig,
+         weight: FloatArray | None = None) -> FloatArray:
     """``cfg.iterations`` Gauss-Newton steps at one scale. The visible CAD stays put (one
     tree) and the scan moves by each step's inverse; the part's pose takes the steps.
+    ``weight``: (n,) each scan point's weight (``_weights``; None: one each).
 
     With ``cfg.monotone`` a step is kept only where it lowers the robust cost of the points
     paired before it (``_steps``' cost, those points paired again wherever they now lie
@@ -193,7 +212,7 @@ def _icp(model: FloatArray, normals: FloatArray, scan: FloatArray, pose: FloatAr
     before, paired = math.inf, None
     for done in range(cfg.iterations + int(cfg.monotone)):
         step = _steps(cad, moved[None], centre, reach, cfg.tukey * reach,
-                      paired if cfg.monotone else None)
+                      paired if cfg.monotone else None, None if weight is None else weight[None])
         if cfg.monotone and step.among[0] >= before:
             moved, total = kept  # the last step made it worse: undo it
             break
@@ -218,8 +237,11 @@ def reaches(part: PartSurface, cfg: RegisterConfig) -> list[float]:
 
 def _scored(part: PartSurface, scan: FloatArray, pose: FloatArray,
             cameras: Sequence[Camera], cfg: RegisterConfig,
-            hidden_by: tuple[Occluders, int] | None = None, judge: Judge | None = None) -> Fit:
-    """The fit at ``pose``: fitness and coverage at the finest distance, RMS, Hessian."""
+            hidden_by: tuple[Occluders, int] | None = None, judge: Judge | None = None,
+            weight: FloatArray | None = None) -> Fit:
+    """The fit at ``pose``: fitness and coverage at the finest distance, RMS, Hessian (each
+    inlier weighed by ``weight``, over its mean among them: the RMS of a point of the mean
+    weight)."""
     reach = cfg.fine_mm
     tree = KDTree(scan) if len(scan) else None
     model, normals = visible(part, pose, cameras, cfg.stride, hidden_by)
@@ -237,8 +259,10 @@ def _scored(part: PartSurface, scan: FloatArray, pose: FloatArray,
     s, m, n = scan[keep], model[idx[keep]], normals[idx[keep]]
     r = np.einsum("ij,ij->i", n, m - s)
     jac = np.hstack([np.cross(m - centre, n), n])
+    w = np.ones(len(r)) if weight is None else weight[keep] / weight[keep].mean()
     return Fit(pose, float(keep.mean()), float(np.isfinite(covered).mean()),
-               float(np.sqrt(np.mean(r ** 2))), int(keep.sum()), jac.T @ jac, centre,
+               float(np.sqrt(np.mean(w * r ** 2))), int(keep.sum()),
+               (jac * w[:, None]).T @ jac, centre,
                len(model), consistent=judge(model) if judge is not None else 1.0, seen=model)
 
 
@@ -288,8 +312,8 @@ def hypotheses_for(part: PartSurface, cfg: RegisterConfig) -> int:
 
 
 def global_search(part: PartSurface, scan: FloatArray, cameras: Sequence[Camera],
-                  cfg: RegisterConfig = RegisterConfig(), judge: Judge | None = None
-                  ) -> list[Fit]:
+                  cfg: RegisterConfig = RegisterConfig(), judge: Judge | None = None,
+                  sigma: FloatArray | None = None) -> list[Fit]:
     """The part's poses in the scan found without any prior pose, best first: candidates from
     feature matches (FPFH, RANSAC, each also flipped about the part's principal axes) and from
     the scan's principal axes turned onto the part's, each scored after a few coarse ICP steps
@@ -321,7 +345,8 @@ def global_search(part: PartSurface, scan: FloatArray, cameras: Sequence[Camera]
     if judge is not None and cfg.judged:
         scored = _judged(part, scored, judge, cfg)
     best = _distinct(scored, part.diameter / 10, cfg.keep)
-    return sorted((replace(refine(part, scan, pose, cameras, cfg, judge=judge), seed=seed)
+    return sorted((replace(refine(part, scan, pose, cameras, cfg, judge=judge, sigma=sigma),
+                           seed=seed)
                    for pose, seed in best), key=Fit.rank, reverse=True)
 
 
@@ -450,9 +475,10 @@ class _Cad:
 
 
 def _steps(cad: _Cad, scans: FloatArray, centre: FloatArray, reach: float, kernel: float,
-           among: NDArray[np.bool_] | None = None) -> _Step:
+           among: NDArray[np.bool_] | None = None, weight: FloatArray | None = None) -> _Step:
     """One Gauss-Newton step of the part (4, 4, world) for each of k candidates: scans
-    (k, n, 3); ``among``: (k, n) the points whose cost to read besides (``_Step.among``).
+    (k, n, 3); ``among``: (k, n) the points whose cost to read besides (``_Step.among``);
+    ``weight``: (k, n) each point's weight in the step and the costs (None: one each).
 
     Each scan point is paired with its nearest visible CAD point (a model tree would pair the
     CAD with the scan: the scan holds other parts' points too, the visible CAD only this one's).
@@ -473,10 +499,14 @@ def _steps(cad: _Cad, scans: FloatArray, centre: FloatArray, reach: float, kerne
     r = np.einsum("kij,kij->ki", nrm, m - scans)
     rho = np.where(found & (np.abs(r) < kernel), 1 - (1 - (r / kernel) ** 2) ** 3, 1.0) \
         * kernel ** 2 / 6
+    if weight is not None:
+        rho = rho * weight
     cost = np.where(keep, rho, 0.0).sum(axis=1)
     read = np.where(among, rho, 0.0).sum(axis=1) if among is not None else cost
     inside = keep & (np.abs(r) < kernel)
     w = np.where(inside, (1 - (r / kernel) ** 2) ** 2, 0.0)
+    if weight is not None:
+        w = w * weight
     r = np.where(keep, r, 0.0)
     jac = np.concatenate([np.cross(m - centre, nrm), nrm], axis=2)
     weighted = np.swapaxes(jac * w[..., None], 1, 2)
