@@ -26,6 +26,7 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field, replace
 from typing import Any
 
+import numba
 import numpy as np
 import open3d as o3d
 from numpy.typing import NDArray
@@ -39,7 +40,7 @@ from cadio.inspect.surface import (
     visible,
     voxel_down,
 )
-from cadio.inspect.uncertainty import small_motion
+from cadio.inspect.uncertainty import small_motions
 from cadio.records import FloatArray, apply_pose
 
 # open3d's registration module (its stubs ask for arguments its functions default)
@@ -491,30 +492,13 @@ def _steps(cad: _Cad, scans: FloatArray, centre: FloatArray, reach: float, kerne
     # farther than ``reach``: all lie within twice that of their nearest CAD point)
     dist, idx = cad.tree.query(scans.reshape(-1, 3),
                                distance_upper_bound=reach if among is None else 2 * reach)
-    dist = dist.reshape(k, n)
-    found = np.isfinite(dist)
-    keep = found & (dist <= reach)
-    idx = np.where(found.ravel(), idx, 0).reshape(k, n)
-    m, nrm = cad.points[idx], cad.normals[idx]
-    r = np.einsum("kij,kij->ki", nrm, m - scans)
-    rho = np.where(found & (np.abs(r) < kernel), 1 - (1 - (r / kernel) ** 2) ** 3, 1.0) \
-        * kernel ** 2 / 6
-    if weight is not None:
-        rho = rho * weight
-    cost = np.where(keep, rho, 0.0).sum(axis=1)
-    read = np.where(among, rho, 0.0).sum(axis=1) if among is not None else cost
-    inside = keep & (np.abs(r) < kernel)
-    w = np.where(inside, (1 - (r / kernel) ** 2) ** 2, 0.0)
-    if weight is not None:
-        w = w * weight
-    r = np.where(keep, r, 0.0)
-    jac = np.concatenate([np.cross(m - centre, nrm), nrm], axis=2)
-    weighted = np.swapaxes(jac * w[..., None], 1, 2)
-    hessian = weighted @ jac
-    grad = (weighted @ r[..., None])[..., 0]
-    count = keep.sum(axis=1)
+    hessian, grad, cost, read, count, spread, keep = _normal_equations(
+        np.ascontiguousarray(scans, dtype=np.float64), dist.reshape(k, n),
+        idx.reshape(k, n).astype(np.int64), cad.points, cad.normals,
+        np.asarray(centre, dtype=np.float64), float(reach), float(kernel),
+        np.zeros((0, 0), dtype=np.bool_) if among is None else np.ascontiguousarray(among),
+        np.zeros((0, 0)) if weight is None else np.ascontiguousarray(weight, dtype=np.float64))
     ok = count >= 6
-    spread = np.where(keep, np.sum((m - centre) ** 2, axis=2), 0.0).sum(axis=1)
     radius = np.maximum(np.sqrt(spread / np.maximum(count, 1)), 1e-6)
     scale = np.concatenate([np.repeat((1 / radius)[:, None], 3, axis=1), np.ones((k, 3))],
                            axis=1)
@@ -536,8 +520,71 @@ def _steps(cad: _Cad, scans: FloatArray, centre: FloatArray, reach: float, kerne
     delta[:, :3] *= np.minimum(1.0, (reach / radius) / np.maximum(turn, 1e-12))[:, None]
     delta[:, 3:] *= np.minimum(1.0, reach / np.maximum(shift, 1e-12))[:, None]
     delta[~ok] = 0.0
-    steps = np.stack([small_motion(d, centre) for d in delta])
-    return _Step(steps, ok, cost, keep, read)
+    return _Step(small_motions(delta, centre), ok, cost, keep, read)
+
+
+@numba.njit(nogil=True, cache=True)
+def _normal_equations(scans: Any, dist: Any, idx: Any, points: Any,  # noqa: C901, PLR0913
+                      normals: Any, centre: Any, reach: float, kernel: float, among: Any,
+                      weight: Any) -> Any:
+    """``_steps``' sums in one pass over the pairs, without the arrays numpy would make of
+    each term: per candidate J^T W J (6, 6), J^T W r (6,), the robust cost of its pairs and of
+    the points ``among`` marks (an empty array: none, the cost read twice), its pairs' count
+    and squared spread about ``centre``; and which points it paired (``dist`` within
+    ``reach``). A point beyond the query's bound (inf) costs Tukey's most; ``weight`` (an
+    empty array: one each) scales each point's cost and its terms."""
+    k, n = dist.shape
+    hessian = np.zeros((k, 6, 6))
+    grad = np.zeros((k, 6))
+    cost = np.zeros(k)
+    read = np.zeros(k)
+    count = np.zeros(k, dtype=np.int64)
+    spread = np.zeros(k)
+    paired = np.zeros((k, n), dtype=np.bool_)
+    most = kernel * kernel / 6.0
+    jac = np.empty(6)
+    for a in range(k):
+        for i in range(n):
+            wi = weight[a, i] if weight.shape[0] > 0 else 1.0
+            marked = among.shape[0] > 0 and among[a, i]
+            d = dist[a, i]
+            if not np.isfinite(d):
+                if marked:
+                    read[a] += most * wi
+                continue
+            j = idx[a, i]
+            mx, my, mz = points[j, 0], points[j, 1], points[j, 2]
+            nx, ny, nz = normals[j, 0], normals[j, 1], normals[j, 2]
+            r = nx * (mx - scans[a, i, 0]) + ny * (my - scans[a, i, 1]) \
+                + nz * (mz - scans[a, i, 2])
+            inside = abs(r) < kernel
+            t = 1.0 - (r / kernel) ** 2
+            rho = ((1.0 - t * t * t) if inside else 1.0) * most * wi
+            if marked:
+                read[a] += rho
+            if d > reach:
+                continue
+            paired[a, i] = True
+            cost[a] += rho
+            count[a] += 1
+            px, py, pz = mx - centre[0], my - centre[1], mz - centre[2]
+            spread[a] += px * px + py * py + pz * pz
+            if not inside:
+                continue
+            w = t * t * wi
+            jac[0], jac[1], jac[2] = py * nz - pz * ny, pz * nx - px * nz, px * ny - py * nx
+            jac[3], jac[4], jac[5] = nx, ny, nz
+            for p in range(6):
+                wp = w * jac[p]
+                grad[a, p] += wp * r
+                for q in range(p, 6):
+                    hessian[a, p, q] += wp * jac[q]
+        for p in range(6):
+            for q in range(p):
+                hessian[a, p, q] = hessian[a, q, p]
+    if among.shape[0] == 0:
+        read[:] = cost
+    return hessian, grad, cost, read, count, spread, paired
 
 
 def _ransac(part: PartSurface, scan: FloatArray, cameras: Sequence[Camera],

@@ -110,18 +110,22 @@ def point_motion(point: FloatArray, centre: FloatArray) -> FloatArray:
 def small_motion(delta: FloatArray, centre: FloatArray) -> FloatArray:
     """(4, 4): rotation ``delta[:3]`` (axis-angle) about ``centre``, then ``delta[3:]``
     (the small motions of ``pose_uncertainty``'s covariance, composed)."""
-    rot = _rotation(delta[:3])
-    out = np.eye(4)
-    out[:3, :3] = rot
-    out[:3, 3] = centre - rot @ centre + delta[3:]
+    out: FloatArray = small_motions(np.asarray(delta, dtype=np.float64)[None], centre)[0]
     return out
 
 
-def _rotation(w: FloatArray) -> FloatArray:
-    theta = float(np.linalg.norm(w))
-    if theta < 1e-12:
-        return np.eye(3)
-    k = w / theta
-    kx = np.array([[0, -k[2], k[1]], [k[2], 0, -k[0]], [-k[1], k[0], 0]])
-    rot: FloatArray = np.eye(3) + np.sin(theta) * kx + (1 - np.cos(theta)) * kx @ kx
-    return rot
+def small_motions(delta: FloatArray, centre: FloatArray) -> FloatArray:
+    """(k, 4, 4): ``small_motion`` of each row of ``delta`` (k, 6), about one centre."""
+    theta = np.linalg.norm(delta[:, :3], axis=1)
+    still = theta < 1e-12
+    k = delta[:, :3] / np.where(still, 1.0, theta)[:, None]
+    kx = np.zeros((len(delta), 3, 3))
+    kx[:, 0, 1], kx[:, 0, 2], kx[:, 1, 2] = -k[:, 2], k[:, 1], -k[:, 0]
+    kx[:, 1, 0], kx[:, 2, 0], kx[:, 2, 1] = k[:, 2], -k[:, 1], k[:, 0]
+    rot = np.eye(3) + np.sin(theta)[:, None, None] * kx \
+        + (1 - np.cos(theta))[:, None, None] * (kx @ kx)
+    rot[still] = np.eye(3)
+    out = np.tile(np.eye(4), (len(delta), 1, 1))
+    out[:, :3, :3] = rot
+    out[:, :3, 3] = centre - rot @ np.asarray(centre, dtype=np.float64) + delta[:, 3:]
+    return out
