@@ -104,8 +104,10 @@ class Fit:
 
     pose: (4, 4) part -> world, mm. fitness: share of the scan points within the finest
     distance of the visible CAD; coverage: share of the visible CAD with a scan point that near;
-    rmse_mm: the inliers' point-to-plane RMS; inliers: their number; hessian: (6, 6) J^T W J of
-    the last step, rotation (radians, about ``centre``) then translation (mm); centre: (3,) the
+    rmse_mm: the inliers' point-to-plane RMS (each weighed by its depth's inverse variance
+    where the scan's sigmas were given: the RMS of a point of the mean weight); inliers: their
+    number; hessian: (6, 6) J^T W J at ``pose``, W those weights (one each without them),
+    rotation (radians, about ``centre``) then translation (mm); centre: (3,) the
     part's centroid at ``pose``, world mm; visible: CAD points the cameras see at ``pose``;
     seen: those points (at the fit's stride; None where it saw none).
     """
