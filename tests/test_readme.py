@@ -23,7 +23,8 @@ README_MAX_LINES = 260
 # benchmarks, the packed trainer and the CadQuery script of an export.
 OTHER_TOOLS = {"--param", "--watch", "--build", "--prefect-file", "--pool", "--scale",
                "--views", "--pairs", "--library", "--categories", "--repeat", "--repeats",
-               "--json", "--perturb", "--list", "--seconds", "--rm", "--type", "--now"}
+               "--json", "--perturb", "--list", "--seconds", "--rm", "--type", "--now",
+               "--seeds"}
 
 
 
