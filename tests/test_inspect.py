@@ -238,6 +238,24 @@ def test_what_a_camera_sees_is_cast_only_within_the_part_s_bounding_cone() -> No
                 assert np.array_equal(a, b) and np.array_equal(na, nb)
 
 
+def test_what_a_camera_sees_is_cast_only_where_a_ray_meets_the_part_s_box() -> None:
+    """A ray that misses the part's box is not cast: what the cameras see is what casting
+    every ray of the cone sees, for a long part seen side on and end on too."""
+    cameras = [_camera(), _camera((250.0, 150.0, 200.0)), _camera((-40.0, -90.0, 420.0))]
+    for mesh in (_l_mesh(), _cylinder_mesh(4, 90), _box_mesh(60, 30, 10)):
+        for deg, axis, shift in ((0, (0, 0, 1), (0, 0, 0)), (90, (1, 0, 0), (0, 0, 0)),
+                                 (70, (1, 2, 0.5), (30, -20, 10))):
+            pose = _pose(deg, axis, shift)
+            boxed = part_surface("p", mesh)
+            whole = part_surface("p", mesh)
+            whole.__dict__["box"] = (np.full(3, -1e9), np.full(3, 1e9))  # every ray meets it
+            for stride in (1, 3):
+                a, na = visible(boxed, pose, cameras, stride)
+                b, nb = visible(whole, pose, cameras, stride)
+                assert len(a) > 50
+                assert np.array_equal(a, b) and np.array_equal(na, nb)
+
+
 def test_registration_s_nearest_points_are_scipy_s() -> None:
     from pykdtree.kdtree import KDTree
     from scipy.spatial import cKDTree

@@ -644,14 +644,15 @@ def _principal_turns(part: PartSurface, scan: FloatArray) -> list[FloatArray]:
 def _facing(part: PartSurface, rot: FloatArray, target: FloatArray, towards: FloatArray
             ) -> FloatArray:
     """(4, 4) the part turned by ``rot`` and moved so that the mean of its samples facing
-    ``towards`` (the cameras: what they would see of it) lies on ``target``."""
+    ``towards`` (the cameras: what they would see of it) lies on ``target``. (A sample faces
+    a point where its normal turned by ``rot`` points towards it: n . (rot^T (towards - t))
+    exceeds n . s, read in the part's frame without moving its samples.)"""
     pose = np.eye(4)
     pose[:3, :3] = rot
     pose[:3, 3] = target - rot @ part.centre
-    points = apply_pose(pose, part.samples)
-    facing = np.einsum("ij,ij->i", part.normals @ rot.T, towards - points) > 0
+    facing = part.normals @ (rot.T @ (towards - pose[:3, 3])) > part.normal_offsets
     if facing.any():
-        pose[:3, 3] += target - points[facing].mean(axis=0)
+        pose[:3, 3] += target - (rot @ part.samples[facing].mean(axis=0) + pose[:3, 3])
     return pose
 
 
@@ -659,7 +660,7 @@ def _slides(part: PartSurface, pose: FloatArray, scan: FloatArray) -> list[Float
     """The pose, and the pose slid both ways along the part's longest axis by what the part
     is longer than the scan along it (a bolt whose shank the plates hide shows its head or its
     end: which, the coarse steps could not find alone)."""
-    axis = pose[:3, :3] @ _principal_axes(part)[:, -1]
+    axis = pose[:3, :3] @ part.principal_axes[:, -1]
     along = (apply_pose(pose, part.samples[::10]) - pose[:3, 3]) @ axis
     seen = scan @ axis
     spare = (np.ptp(along) - (np.percentile(seen, 99) - np.percentile(seen, 1))) / 2
@@ -670,14 +671,6 @@ def _slides(part: PartSurface, pose: FloatArray, scan: FloatArray) -> list[Float
         slid = pose.copy()
         slid[:3, 3] += sign * spare * axis
         out.append(slid)
-    return out
-
-
-def _principal_axes(part: PartSurface) -> FloatArray:
-    """(3, 3) the part's principal axes as columns, the longest last."""
-    centred = part.samples[::10] - part.centre
-    _, vectors = np.linalg.eigh(centred.T @ centred)
-    out: FloatArray = vectors
     return out
 
 

@@ -14,7 +14,9 @@ from __future__ import annotations
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass, field
 from functools import cached_property
+from typing import Any
 
+import numba
 import numpy as np
 import numpy.typing as npt
 
@@ -163,23 +165,50 @@ def consistency(points: FloatArray, scan: Scan, tolerance_mm: float = 4.0,
     nothing can be checked."""
     supported = contradicted = 0
     labels = scan.labels if segment is not None and scan.labels else (None,) * len(scan.depths)
+    points = np.ascontiguousarray(points, dtype=np.float64)
     for camera, depth, label in zip(scan.cameras, scan.depths, labels, strict=True):
-        uv, z = camera.project(points)
         k = camera.intrinsics
-        u, v = np.rint(uv[:, 0]).astype(np.int64), np.rint(uv[:, 1]).astype(np.int64)
-        inside = (u >= 0) & (u < k.width) & (v >= 0) & (v < k.height) & (z > 0)
-        seen = depth[v[inside], u[inside]]
-        known = np.isfinite(seen)
-        gap = seen[known] - z[inside][known]
-        agrees = np.abs(gap) <= tolerance_mm
-        farther = gap > tolerance_mm
-        if label is not None:
-            other = label[v[inside], u[inside]][known] != segment
-            agrees, farther = agrees & ~other, farther | (other & (gap >= 0))
-        supported += int(agrees.sum())
-        contradicted += int(farther.sum())
+        agrees, farther = _depth_counts(
+            points, np.ascontiguousarray(camera.world_to_camera, dtype=np.float64),
+            float(k.fx), float(k.fy), float(k.cx), float(k.cy), depth,
+            _NO_LABELS if label is None else label, -1 if segment is None else int(segment),
+            float(tolerance_mm))
+        supported += agrees
+        contradicted += farther
     total = supported + contradicted
     return supported / total if total else 1.0
+
+
+_NO_LABELS = np.zeros((0, 0), dtype=np.int64)
+
+
+@numba.njit(nogil=True, cache=True)
+def _depth_counts(points: Any, w2c: Any, fx: float, fy: float, cx: float,  # noqa: PLR0913
+                  cy: float, depth: Any, label: Any, segment: int, tolerance: float) -> Any:
+    """``consistency``'s counts for one camera: the points the depth at their pixel agrees
+    with, and those it contradicts (``label``: the instance of each pixel, empty: none)."""
+    height, width = depth.shape
+    agrees = farther = 0
+    for i in range(len(points)):
+        p0, p1, p2 = points[i, 0], points[i, 1], points[i, 2]
+        x = p0 * w2c[0, 0] + p1 * w2c[0, 1] + p2 * w2c[0, 2] + w2c[0, 3]
+        y = p0 * w2c[1, 0] + p1 * w2c[1, 1] + p2 * w2c[1, 2] + w2c[1, 3]
+        z = p0 * w2c[2, 0] + p1 * w2c[2, 1] + p2 * w2c[2, 2] + w2c[2, 3]
+        if not z > 0:
+            continue
+        u, v = np.rint(fx * x / z + cx), np.rint(fy * y / z + cy)
+        if not (0 <= u < width and 0 <= v < height):
+            continue
+        seen = depth[int(v), int(u)]
+        if not np.isfinite(seen):
+            continue
+        gap = seen - z
+        agree, far = abs(gap) <= tolerance, gap > tolerance
+        if label.shape[0] > 0 and label[int(v), int(u)] != segment:
+            agree, far = False, far or gap >= 0
+        agrees += agree
+        farther += far
+    return agrees, farther
 
 
 def _valid(frame: RgbdFrame) -> npt.NDArray[np.bool_]:

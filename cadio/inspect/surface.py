@@ -14,6 +14,7 @@ from dataclasses import dataclass, field
 from functools import cached_property
 from typing import Any
 
+import numba
 import numpy as np
 import numpy.typing as npt
 import open3d as o3d
@@ -73,6 +74,27 @@ class PartSurface:
     def radius(self) -> float:
         """The largest distance of the mesh from ``centre`` (every point of it lies within)."""
         return float(np.sqrt(np.max(np.sum((self.mesh.vertices - self.centre) ** 2, axis=1))))
+
+    @cached_property
+    def normal_offsets(self) -> FloatArray:
+        """(k,) each sample's normal dotted with the sample: n . s."""
+        out: FloatArray = np.einsum("ij,ij->i", self.normals, self.samples)
+        return out
+
+    @cached_property
+    def principal_axes(self) -> FloatArray:
+        """(3, 3) the part's principal axes as columns, the longest last (of every tenth
+        sample)."""
+        centred = self.samples[::10] - self.centre
+        _, vectors = np.linalg.eigh(centred.T @ centred)
+        out: FloatArray = vectors
+        return out
+
+    @cached_property
+    def box(self) -> tuple[FloatArray, FloatArray]:
+        """The mesh's box in its own frame, a micrometre wider each way: (lo, hi) (3,)."""
+        vertices = np.asarray(self.mesh.vertices, dtype=np.float64)
+        return vertices.min(axis=0) - 1e-3, vertices.max(axis=0) + 1e-3
 
     @cached_property
     def facet_normals(self) -> FloatArray:
@@ -145,17 +167,25 @@ def visible(part: PartSurface, pose: FloatArray, cameras: Sequence[Camera],
     (n, 3) and outward normals (n, 3), world mm, of every ``stride``-th pixel whose ray meets
     it. Alone, unless ``hidden_by`` (the other parts, and this part's index among them): then
     a ray that meets another part first (by more than a millimetre) sees nothing of it.
+
+    The rays are built in the part's frame, and only those that meet its box there are cast
+    (a ray that misses the box misses the part): a long part seen side on fills a small share
+    of the window its bounding sphere spans.
     """
     points, normals = [], []
+    pose = np.asarray(pose, dtype=np.float64)
     to_part: FloatArray = np.asarray(np.linalg.inv(pose), dtype=np.float64)
     for cam in cameras:
-        rays = _rays_over(part, pose, cam, stride)
-        if rays is None:
+        window = _window(part, pose, cam)
+        if window is None:
             continue
-        origin, dirs = rays
-        local_o = apply_pose(to_part, origin[None])[0]
-        local_d = dirs @ to_part[:3, :3].T
-        cast = part.raycaster().cast_rays(o3d.core.Tensor.from_numpy(_rays(local_o, local_d)))
+        local_o = apply_pose(to_part, cam.centre[None])[0]
+        to_local = np.ascontiguousarray(cam.world_to_camera[:3, :3] @ to_part[:3, :3].T)
+        rays, local_d = _window_rays(_pixel_rays(cam.intrinsics), *window, stride, to_local,
+                                     local_o, part.box[0], part.box[1])
+        if not len(rays):
+            continue
+        cast = part.raycaster().cast_rays(o3d.core.Tensor.from_numpy(rays))
         t = cast["t_hit"].numpy()
         hit = np.isfinite(t)
         if not hit.any():
@@ -163,16 +193,14 @@ def visible(part: PartSurface, pose: FloatArray, cameras: Sequence[Camera],
         if hidden_by is not None:  # (only the rays that meet the part are cast again)
             others, index = hidden_by
             rows = np.flatnonzero(hit)
-            t_first, first = others.first(_rays(origin, dirs[rows]))
+            t_first, first = others.first(_rays(cam.centre, local_d[rows] @ pose[:3, :3].T))
             hit[rows] = (first == index) | (t[rows] <= t_first + 1.0)
             if not hit.any():
                 continue
-        tri = cast["primitive_ids"].numpy()[hit].astype(np.int64)
-        pts = local_o + local_d[hit] * t[hit, None]
-        nrm = part.facet_normals[tri]
-        facing = np.einsum("ij,ij->i", nrm, local_d[hit]) < 0
-        points.append(apply_pose(pose, pts[facing]))
-        normals.append(nrm[facing] @ pose[:3, :3].T)
+        pts, nrm = _facing_hits(t, cast["primitive_ids"].numpy(), hit, local_o, local_d,
+                                part.facet_normals, pose)
+        points.append(pts)
+        normals.append(nrm)
     if not points:
         return np.zeros((0, 3)), np.zeros((0, 3))
     return np.concatenate(points), np.concatenate(normals)
@@ -186,11 +214,12 @@ def _rays(origin: FloatArray, dirs: FloatArray) -> npt.NDArray[np.float32]:
     return out
 
 
-def _rays_over(part: PartSurface, pose: FloatArray, cam: Camera, stride: int
-               ) -> tuple[FloatArray, FloatArray] | None:
-    """The camera's centre and unit ray directions (world) of the pixels over the part's
-    projected bounding sphere that can meet the part (within its ``radius`` of its centre);
-    None where it is behind the camera or off the image."""
+def _window(part: PartSurface, pose: FloatArray, cam: Camera
+            ) -> tuple[int, int, int, int, FloatArray, float] | None:
+    """The pixels over the part's projected bounding sphere (rows v0..v1, columns u0..u1)
+    and the cone from the camera around the sphere (its axis in the camera's frame and the
+    cosine of its half angle, -2: every ray of the window); None where the part is behind
+    the camera or off the image."""
     centre = apply_pose(pose, part.centre)
     (uv,), (z,) = cam.project(centre[None])
     if not np.isfinite(z) or z <= 0.5 * part.diameter:
@@ -201,19 +230,89 @@ def _rays_over(part: PartSurface, pose: FloatArray, cam: Camera, stride: int
     v0, v1 = int(max(0, uv[1] - radius_px)), int(min(k.height - 1, uv[1] + radius_px))
     if u0 > u1 or v0 > v1:
         return None
-    cam_dirs = _pixel_rays(k)[v0:v1 + 1:stride, u0:u1 + 1:stride].reshape(-1, 3)
     # a ray meets the part only within the cone from the camera around its bounding sphere
-    # (a tenth of a micrometre wider): the window's corners, and all of it for a long part
-    # seen end on, need no cast
+    # (a tenth of a micrometre wider): the window's corners need no cast
     towards = apply_pose(cam.world_to_camera, centre[None])[0]
     distance = float(np.linalg.norm(towards))
     reach = part.radius + 1e-4
-    if distance > reach:
-        cone = np.sqrt(1.0 - (reach / distance) ** 2)
-        cam_dirs = cam_dirs[cam_dirs @ (towards / distance) >= cone - 1e-9]
-    rot = cam.world_to_camera[:3, :3]
-    dirs: FloatArray = cam_dirs @ rot  # camera -> world: R^T d
-    return cam.centre, dirs
+    cone = np.sqrt(1.0 - (reach / distance) ** 2) - 1e-9 if distance > reach else -2.0
+    return v0, v1, u0, u1, towards / distance, float(cone)
+
+
+@numba.njit(nogil=True, cache=True)
+def _window_rays(table: Any, v0: int, v1: int, u0: int, u1: int,  # noqa: PLR0913
+                 axis: Any, cone: float, stride: int, to_local: Any, origin: Any, lo: Any,
+                 hi: Any) -> Any:
+    """The rays (m, 6) float32, in the part's frame, of every ``stride``-th pixel of the
+    window that lie within the cone and meet the part's box [lo, hi]; and their directions
+    (m, 3) float64. ``table``: the pixels' unit rays in the camera's frame; ``to_local``:
+    camera -> part rotation (a ray d goes to d @ to_local); ``origin``: the camera's centre
+    in the part's frame."""
+    rows = (v1 - v0) // stride + 1
+    cols = (u1 - u0) // stride + 1
+    dirs = np.empty((rows * cols, 3))
+    m = 0
+    for a in range(rows):
+        for b in range(cols):
+            v, u = v0 + a * stride, u0 + b * stride
+            cx, cy, cz = table[v, u, 0], table[v, u, 1], table[v, u, 2]
+            if cx * axis[0] + cy * axis[1] + cz * axis[2] < cone:
+                continue
+            d0 = cx * to_local[0, 0] + cy * to_local[1, 0] + cz * to_local[2, 0]
+            d1 = cx * to_local[0, 1] + cy * to_local[1, 1] + cz * to_local[2, 1]
+            d2 = cx * to_local[0, 2] + cy * to_local[1, 2] + cz * to_local[2, 2]
+            if not _meets_box(origin, d0, d1, d2, lo, hi):
+                continue
+            dirs[m, 0], dirs[m, 1], dirs[m, 2] = d0, d1, d2
+            m += 1
+    rays = np.empty((m, 6), dtype=np.float32)
+    for i in range(m):
+        rays[i, 0], rays[i, 1], rays[i, 2] = origin[0], origin[1], origin[2]
+        rays[i, 3], rays[i, 4], rays[i, 5] = dirs[i, 0], dirs[i, 1], dirs[i, 2]
+    return rays, dirs[:m].copy()
+
+
+@numba.njit(nogil=True, cache=True)
+def _meets_box(origin: Any, d0: float, d1: float, d2: float, lo: Any, hi: Any) -> bool:
+    """Whether the ray from ``origin`` along (d0, d1, d2) meets the box [lo, hi] ahead of it
+    (the slab test)."""
+    near, far = 0.0, np.inf
+    for j, d in enumerate((d0, d1, d2)):
+        if abs(d) < 1e-300:
+            if origin[j] < lo[j] or origin[j] > hi[j]:
+                return False
+            continue
+        t1, t2 = (lo[j] - origin[j]) / d, (hi[j] - origin[j]) / d
+        near, far = max(near, min(t1, t2)), min(far, max(t1, t2))
+    return near <= far
+
+
+@numba.njit(nogil=True, cache=True)
+def _facing_hits(t: Any, primitive: Any, hit: Any, origin: Any, dirs: Any,
+                 facet_normals: Any, pose: Any) -> Any:
+    """The hit points (n, 3) and outward normals (n, 3), world mm, of the rays marked ``hit``
+    whose triangle faces the camera; the rays from ``origin`` along ``dirs`` (the part's frame)
+    met the part at distance ``t`` on triangle ``primitive``."""
+    n = 0
+    for i in range(len(t)):
+        n += hit[i]
+    points, normals = np.empty((n, 3)), np.empty((n, 3))
+    m = 0
+    for i in range(len(t)):
+        if not hit[i]:
+            continue
+        tri = primitive[i]
+        nx, ny, nz = facet_normals[tri, 0], facet_normals[tri, 1], facet_normals[tri, 2]
+        if nx * dirs[i, 0] + ny * dirs[i, 1] + nz * dirs[i, 2] >= 0:
+            continue
+        ti = float(t[i])
+        px, py, pz = (origin[0] + dirs[i, 0] * ti, origin[1] + dirs[i, 1] * ti,
+                      origin[2] + dirs[i, 2] * ti)
+        for r in range(3):
+            points[m, r] = pose[r, 0] * px + pose[r, 1] * py + pose[r, 2] * pz + pose[r, 3]
+            normals[m, r] = pose[r, 0] * nx + pose[r, 1] * ny + pose[r, 2] * nz
+        m += 1
+    return points[:m].copy(), normals[:m].copy()
 
 
 _PIXEL_RAYS: dict[CameraIntrinsics, FloatArray] = {}
