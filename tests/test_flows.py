@@ -125,7 +125,7 @@ def test_a_tolerance_set_on_the_cli_reaches_the_mates_of_the_run(
 
     def coincident(ws: Path, *tol: str) -> tuple[int, float]:
         args = ["nightly", "--library", str(lib.parent), "--workspace", str(ws),
-                "--voxel-sizes", "16", "--views-per-scene", "1"]
+                "--voxel-sizes", "16", "--views-per-scene", "1", "--no-inspection"]
         assert main(args + [a for t in tol for a in ("--tol", t)]) == 0
         table = read_mates(ws / "mates" / "gap.parquet")
         run = max((ws / "runs").iterdir())
