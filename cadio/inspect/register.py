@@ -251,7 +251,7 @@ def _scored(part: PartSurface, scan: FloatArray, pose: FloatArray,
     centre = apply_pose(pose, part.centre)
     if len(model) < 6:
         return Fit(pose, 0.0, 0.0, float("inf"), 0, np.zeros((6, 6)), centre, len(model))
-    near = KDTree(model)
+    near = seen_tree(model)
     dist, idx = near.query(scan, distance_upper_bound=reach)
     keep = np.isfinite(dist)
     covered = tree.query(model, distance_upper_bound=reach)[0] if tree is not None else \
@@ -395,6 +395,24 @@ def _distinct(scored: Sequence[tuple[tuple[float, float], FloatArray, str]], apa
         if len(out) == n:
             break
     return out
+
+
+# The trees of the last few visible surfaces a fit was scored on (``_scored``), by the array:
+# the route that placed the part reads the same points again (``routes._explained``), and a
+# large part's visible CAD (hundreds of thousands of points) takes tens of milliseconds to
+# build a tree of.
+_SEEN_TREES: list[tuple[FloatArray, KDTree]] = []
+
+
+def seen_tree(points: FloatArray) -> KDTree:
+    """The k-d tree of ``points`` (a fit's visible CAD), built once while it is recent."""
+    for kept, tree in _SEEN_TREES:
+        if kept is points:
+            return tree
+    tree = KDTree(points)
+    _SEEN_TREES.insert(0, (points, tree))
+    del _SEEN_TREES[4:]
+    return tree
 
 
 _TREES: dict[int, tuple[PartSurface, KDTree]] = {}

@@ -22,11 +22,10 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 import numpy.typing as npt
-from pykdtree.kdtree import KDTree
 from scipy.optimize import linear_sum_assignment
 
 from cadio.inspect.asbuilt import PartAsBuilt
-from cadio.inspect.register import Fit, RegisterConfig, global_search, refine
+from cadio.inspect.register import Fit, RegisterConfig, global_search, refine, seen_tree
 from cadio.inspect.scan import Scan, consistency
 from cadio.inspect.surface import Camera, Occluders, PartSurface, occluders, visible
 from cadio.inspect.symmetry import Symmetry
@@ -328,7 +327,7 @@ def _explained(part: PartSurface, pose: FloatArray, scan: Scan, cfg: RouteConfig
     # only points within the part's reach of its centre can be that near what it shows
     reach = part.radius + cfg.register.fine_mm + 1e-3
     near = scan.near(apply_pose(pose, part.centre), reach)
-    dist, _ = KDTree(model_pts).query(scan.points[near],
+    dist, _ = seen_tree(model_pts).query(scan.points[near],
                                       distance_upper_bound=cfg.register.fine_mm)
     explained[near] = np.isfinite(dist)
     return explained
