@@ -25,7 +25,14 @@ import numpy.typing as npt
 from scipy.optimize import linear_sum_assignment
 
 from cadio.inspect.asbuilt import PartAsBuilt
-from cadio.inspect.register import Fit, RegisterConfig, global_search, refine, seen_tree
+from cadio.inspect.register import (
+    Fit,
+    RegisterConfig,
+    global_search,
+    refine,
+    seen_tree,
+    settled,
+)
 from cadio.inspect.scan import Scan, consistency
 from cadio.inspect.surface import Camera, Occluders, PartSurface, occluders, visible
 from cadio.inspect.symmetry import Symmetry
@@ -163,7 +170,7 @@ def by_design(model: AssemblyModel, scan: Scan, cfg: RouteConfig = RouteConfig()
                 dict[int, Fit]] | None = None
     for nominal in nominal_candidates(model, scan, cfg):
         placed, fits, explained = _place_parts(model, scan, nominal, cfg)
-        score = (round(explained / max(len(scan.points), 1), 1), -_rms(fits))
+        score = (round(explained / max(len(scan.points), 1), 1), -settled(_rms(fits)))
         if best is None or score > best[0]:
             best = (score, nominal, placed, fits)
     assert best is not None
@@ -443,7 +450,8 @@ def _better(fit: Fit, than: Fit, within: float = 0.05) -> bool:
     (a shape a little smaller than the segment's part covers all it shows of itself, at twice
     the sensor's residual)."""
     score, other = fit.fitness * fit.consistent, than.fitness * than.consistent
-    return score > other + within or (score >= other - within and fit.rmse_mm < than.rmse_mm)
+    return score > other + within or (score >= other - within
+                                      and settled(fit.rmse_mm) < settled(than.rmse_mm))
 
 
 def _shape_members(model: AssemblyModel) -> dict[str, list[int]]:
@@ -529,8 +537,8 @@ def _match(model: AssemblyModel, found: Sequence[tuple[int, tuple[str, Fit]]],
     for shape, segs in by_shape.items():
         candidates = members[shape]
         where = np.array([apply_pose(placement, centres[i]) for i in candidates])
-        cost = np.linalg.norm(np.array([f.centre for _, f in segs])[:, None] - where[None],
-                              axis=2)
+        cost = np.round(np.linalg.norm(np.array([f.centre for _, f in segs])[:, None]
+                                       - where[None], axis=2), 6)  # (``settled``)
         rows, cols = linear_sum_assignment(cost)
         reach = max(5.0, model.parts[candidates[0]].diameter / 4)
         for r, c in zip(rows, cols, strict=True):
