@@ -454,3 +454,22 @@ def test_one_shape_however_it_is_turned_and_no_shape_by_small_steps() -> None:
     boxes = [part_surface(f"box{k}", _box_mesh(35.0 + 0.8 * k, 10.0, 10.0)) for k in range(4)]
     keys = shape_keys(boxes, [none] * 4)
     assert keys[0] == keys[1] and keys[2] == keys[3] and keys[0] != keys[2]
+
+
+def test_candidates_whose_figures_differ_only_in_their_last_bits_tie() -> None:
+    """Two fits of one segment whose RMS differ in the last bits (what a process's history can
+    change: the order of a sum, the alignment a vector kernel meets) rank alike, and neither
+    beats the other, so the first in the search's fixed order stays; a real difference still
+    decides."""
+    from dataclasses import replace
+
+    from cadio.inspect.register import Fit
+    from cadio.inspect.routes import _better
+
+    first = Fit(np.eye(4), 0.9, 0.8, 0.5, 100, np.eye(6), np.zeros(3), 200)
+    second = replace(first, rmse_mm=0.5 * (1 + 4e-16) + 1e-13)
+    assert first.rmse_mm != second.rmse_mm
+    assert first.rank() == second.rank()
+    assert not _better(second, first) and not _better(first, second)
+    closer = replace(first, rmse_mm=0.499)
+    assert closer.rank() > first.rank() and _better(closer, first)
