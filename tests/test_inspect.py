@@ -59,6 +59,24 @@ def _l_mesh() -> Mesh:
     return Mesh(np.vstack([va, vb]), np.vstack([a.triangles, b.triangles + len(va)]))
 
 
+def _ball_mesh(radius: float, n: int = 48) -> Mesh:
+    """A closed UV sphere centred on the origin, outward triangles (mm)."""
+    polar = np.linspace(0, math.pi, n // 2 + 1)[1:-1]
+    around = np.linspace(0, 2 * math.pi, n, endpoint=False)
+    rings = [radius * np.column_stack([np.sin(p) * np.cos(around), np.sin(p) * np.sin(around),
+                                       np.full(n, np.cos(p))]) for p in polar]
+    v = np.vstack([*rings, [[0, 0, radius], [0, 0, -radius]]])
+    top, bottom, last = len(v) - 2, len(v) - 1, (len(polar) - 1) * n
+    tris = []
+    for i in range(n):
+        j = (i + 1) % n
+        tris += [(top, i, j), (bottom, last + j, last + i)]
+        for r in range(len(polar) - 1):
+            a, b = r * n, (r + 1) * n
+            tris += [(a + i, b + i, b + j), (a + i, b + j, a + j)]
+    return Mesh(v, np.array(tris, dtype=np.int64))
+
+
 def _pose(deg: float, axis: tuple[float, float, float], shift: tuple[float, float, float]
           ) -> np.ndarray:
     k = np.array(axis, dtype=np.float64) / np.linalg.norm(axis)
@@ -110,6 +128,18 @@ def test_a_pose_error_is_the_least_over_the_part_s_symmetries() -> None:
     shifted = _pose(0, (0, 0, 1), (0.3, 0, 0)) @ truth
     mm, deg = pose_error(shifted, truth, sym)
     assert mm == pytest.approx(0.3, abs=0.02) and deg < 0.01
+
+
+def test_a_ball_turned_any_way_is_the_same_ball_and_a_shaft_is_not() -> None:
+    ball = symmetry_of(part_surface("s", _ball_mesh(6)).samples)
+    shaft = symmetry_of(part_surface("c", _cylinder_mesh(10, 40)).samples)
+    assert ball.spherical and ball.continuous and not shaft.spherical
+    truth = _pose(20, (1, 0, 0), (5, 6, 7))
+    tumbled = truth @ _pose(67, (1, 2, 0), (0, 0, 0)) @ _pose(0, (0, 0, 1), (0.2, 0, 0))
+    mm, deg = pose_error(tumbled, truth, ball)
+    assert deg == 0.0 and mm == pytest.approx(0.2, abs=0.02)
+    assert pose_error(tumbled, truth, shaft)[1] > 60
+    assert Symmetry.from_dict(ball.to_dict()) == ball
 
 
 def test_a_symmetry_survives_its_record() -> None:

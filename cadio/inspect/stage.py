@@ -152,8 +152,8 @@ def part_ids(assembly: str, ws: Workspace) -> list[str]:
 
 
 def _symmetry(ws: Workspace, part: Any) -> Symmetry:
-    """The part's symmetry, kept in ``inspect/symmetry/<part_id>.json`` once found."""
-    found = _kept(ws.root / "inspect" / "symmetry" / f"{part.part_id}.json",
+    """The part's symmetry, kept in ``inspect/symmetries/<part_id>.json`` once found."""
+    found = _kept(ws.root / "inspect" / "symmetries" / f"{part.part_id}.json",
                   lambda: symmetry_of(part.samples).to_dict())
     return Symmetry.from_dict(found)
 

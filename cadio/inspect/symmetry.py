@@ -1,12 +1,13 @@
 """A part's symmetries, from its CAD surface, and pose errors that respect them.
 
-A revolved part (a washer, a shaft, a ball) looks the same turned about its axis by any angle;
-a hex nut by a sixth of a turn, and flipped end for end; a plate by half a turn about each of
-its axes. A registration that lands on a symmetric copy of the true pose is right, so a pose
-error is the least over the part's symmetries (as BOP counts it). ``symmetry_of`` finds them
-on the part's surface samples: for each principal axis, the largest n-fold turn that maps the
-surface onto itself (continuous when turns by angles no n-fold would allow also do), and
-whether half a turn about an axis across it does (a flip).
+A revolved part (a washer, a shaft) looks the same turned about its axis by any angle; a ball
+turned about any axis through its centre; a hex nut by a sixth of a turn, and flipped end for
+end; a plate by half a turn about each of its axes. A registration that lands on a symmetric
+copy of the true pose is right, so a pose error is the least over the part's symmetries (as BOP
+counts it). ``symmetry_of`` finds them on the part's surface samples: for each principal axis,
+the largest n-fold turn that maps the surface onto itself (continuous when turns by angles no
+n-fold would allow also do), and whether half a turn about an axis across it does (a flip);
+a part revolved about two axes is a ball.
 """
 
 from __future__ import annotations
@@ -32,7 +33,9 @@ class Symmetry:
 
     axis: (3,) unit, the axis of the turns (None: no turn maps the part onto itself); order:
     n of the n-fold turns about it (0: continuous, a revolved part); flip: (3,) unit, an axis
-    across ``axis`` half a turn about which maps the part onto itself (None: none).
+    across ``axis`` half a turn about which maps the part onto itself (None: none);
+    spherical: every turn about ``centre`` maps it onto itself (a ball: revolved about two
+    axes), where ``axis`` and ``flip`` are two of them.
     """
 
     centre: tuple[float, float, float]
@@ -43,6 +46,7 @@ class Symmetry:
     # the centroid (a part symmetric but for small features has its centroid off the axis).
     axis_point: tuple[float, float, float] | None = None
     flip_point: tuple[float, float, float] | None = None
+    spherical: bool = False
 
     @property
     def continuous(self) -> bool:
@@ -62,11 +66,12 @@ class Symmetry:
         assert centre is not None
         return cls(centre, vec(data.get("axis")), int(data.get("order", 1)),  # type: ignore[call-overload]
                    vec(data.get("flip")), vec(data.get("axis_point")),
-                   vec(data.get("flip_point")))
+                   vec(data.get("flip_point")), bool(data.get("spherical", False)))
 
     def transforms(self) -> list[FloatArray]:
         """The group's elements as (4, 4) part-frame motions (a continuous turn sampled every
-        degree; ``pose_error`` reads it exactly)."""
+        degree, a ball's turns about its axis and its flip only; ``pose_error`` reads them
+        exactly)."""
         centre = np.array(self.centre)
         out = [np.eye(4)]
         if self.axis is not None:
@@ -127,13 +132,18 @@ def symmetry_of(samples: FloatArray, tolerance_mm: float | None = None) -> Symme
         return Symmetry(c)
     axis, order = best
     flip = next((v for v in _across(axis, vectors) if maps(_turn(v, math.pi))), None)
+    # revolved about a second axis too: a ball, which any turn about its centre maps onto itself
+    spherical = order == 0 and any(
+        maps(_turn(v, 2 * math.pi / ORDERS[0])) and all(
+            maps(_turn(v, math.radians(d))) for d in ODD_DEGREES)
+        for v in vectors.T if abs(float(v @ axis)) < 0.9)
     step = 2 * math.pi / (order or 12)
     axis, axis_point = _self_fit(pts, _about(_turn(axis, step), centre), step)
     flip_point = None
     if flip is not None:
         flip, flip_point = _self_fit(pts, _about(_turn(flip, math.pi), centre), math.pi)
     return Symmetry(c, _tuple(axis), order, None if flip is None else _tuple(flip),
-                    _tuple_point(axis_point), _tuple_point(flip_point))
+                    _tuple_point(axis_point), _tuple_point(flip_point), spherical)
 
 
 def _self_fit(pts: FloatArray, guess: FloatArray, angle: float
@@ -188,7 +198,10 @@ def pose_error(estimate: FloatArray, truth: FloatArray, symmetry: Symmetry
     its symmetries: of the symmetric copies of ``estimate``, the one whose rotation is nearest
     ``truth``'s, and the distance its centroid lies from the truth's. For a revolved part the
     turn about its axis is free: the angle is the one between the axis's two images (or its
-    flip's), the distance a point on the axis's."""
+    flip's), the distance a point on the axis's; a ball's every turn is: the angle is nil, the
+    distance its centre's."""
+    if symmetry.spherical:
+        return _distance(estimate, truth, np.array(symmetry.centre)), 0.0
     if symmetry.continuous:
         axis = np.array(symmetry.axis)
         point = np.array(symmetry.axis_point or symmetry.centre)
