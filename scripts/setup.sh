@@ -56,11 +56,26 @@ lock=$({ cat constraints.txt pyproject.toml; [ -z "${TORCH:-}" ] || echo "torch=
   | sha256sum | cut -d' ' -f1)
 target="." stamp=.venv/.installed-run
 [ "$test_setup" = 1 ] && target=".[dev]" stamp=.venv/.installed-test
-# pip byte-compiles what it installs on one core (about half of a fresh install's minutes);
-# compileall does it on every core instead, skipping what is compiled already.
+# pip reads each package's index page and fetches its file one after another, waiting on the
+# network for most of a fresh install; so every pin of the lock is fetched first, eight
+# downloads at a time, and installed from that folder alone: a package the lock does not pin
+# then fails the install instead of coming in at whatever version is newest. (The CUDA build
+# of torch needs packages the lock, made with the CPU build, does not hold: where the folder
+# alone cannot satisfy the install, the index is read as well.) pip byte-compiles what it
+# installs on one core (about half of a fresh install's minutes); compileall does it on every
+# core instead, skipping what is compiled already.
 if [ "$(cat "$stamp" 2>/dev/null)" != "$lock" ] && [ "$(cat .venv/.installed-test 2>/dev/null)" != "$lock" ]; then
-  .venv/bin/python -m pip install -q --no-compile --disable-pip-version-check "${index[@]}" \
-    -c constraints.txt -e "$target"
+  fetched=$(mktemp -d)
+  trap 'rm -rf "$fetched"' EXIT
+  pip=(.venv/bin/python -m pip -q --disable-pip-version-check)
+  { sed -n 's/^\([A-Za-z0-9_.-]*==[^ ;]*\).*/\1/p' constraints.txt; echo "setuptools>=68"; } \
+    | xargs -P 8 -n 12 "${pip[@]}" download --no-deps "${index[@]}" -d "$fetched"
+  if ! "${pip[@]}" install --no-compile --no-index --find-links "$fetched" \
+      -c constraints.txt -e "$target" 2>/dev/null; then
+    echo "setup: the lock's packages alone do not install here; reading the index as well"
+    "${pip[@]}" install --no-compile --find-links "$fetched" "${index[@]}" \
+      -c constraints.txt -e "$target"
+  fi
   # (a package may ship a file no Python 3.11 compiles, as pip's own compile skips it)
   .venv/bin/python -m compileall -q -j 0 .venv/lib/python3.11/site-packages >/dev/null || true
   echo "$lock" > "$stamp"
