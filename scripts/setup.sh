@@ -76,8 +76,11 @@ if [ "$(cat "$stamp" 2>/dev/null)" != "$lock" ] && [ "$(cat .venv/.installed-tes
     "${pip[@]}" install --no-compile --find-links "$fetched" "${index[@]}" \
       -c constraints.txt -e "$target"
   fi
-  # (a package may ship a file no Python 3.11 compiles, as pip's own compile skips it)
-  .venv/bin/python -m compileall -q -j 0 .venv/lib/python3.11/site-packages >/dev/null || true
+  # (a package may ship a file no Python 3.11 compiles, as pip's own compile skips it; the
+  # packages' own test suites, which nothing here imports, are a fifth of the files: 39 s
+  # without them where all took 55 s)
+  .venv/bin/python -m compileall -q -j 0 -x '/tests?/' .venv/lib/python3.11/site-packages \
+    >/dev/null || true
   echo "$lock" > "$stamp"
 fi
 
