@@ -58,12 +58,12 @@ target="." stamp=.venv/.installed-run
 [ "$test_setup" = 1 ] && target=".[dev]" stamp=.venv/.installed-test
 # pip reads each package's index page and fetches its file one after another; so every pin of
 # the lock is fetched first, eight downloads at a time, and installed from that folder alone
-# (on two cores: 39 s and 75 s, where one install from the index took 138 s), and a package the
-# lock does not pin fails the install instead of coming in at whatever version is newest. (The CUDA build
-# of torch needs packages the lock, made with the CPU build, does not hold: where the folder
-# alone cannot satisfy the install, the index is read as well.) pip byte-compiles what it
-# installs on one core (about half of a fresh install's minutes); compileall does it on every
-# core instead, skipping what is compiled already.
+# (on two cores: 39 s and 75 s, where one install from the index took 138 s), and a package
+# the lock does not pin fails the install instead of coming in at whatever version is newest.
+# (The CUDA build of torch needs packages the lock, made with the CPU build, does not hold:
+# where the folder alone cannot satisfy the install, the index is read as well.) pip
+# byte-compiles what it installs on one core (about half of a fresh install's minutes);
+# compileall does it on every core instead, skipping what is compiled already.
 if [ "$(cat "$stamp" 2>/dev/null)" != "$lock" ] && [ "$(cat .venv/.installed-test 2>/dev/null)" != "$lock" ]; then
   fetched=$(mktemp -d)
   trap 'rm -rf "$fetched"' EXIT
