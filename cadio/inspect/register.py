@@ -683,20 +683,22 @@ def _facing(part: PartSurface, rot: FloatArray, target: FloatArray, towards: Flo
 
 
 def _slides(part: PartSurface, pose: FloatArray, scan: FloatArray) -> list[FloatArray]:
-    """The pose, and the pose slid both ways along the part's longest axis by what the part
-    is longer than the scan along it (a bolt whose shank the plates hide shows its head or its
-    end: which, the coarse steps could not find alone)."""
-    axis = pose[:3, :3] @ part.principal_axes[:, -1]
-    along = (apply_pose(pose, part.samples[::10]) - pose[:3, 3]) @ axis
-    seen = scan @ axis
-    spare = (np.ptp(along) - (np.percentile(seen, 99) - np.percentile(seen, 1))) / 2
-    if spare < 0.1 * part.diameter:
-        return [pose]
+    """The pose, and the pose slid both ways along each principal axis of the part by what the
+    part is longer than the scan along it, where that is a tenth of its diameter or more (a
+    bolt whose shank the plates hide shows its head or its end; a nut under a washer shows a
+    strip of its flats, and the coarse steps cannot tell which end of the nut that strip is:
+    only the depth, which the judge reads, says where the rest of it hides)."""
     out = [pose]
-    for sign in (-1.0, 1.0):
-        slid = pose.copy()
-        slid[:3, 3] += sign * spare * axis
-        out.append(slid)
+    for axis in (pose[:3, :3] @ part.principal_axes).T[::-1]:
+        along = (apply_pose(pose, part.samples[::10]) - pose[:3, 3]) @ axis
+        seen = scan @ axis
+        spare = (np.ptp(along) - (np.percentile(seen, 99) - np.percentile(seen, 1))) / 2
+        if spare < 0.1 * part.diameter:
+            continue
+        for sign in (-1.0, 1.0):
+            slid = pose.copy()
+            slid[:3, 3] += sign * spare * axis
+            out.append(slid)
     return out
 
 
