@@ -416,18 +416,20 @@ def test_global_search_finds_a_part_without_any_prior_pose() -> None:
 def test_a_nut_showing_a_band_of_its_flats_is_also_tried_at_either_end_of_its_axis() -> None:
     """A nut under a washer shows a band of its sides: the band fits the nut wherever along
     its axis the rest of it lies, so the search's starts slide it both ways along that axis,
-    its shortest, as they do a bolt along its longest (only the depth tells which is right)."""
+    its shortest, as they do a bolt along its longest (only the depth tells which is right;
+    the search slides along the shorter axes where no start agrees with the depth)."""
     from cadio.inspect.register import _slides
 
     nut = part_surface("nut", _cylinder_mesh(10.0, 8.0))
     a = np.linspace(0, 2 * math.pi, 400, endpoint=False)
     band = np.column_stack([10 * np.cos(a), 10 * np.sin(a), np.tile([-4.0, -3.0, -2.0], 134)[:400]])
     pose = _pose(0, (0, 0, 1), (0, 0, 0))
-    shifts = sorted(float(p[2, 3]) for p in _slides(nut, pose, band))
+    shifts = sorted(float(p[2, 3]) for p in _slides(nut, pose, band, axes=(0, 1, 2)))
     assert len(shifts) == 3 and shifts[1] == 0.0
     assert shifts[0] == pytest.approx(-3.0, abs=0.1) and shifts[2] == pytest.approx(3.0, abs=0.1)
     whole = np.column_stack([10 * np.cos(a), 10 * np.sin(a), np.linspace(-4, 4, 400)])
-    assert len(_slides(nut, pose, whole)) == 1  # all of it seen: nowhere else to look
+    assert len(_slides(nut, pose, whole, axes=(0, 1, 2))) == 1  # nowhere else to look
+    assert len(_slides(nut, pose, band)) == 1  # along its longest axis: all of it seen
 
 
 def test_a_surface_lying_on_another_segment_s_depth_is_that_segment_s_not_the_hypothesis_s(

@@ -82,6 +82,10 @@ class RegisterConfig:
     judged: int = 24
     judged_within: float = 0.1
     judged_points: int = 500
+    # Where the best judged candidate stays under this (the depth contradicts a tenth or more
+    # of the part's surface there), the starts from the principal axes are slid along the
+    # part's shorter axes too (``_slides``) and all are judged again.
+    slide_below: float = 0.9
     # The spread orientations are tried only when no candidate's coarse score (the inlier
     # share of the scan) reaches this.
     good_enough: float = 0.85
@@ -348,13 +352,23 @@ def global_search(part: PartSurface, scan: FloatArray, cameras: Sequence[Camera]
     turns = _principal_turns(part, scan)
     if not any(score[0] >= cfg.good_enough for score, _, _ in scored):
         turns += _orientations(cfg.orientations, cfg.seed)[24:]
-    starts = [(start, f"turn-{k}") for k, rot in enumerate(turns)
-              for start in _slides(part, _facing(part, rot, scan.mean(axis=0), towards), scan)]
+    facing = [_facing(part, rot, scan.mean(axis=0), towards) for rot in turns]
+    starts = [(start, f"turn-{k}") for k, pose in enumerate(facing)
+              for start in _slides(part, pose, scan)]
     scored += [(*fit, seed) for fit, (_, seed) in
                zip(_coarse(part, few, [p for p, _ in starts], reach, cfg), starts, strict=True)]
     scored.sort(key=lambda item: item[0], reverse=True)
     if judge is not None and cfg.judged:
-        scored = _judged(part, scored, judge, cfg)
+        judged = _judged(part, scored, judge, cfg)
+        if judged and judged[0][0][0] < cfg.slide_below:
+            starts = [(start, f"turn-{k}") for k, pose in enumerate(facing)
+                      for start in _slides(part, pose, scan, axes=(1, 0))[1:]]
+            scored += [(*fit, seed) for fit, (_, seed) in
+                       zip(_coarse(part, few, [p for p, _ in starts], reach, cfg), starts,
+                           strict=True)]
+            scored.sort(key=lambda item: item[0], reverse=True)  # stable: the first starts first
+            judged = _judged(part, scored, judge, cfg)
+        scored = judged
     best = _distinct(scored, part.diameter / 10, cfg.keep)
     return sorted((replace(refine(part, scan, pose, cameras, cfg, judge=judge, sigma=sigma),
                            seed=seed)
@@ -682,14 +696,17 @@ def _facing(part: PartSurface, rot: FloatArray, target: FloatArray, towards: Flo
     return pose
 
 
-def _slides(part: PartSurface, pose: FloatArray, scan: FloatArray) -> list[FloatArray]:
-    """The pose, and the pose slid both ways along each principal axis of the part by what the
-    part is longer than the scan along it, where that is a tenth of its diameter or more (a
-    bolt whose shank the plates hide shows its head or its end; a nut under a washer shows a
-    strip of its flats, and the coarse steps cannot tell which end of the nut that strip is:
-    only the depth, which the judge reads, says where the rest of it hides)."""
+def _slides(part: PartSurface, pose: FloatArray, scan: FloatArray, axes: Sequence[int] = (2,)
+            ) -> list[FloatArray]:
+    """The pose, and the pose slid both ways along each of the part's principal ``axes``
+    (0-2, shortest to longest) by what the part is longer than the scan along it, where that is
+    a tenth of its diameter or more. Along its longest: a bolt whose shank the plates hide
+    shows its head or its end, which the coarse steps could not find alone; along its shorter
+    ones, where no start fits well (``global_search``): a nut under a washer shows a band of its
+    flats, which fits it at either end of its axis, and only the depth, which the judge reads,
+    says where the rest of it hides."""
     out = [pose]
-    for axis in (pose[:3, :3] @ part.principal_axes).T[::-1]:
+    for axis in (pose[:3, :3] @ part.principal_axes[:, list(axes)]).T:
         along = (apply_pose(pose, part.samples[::10]) - pose[:3, 3]) @ axis
         seen = scan @ axis
         spare = (np.ptp(along) - (np.percentile(seen, 99) - np.percentile(seen, 1))) / 2
