@@ -67,18 +67,21 @@ def cmd_schedule(args: argparse.Namespace) -> int:
 
 
 def _api_url() -> str | None:
-    """The Prefect API the schedules live on, when it answers (else None, with the reason)."""
+    """The Prefect API the schedules live on, when it answers (else None, with the reason).
+    A server busy with a night's runs may take seconds to answer: it is given
+    ``api_problem``'s ten, not the two a starting server is polled with."""
     import os
 
-    from flows.server import api_url, is_healthy
+    from flows.server import api_problem, api_url
     from flows.settings import load_settings
 
     url = os.environ.get("PREFECT_API_URL") or api_url(load_settings().server_port)
-    if is_healthy(url):
+    problem = api_problem(url)
+    if problem is None:
         return url
-    print(f"mateqa schedule: no Prefect server answers at {url}: start one with `mateqa serve` "
-          "(it also runs the worker that starts the nights), or set PREFECT_API_URL",
-          file=sys.stderr)
+    print(f"mateqa schedule: no Prefect server answers at {url} ({problem}): start one with "
+          "`mateqa serve` (it also runs the worker that starts the nights), or set "
+          "PREFECT_API_URL", file=sys.stderr)
     return None
 
 
