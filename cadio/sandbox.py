@@ -14,24 +14,24 @@ function (by its qualified name) and payload of each job, and its result, travel
 a socket pair that only the worker inherits; the worker's end closing is how the supervisor sees
 it die.
 
-A worker costs 3-6 s of CPU before its first job (OCP, open3d, torch and the job's module), and
-a night runs pool after pool (ingest batches, mates, captures, completion, relations,
-inspection, export). So a pool that ran its jobs to the end leaves its live, idle workers to
-the next pool of this process started in the same context (umask, working folder, import path
-and environment, its libraries' threads included: what a worker takes from its supervisor when
-it starts). The memory limit is a job's, not a worker's: it is sent with each job, and a kept
-worker serves a pool of its limit or a larger one, or of a smaller one where it maps at most
-half of that now (lowering a limit under what an earlier job left mapped would fail the next
-job's allocations), so that the stages' pools of different limits share their workers. A kept
-worker leaves by itself after ``KEEP_IDLE_S`` without a job or when this process ends (its
-socket closes); ``release_idle_workers`` stops the kept ones at once. A pool closed early (its
-caller stopped iterating) keeps nothing.
+A fresh worker costs 3-6 s of CPU before its first job (OCP, open3d, torch and the job's
+module), so workers are forked from a process that loaded those once (``cadio.forkserver``)
+where their memory limit allows. A night runs pool after pool (ingest batches, mates, captures,
+completion, relations, inspection, export), so a pool that ran its jobs to the end leaves its
+live, idle workers to the next pool of this process started in the same context (umask, working
+folder, import path and environment, its libraries' threads included: what a worker takes from
+its supervisor when it starts). The memory limit is a job's, not a worker's: it is sent with
+each job, and a kept worker serves a pool of its limit or a larger one, or of a smaller one
+where it maps at most half of that now (lowering a limit under what an earlier job left mapped
+would fail the next job's allocations), so that the stages' pools of different limits share
+their workers. A kept worker leaves by itself after ``KEEP_IDLE_S`` without a job or when this
+process ends (its socket closes); ``release_idle_workers`` stops the kept ones at once. A pool
+closed early (its caller stopped iterating) keeps nothing.
 """
 
 from __future__ import annotations
 
 import logging
-import math
 import os
 import resource
 import signal
@@ -47,6 +47,7 @@ from multiprocessing.connection import Connection, wait
 from typing import Any, Generic, TypeVar
 
 from cadio.errors import CadioError, InputFileError, MachineError, WorkerError
+from cadio.forkserver import Forked, fork_worker, mapped_mb
 
 log = logging.getLogger(__name__)
 
@@ -142,7 +143,7 @@ _BOOT = ("import sys\n"
 
 
 # Worker processes started and not yet reaped, in every pool of this process.
-_LIVE: set[subprocess.Popen[bytes]] = set()
+_LIVE: set[subprocess.Popen[bytes] | Forked] = set()
 # Held while a worker starts and is registered, and while ``kill_workers`` reads the set: a
 # worker whose interpreter has started is never missed by a kill (a pool in another thread
 # could otherwise be between the two).
@@ -227,15 +228,21 @@ class _Worker(Generic[P]):
         mine, theirs = socket.socketpair()
         with mine, theirs:
             fd = theirs.fileno()
-            # stdout to /dev/null: OpenCascade prints parser chatter straight to fd 1
+            environment = _environment(threads)
+            context = {"cwd": os.getcwd(), "umask": _umask(), "path": list(sys.path),
+                       "environment": dict(environment or os.environ)}
             with _STARTING:
-                self.process = subprocess.Popen(
+                # forked from the fork server where it can (``cadio.forkserver``), else
+                # started fresh; stdout to /dev/null: OpenCascade prints parser chatter
+                # straight to fd 1
+                self.process: subprocess.Popen[bytes] | Forked = fork_worker(
+                    fd, memory_mb, context, THREAD_VARIABLES) or subprocess.Popen(
                     [sys.executable, "-c", _BOOT, str(fd), str(memory_mb)], pass_fds=(fd,),
-                    stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL,
-                    env=_environment(threads))
+                    stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL, env=environment)
                 _LIVE.add(self.process)
             self.conn = Connection(mine.detach())
-        self.send(list(sys.path))
+        if isinstance(self.process, subprocess.Popen):
+            self.send(list(sys.path))
         self.memory_mb = memory_mb  # the limit of its last job (it sets each job's)
         self.job: Job[P] | None = None
         self.started = self.idle_since = 0.0
@@ -251,14 +258,7 @@ class _Worker(Generic[P]):
 
     def mapped_mb(self) -> float:
         """Its address space now, MB (what a memory limit holds); infinite where unknown."""
-        try:
-            with open(f"/proc/{self.process.pid}/status") as status:
-                for line in status:
-                    if line.startswith("VmSize:"):
-                        return int(line.split()[1]) / 1024
-        except (OSError, ValueError, IndexError):
-            pass
-        return math.inf
+        return mapped_mb(self.process.pid)
 
     def submit(self, fn: Callable[[P], Any], job: Job[P], memory_mb: int) -> None:
         self.job, self.started, self.memory_mb = job, time.monotonic(), memory_mb

@@ -33,6 +33,12 @@ def misbehave(payload: str) -> str:
         raise ValueError("bad payload")
     if payload == "pid":
         return str(os.getpid())
+    if payload == "where":  # what a worker takes from its supervisor when it starts
+        import sys
+
+        umask = os.umask(0)
+        os.umask(umask)
+        return f"{os.getcwd()}|{umask:o}|{sys.path[0]}|{os.environ.get('SANDBOX_TEST', '')}"
     if payload.startswith("hold:"):  # map this many MB and keep them mapped after the job
         import mmap
 

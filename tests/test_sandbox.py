@@ -6,6 +6,7 @@ import multiprocessing
 import os
 import threading
 import time
+from pathlib import Path
 
 import psutil
 import pytest
@@ -91,11 +92,15 @@ def test_the_sandbox_runs_inside_a_daemonic_process() -> None:
 
 
 def _workers() -> list[psutil.Process]:
-    # a worker that exited and is not reaped yet (a zombie) runs nothing: not counted
+    # workers started fresh (children of this process) and forked ones (children of its fork
+    # servers, with their command line); a worker that exited and is not reaped yet (a
+    # zombie) runs nothing: not counted
     out = []
-    for p in psutil.Process().children():
+    for p in psutil.Process().children(recursive=True):
         try:
-            if p.status() != psutil.STATUS_ZOMBIE and "cadio.sandbox" in " ".join(p.cmdline()):
+            forked = "cadio.forkserver" in " ".join(p.parent().cmdline())
+            if p.status() != psutil.STATUS_ZOMBIE and (
+                    forked or "cadio.sandbox" in " ".join(p.cmdline())):
                 out.append(p)
         except psutil.NoSuchProcess:
             continue
@@ -104,18 +109,19 @@ def _workers() -> list[psutil.Process]:
 
 def test_a_pool_run_to_the_end_leaves_its_workers_to_the_next_pool() -> None:
     release_idle_workers()
-    (first,) = _run(["pid"], Limits(seconds=60, workers=1)).values()
+    (first,) = _run(["pid"], Limits(seconds=60, memory_mb=8192, workers=1)).values()
     assert [p.pid for p in _workers()] == [int(first)]  # kept, idle
-    (second,) = _run(["pid"], Limits(seconds=60, workers=1)).values()
+    (second,) = _run(["pid"], Limits(seconds=60, memory_mb=8192, workers=1)).values()
     assert second == first  # no new interpreter: the kept worker served the next pool
-    (lower,) = _run(["limit"], Limits(seconds=60, memory_mb=2048, workers=1)).values()
-    assert lower == f"{first}:2048"  # a lower limit than its last: it maps little, it serves
-    (raised,) = _run(["limit"], Limits(seconds=60, memory_mb=8192, workers=1)).values()
-    assert raised == f"{first}:8192"  # a higher one: served, the limit raised for the job
-    _run(["hold:4096"], Limits(seconds=60, memory_mb=8192, workers=1))
-    (other,) = _run(["limit"], Limits(seconds=60, memory_mb=2048, workers=1)).values()
-    new, limit = other.split(":")  # it maps more than half of 2048 MB now: a new worker
-    assert new != first and limit == "2048"
+    # (a worker forked from the fork server maps its libraries: about 2.6 GB)
+    (lower,) = _run(["limit"], Limits(seconds=60, memory_mb=6144, workers=1)).values()
+    assert lower == f"{first}:6144"  # a lower limit than its last, under half: it serves
+    (raised,) = _run(["limit"], Limits(seconds=60, memory_mb=16384, workers=1)).values()
+    assert raised == f"{first}:16384"  # a higher one: served, the limit raised for the job
+    _run(["hold:4096"], Limits(seconds=60, memory_mb=16384, workers=1))
+    (other,) = _run(["limit"], Limits(seconds=60, workers=1)).values()
+    new, limit = other.split(":")  # it maps more than half of 6144 MB now: a new worker
+    assert new != first and limit == "6144"
     before = os.umask(0o027)  # ... and only workers started in the same context serve
     try:
         (masked,) = _run(["pid"], Limits(seconds=60, workers=1)).values()
@@ -126,6 +132,39 @@ def test_a_pool_run_to_the_end_leaves_its_workers_to_the_next_pool() -> None:
     assert both["limit"] == f"{new}:6144"  # the kept worker mapping little; not the other
     alive = len(_workers())
     assert alive >= 3 and release_idle_workers() == alive and _workers() == []
+
+
+def test_a_forked_worker_starts_where_its_supervisor_is_now(
+        tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """A worker forked from the fork server, started long before, takes the supervisor's
+    folder, umask, import path and environment of its own start, as a fresh one does; its
+    libraries are loaded already (it is no fresh interpreter: its parent is the fork
+    server)."""
+    release_idle_workers()
+    _run(["ok:start"], Limits(seconds=60, workers=1))  # the fork server is up
+    release_idle_workers()
+    monkeypatch.chdir(tmp_path)
+    monkeypatch.setenv("SANDBOX_TEST", "set after the fork server started")
+    monkeypatch.syspath_prepend(str(tmp_path / "modules"))
+    before = os.umask(0o027)
+    try:
+        (where,) = _run(["where"], Limits(seconds=60, workers=1)).values()
+        (worker,) = _workers()
+    finally:
+        os.umask(before)
+    assert where == (f"{tmp_path}|27|{tmp_path / 'modules'}|set after the fork server started")
+    assert "cadio.forkserver" in " ".join(worker.parent().cmdline())
+    assert {"torch", "OCP", "open3d"} <= _loaded_packages(worker)  # "where" loads none
+    release_idle_workers()
+
+
+def _loaded_packages(process: psutil.Process) -> set[str]:
+    """The site-packages folders of the shared libraries ``process`` maps."""
+    out = set()
+    for m in process.memory_maps():
+        if "site-packages/" in m.path:
+            out.add(m.path.split("site-packages/", 1)[1].split("/", 1)[0])
+    return out
 
 
 def test_a_worker_holds_its_libraries_to_the_threads_it_is_given(
