@@ -57,10 +57,10 @@ def _top_level_imports(path: Path) -> set[str]:
 
 @pytest.mark.parametrize("package", PACKAGES)
 def test_no_module_imports_itself_back_at_import_time(package: str) -> None:
-    graph = {}
+    graph, names = {}, _names()
     for path in _modules():
         rel = path.relative_to(ROOT).with_suffix("")
-        graph[".".join(rel.parts)] = {m for m in _top_level_imports(path) if m in _names()}
+        graph[".".join(rel.parts)] = {m for m in _top_level_imports(path) if m in names}
     cycles = []
     for start in (m for m in graph if m.startswith(package + ".")):
         stack, seen = [(start, [start])], set()
