@@ -2,17 +2,17 @@
 
 OpenCascade can hang on a pathological file, exhaust memory, or crash the whole process with a
 segmentation fault. None of that may stop a batch: each job runs in a long-lived worker process
-(a fresh interpreter, never a fork, so OCP state is not shared) with an address-space limit; the
+(never a fork of its supervisor, so OCP state is not shared) with an address-space limit; the
 supervisor waits on results and worker deaths together, turns a timeout, a memory error or a
 crash into a ``WorkerError`` naming the input, replaces the dead worker and carries on with the
 next job.
 
-Workers are plain subprocesses (``subprocess.Popen`` of this interpreter), not
-``multiprocessing`` children: the supervisor may itself be a daemonic process, as every
-``dask worker`` process is, and ``multiprocessing`` refuses children to those. The job
-function (by its qualified name) and payload of each job, and its result, travel as pickles over
-a socket pair that only the worker inherits; the worker's end closing is how the supervisor sees
-it die.
+Workers are plain subprocesses (``subprocess.Popen`` of this interpreter, or forks of one that
+``cadio.forkserver`` started so), not ``multiprocessing`` children: the supervisor may itself
+be a daemonic process, as every ``dask worker`` process is, and ``multiprocessing`` refuses
+children to those. The job function (by its qualified name) and payload of each job, and its
+result, travel as pickles over a socket pair that only the worker inherits; the worker's end
+closing is how the supervisor sees it die.
 
 A fresh worker costs 3-6 s of CPU before its first job (OCP, open3d, torch and the job's
 module), so workers are forked from a process that loaded those once (``cadio.forkserver``)
