@@ -55,6 +55,7 @@ _BOOT = ("import socket, sys\n"
          "_serve_forks(sock)\n")
 
 _MESSAGE = 1 << 20  # the largest request: an environment and an import path
+_LOAD_S = 300.0  # a fork server loads in seconds; one that took this long is given up
 
 
 class Forked:
@@ -95,9 +96,16 @@ class ForkServer:
                 [sys.executable, "-c", _BOOT, str(theirs.fileno())],
                 pass_fds=(theirs.fileno(),), stdin=subprocess.DEVNULL,
                 stdout=subprocess.DEVNULL, env=environment)
-        self.sock, self.lock = mine, threading.Lock()
+        self.sock, self.lock, self.gone = mine, threading.Lock(), False
         self.sock.sendall(pickle.dumps(list(sys.path)))
-        self.mapped_mb: float = self._reply()  # it answers once loaded
+        self.sock.settimeout(_LOAD_S)  # a fork server that hangs while loading is given up
+        try:
+            self.mapped_mb: float = self._reply()  # it answers once loaded
+        except OSError:
+            self.process.kill()
+            self.sock.close()
+            raise
+        self.sock.settimeout(None)
 
     def _reply(self) -> Any:
         data = self.sock.recv(_MESSAGE)
@@ -105,11 +113,22 @@ class ForkServer:
             raise OSError("the fork server exited")
         return pickle.loads(data)
 
-    def fork(self, fd: int, memory_mb: int, context: dict[str, Any]) -> Forked:
-        """A worker serving the socket ``fd`` (it is sent over, this process keeps its own)."""
-        with self.lock:
-            socket.send_fds(self.sock, [pickle.dumps(("fork", memory_mb, context))], [fd])
-            return Forked(self, self._reply())
+    def fork(self, fd: int, memory_mb: int, context: dict[str, Any]) -> Forked | None:
+        """A worker serving the socket ``fd`` (it is sent over, this process keeps its own),
+        or None where it should start fresh: its memory limit is under twice what this fork
+        server maps, or this one has died. ``context``: what the worker takes at its start
+        (``cwd``, ``umask``, import ``path``, ``environment``)."""
+        if self.gone or memory_mb < 2 * self.mapped_mb:
+            return None
+        try:
+            with self.lock:
+                socket.send_fds(self.sock, [pickle.dumps(("fork", memory_mb, context))], [fd])
+                return Forked(self, self._reply())
+        except OSError as exc:
+            log.warning("the fork server is gone (%s): workers start fresh", exc)
+            self.gone = True
+            self.sock.close()
+            return None
 
     def status(self, pid: int) -> int | None:
         """The worker's exit status (negative: the signal that ended it), None while it runs.
@@ -126,9 +145,6 @@ class ForkServer:
                 return -signal.SIGKILL
             return None
 
-    def close(self) -> None:
-        self.sock.close()  # it leaves when its socket closes
-
 
 # The fork servers of this process, by the thread variables they loaded their libraries with;
 # a process forked from this one (its pid differs) starts its own.
@@ -137,14 +153,12 @@ _SERVERS_LOCK = threading.Lock()
 _SERVERS_PID = os.getpid()
 
 
-def fork_worker(fd: int, memory_mb: int, context: dict[str, Any],
-                thread_variables: tuple[str, ...]) -> Forked | None:
-    """A worker forked for the socket ``fd``, or None where none can be forked for it (the
-    caller starts one fresh): its memory limit is under twice what a fork server maps, or the
-    fork server cannot start or has died. ``context``: what the worker takes at its start
-    (``cwd``, ``umask``, import ``path``, ``environment``)."""
+def fork_server(environment: dict[str, str],
+                thread_variables: tuple[str, ...]) -> ForkServer | None:
+    """This process's fork server for the ``thread_variables`` of ``environment``, started
+    now if none is (it takes seconds to load: call it before taking a lock); None where none
+    can start or the last one died (workers then start fresh)."""
     global _SERVERS_PID
-    environment = context["environment"]
     key = tuple(environment.get(name, "") for name in thread_variables)
     with _SERVERS_LOCK:
         if _SERVERS_PID != os.getpid():
@@ -157,17 +171,9 @@ def fork_worker(fd: int, memory_mb: int, context: dict[str, Any],
                 log.warning("no fork server (%s): workers start fresh", exc)
                 _SERVERS[key] = None
         server = _SERVERS[key]
-    if server is None or memory_mb < 2 * server.mapped_mb:
-        return None
-    try:
-        return server.fork(fd, memory_mb, context)
-    except OSError as exc:
-        log.warning("the fork server is gone (%s): workers start fresh", exc)
-        with _SERVERS_LOCK:
-            if _SERVERS.get(key) is server:
-                _SERVERS[key] = None
-        server.close()
-        return None
+        if server is not None and server.gone:
+            _SERVERS[key] = server = None
+        return server
 
 
 def _serve_forks(sock: socket.socket) -> None:

@@ -47,7 +47,7 @@ from multiprocessing.connection import Connection, wait
 from typing import Any, Generic, TypeVar
 
 from cadio.errors import CadioError, InputFileError, MachineError, WorkerError
-from cadio.forkserver import Forked, fork_worker, mapped_mb
+from cadio.forkserver import Forked, fork_server, mapped_mb
 
 log = logging.getLogger(__name__)
 
@@ -229,14 +229,16 @@ class _Worker(Generic[P]):
         with mine, theirs:
             fd = theirs.fileno()
             environment = _environment(threads)
+            inherited = dict(environment or os.environ)
             context = {"cwd": os.getcwd(), "umask": _umask(), "path": list(sys.path),
-                       "environment": dict(environment or os.environ)}
+                       "environment": inherited}
+            server = fork_server(inherited, THREAD_VARIABLES)
             with _STARTING:
                 # forked from the fork server where it can (``cadio.forkserver``), else
                 # started fresh; stdout to /dev/null: OpenCascade prints parser chatter
                 # straight to fd 1
-                self.process: subprocess.Popen[bytes] | Forked = fork_worker(
-                    fd, memory_mb, context, THREAD_VARIABLES) or subprocess.Popen(
+                forked = server.fork(fd, memory_mb, context) if server else None
+                self.process: subprocess.Popen[bytes] | Forked = forked or subprocess.Popen(
                     [sys.executable, "-c", _BOOT, str(fd), str(memory_mb)], pass_fds=(fd,),
                     stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL, env=environment)
                 _LIVE.add(self.process)

@@ -158,6 +158,26 @@ def test_a_forked_worker_starts_where_its_supervisor_is_now(
     release_idle_workers()
 
 
+def test_workers_start_fresh_where_the_fork_server_died() -> None:
+    from cadio import forkserver
+
+    release_idle_workers()
+    _run(["ok:start"], Limits(seconds=60, workers=1))  # the fork server is up
+    release_idle_workers()
+    server = forkserver._SERVERS[tuple(os.environ.get(n, "") for n in THREAD_VARIABLES)]
+    assert server is not None
+    server.process.kill()
+    server.process.wait(10)
+    try:
+        (pid,) = _run(["pid"], Limits(seconds=60, workers=1)).values()
+        assert psutil.Process(int(pid)).parent().pid == os.getpid()  # started fresh
+        out = _run(["segfault", "ok:after"], Limits(seconds=60, workers=1))
+        assert "SIGSEGV" in out["segfault"].reason and out["ok:after"] == "after"
+    finally:
+        release_idle_workers()
+        forkserver._SERVERS.clear()  # the next pools get a fork server again
+
+
 def _loaded_packages(process: psutil.Process) -> set[str]:
     """The site-packages folders of the shared libraries ``process`` maps."""
     out = set()
