@@ -150,6 +150,18 @@ def small_library(shared_step_dir: Path, tmp_path_factory: pytest.TempPathFactor
     return root
 
 
+@pytest.fixture(scope="session")
+def parts_library(small_library: Path, tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """``small_library`` without its assembly: the parts of two categories, for a night whose
+    test needs every stage but no assembly's (mates, inspection, export): half the work."""
+    import shutil
+
+    root = tmp_path_factory.mktemp("parts-library")
+    for category in (c for c in SMALL_LIBRARY if c != "assemblies"):
+        shutil.copytree(small_library / category, root / category)
+    return root
+
+
 def free_port() -> int:
     """A TCP port nobody listens on now (loopback)."""
     import socket

@@ -168,15 +168,15 @@ def test_a_parameter_out_of_range_or_naming_nothing_fails_before_any_work(
 
 
 def test_a_deployment_run_writes_the_report_and_a_second_night_only_reports(
-        served: dict[str, str], small_library: Path, tmp_path: Path) -> None:
+        served: dict[str, str], parts_library: Path, tmp_path: Path) -> None:
     ws = tmp_path / "ws"
-    out = _run_nightly(served, small_library, ws)
+    out = _run_nightly(served, parts_library, ws)
     assert "Completed" in out
     run = (ws / "runs" / "latest").resolve()
     for name in RUN_FILES:
         assert (run / name).is_file() and (run / name).stat().st_size > 0, name
     summary = json.loads((run / "summary.json").read_text())
-    assert summary["ingest"]["files"] == 4 and summary["ingest"]["failed"] == 0
+    assert summary["ingest"]["files"] == 3 and summary["ingest"]["failed"] == 0
     categories = pd.read_csv(run / "categories.csv")
     assert {"fasteners", "couplings", "all"} <= set(categories["category"])
     assert set(pd.read_parquet(run / "pairs.parquet")["method"]) == {"ltn", "mlp", "geometric"}
@@ -189,7 +189,7 @@ def test_a_deployment_run_writes_the_report_and_a_second_night_only_reports(
     assert made["nightly-report"][0] == "markdown"  # Prefect shows a link as Markdown
     assert (run / "report.html").as_uri() in made["nightly-report-html"][1]
 
-    _run_nightly(served, small_library, ws)
+    _run_nightly(served, parts_library, ws)
 
     async def last_tasks(client: Any) -> dict[str, str]:
         from prefect.client.schemas.filters import (
