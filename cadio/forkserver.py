@@ -176,6 +176,17 @@ def fork_server(environment: dict[str, str],
         return server
 
 
+def _load_numba_target() -> None:
+    """numba's CPU target loads its registries where a process first compiles a function or
+    loads one from its cache (0.4-0.8 s): here once, so that no forked worker does."""
+    try:
+        from numba.core.registry import cpu_target
+
+        cpu_target.target_context.refresh()
+    except Exception as exc:  # a worker loads it itself, as a fresh one does
+        log.warning("fork server: numba's CPU target not loaded (%s)", exc)
+
+
 def _serve_forks(sock: socket.socket) -> None:
     """The fork server's loop (after ``_BOOT``): load ``PRELOAD``, say how much it maps, then
     fork a worker per request and answer status requests until the supervisor's end closes."""
@@ -185,6 +196,7 @@ def _serve_forks(sock: socket.socket) -> None:
             importlib.import_module(name)
         except ImportError as exc:  # a worker that needs it fails as a fresh one would
             log.warning("fork server: %s not loaded (%s)", name, exc)
+    _load_numba_target()
     sock.sendall(pickle.dumps(mapped_mb()))
     exited: dict[int, int] = {}
     while True:
