@@ -179,6 +179,9 @@ def prefect_api(tmp_path_factory: pytest.TempPathFactory):  # type: ignore[no-un
     home, port = tmp_path_factory.mktemp("prefect-home"), free_port()
     proc = start_server(home, port, timeout_s=180)
     yield server_env(home, port)
+    from prefect.logging.handlers import APILogWorker
+
+    APILogWorker.drain_all(timeout=5)  # the logs of flows run in this process, while it is up
     stop_server(proc)
 
 

@@ -299,9 +299,14 @@ def _flow_runs(env: dict[str, str], workspace: Path) -> list[Any]:
     from prefect.client.orchestration import get_client
     from prefect.settings import PREFECT_API_URL, temporary_settings
 
-    async def read() -> list[Any]:
+    async def read() -> list[Any]:  # every run of the server, a page at a time
+        runs: list[Any] = []
         async with get_client() as client:
-            return list(await client.read_flow_runs())
+            while True:
+                page = await client.read_flow_runs(offset=len(runs), limit=100)
+                runs += page
+                if len(page) < 100:
+                    return runs
 
     with temporary_settings({PREFECT_API_URL: env["PREFECT_API_URL"]}):
         runs = asyncio.run(read())

@@ -216,12 +216,29 @@ def test_a_deployment_run_writes_the_report_and_a_second_night_only_reports(
                                   pd.read_csv(run / "relations_summary.csv"))
 
 
-def _schedule(env: dict[str, str], cwd: Path, *argv: str) -> str:
-    """``mateqa schedule ...`` in ``cwd``; its output (it must succeed)."""
-    done = subprocess.run([str(Path(sys.executable).with_name("mateqa")), "schedule", *argv],
-                          cwd=cwd, env=env, capture_output=True, text=True, timeout=300)
-    assert done.returncode == 0, done.stdout + done.stderr
-    return done.stdout
+def _schedule(env: dict[str, str], cwd: Path, *argv: str, console: bool = False) -> str:
+    """``mateqa schedule ...`` in ``cwd`` against the server of ``env``; its output (it must
+    succeed). In this process (the console script's ``main``: a command in a process of its
+    own spends 5-10 s importing what this one has), or with ``console`` the console script."""
+    if console:
+        done = subprocess.run([str(Path(sys.executable).with_name("mateqa")), "schedule",
+                               *argv], cwd=cwd, env=env, capture_output=True, text=True,
+                              timeout=300)
+        assert done.returncode == 0, done.stdout + done.stderr
+        return done.stdout
+    import contextlib
+    import io
+
+    from flows.cli import main
+
+    out, err = io.StringIO(), io.StringIO()
+    with pytest.MonkeyPatch.context() as patch:
+        patch.setenv("PREFECT_API_URL", env["PREFECT_API_URL"])
+        patch.chdir(cwd)
+        with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
+            code = main(["schedule", *argv])
+    assert code == 0, out.getvalue() + err.getvalue()
+    return out.getvalue()
 
 
 def _planned(env: dict[str, str], name: str) -> list[Any]:
@@ -261,7 +278,7 @@ def test_a_schedule_plans_its_library_s_nights_from_its_cron_beside_another(
     tiny.mkdir(parents=True)
     (tiny / "washer.step").write_bytes((shared_step_dir / "fasteners/kcl_washer.step").read_bytes())
     _schedule(served, tmp_path, "add", "washers", "--library", str(tiny.parent), "--cron",
-              "0 3 * * *", "--views-per-scene", "1", "--no-fail-on-threshold")
+              "0 3 * * *", "--views-per-scene", "1", "--no-fail-on-threshold", console=True)
     _schedule(served, tmp_path, "add", "nights", "--library", str(small_library), "--cron",
               "0 2 * * *", "--timezone", "Europe/Berlin", "--categories", "fasteners")
     listed = _schedule(served, tmp_path, "list")

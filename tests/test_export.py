@@ -297,14 +297,17 @@ def test_a_file_that_changed_since_the_run_is_exported_as_failed(local_night: Pa
     assert doc["status"] == "failed" and doc["reason"] == failed.reason
 
 
-def test_mateqa_export_writes_what_the_nightly_wrote(local_night: Path, tmp_path: Path) -> None:
+def test_mateqa_export_writes_what_the_nightly_wrote(local_night: Path, tmp_path: Path,
+                                                    capsys: pytest.CaptureFixture[str]) -> None:
+    from flows.cli import main
+
     workspace = local_night.parents[1]
-    proc = subprocess.run([sys.executable, "-m", "flows.cli", "export", "--workspace",
-                           str(workspace), "--run", local_night.name, "--out", str(tmp_path)],
-                          capture_output=True, text=True, timeout=600)
-    assert proc.returncode == 0, proc.stderr[-2000:]
+    code = main(["export", "--workspace", str(workspace), "--run", local_night.name, "--out",
+                 str(tmp_path)])
+    out = capsys.readouterr()
+    assert code == 0, out.err[-2000:]
     for row in _exports(local_night).itertuples():
-        assert row.assembly in proc.stdout
+        assert row.assembly in out.out
         mine = json.loads((tmp_path / row.assembly / Path(row.sidecar).name).read_text())
         assert mine == json.loads(Path(row.sidecar).read_text())
 

@@ -1,4 +1,4 @@
-"""Smoke test of the nightly flow under Prefect's test harness (a real temporary server)."""
+"""The nightly flow in this process, against the session's real Prefect server."""
 # A real deployment run against a real local server is tested with the deployments.
 
 from __future__ import annotations
@@ -12,7 +12,6 @@ from typing import Any
 import numpy as np
 import pandas as pd
 import pytest
-from prefect.testing.utilities import prefect_test_harness
 
 from cadio.catalog import read_catalog
 from cadio.tolerances import DEFAULT_TOLERANCES, read_tolerances
@@ -20,8 +19,12 @@ from reports.completion import read_completion_parts
 
 
 @pytest.fixture(scope="module")
-def harness() -> object:
-    with prefect_test_harness(server_startup_timeout=120):
+def harness(prefect_api: dict[str, str]) -> object:
+    """This process's flows against the session's Prefect server (``prefect_api``): a
+    temporary server of Prefect's test harness is a third server beside the two workers'."""
+    from prefect.settings import PREFECT_API_URL, temporary_settings
+
+    with temporary_settings({PREFECT_API_URL: prefect_api["PREFECT_API_URL"]}):
         yield
 
 
@@ -118,7 +121,7 @@ def test_a_tolerance_set_on_the_cli_reaches_the_mates_of_the_run(
     from cadio.truth.mates import read_mates
     from flows.cli import main
 
-    monkeypatch.setenv("PREFECT_API_URL", str(PREFECT_API_URL.value()))  # the harness server
+    monkeypatch.setenv("PREFECT_API_URL", str(PREFECT_API_URL.value()))  # the session's server
     lib = tmp_path / "lib" / "assemblies"
     lib.mkdir(parents=True)
     _gap_assembly(lib / "gap.step", 0.2)

@@ -28,6 +28,7 @@ from models.relations import (
 from models.relations_train import (
     Decision,
     RelationData,
+    RelationResult,
     evaluate,
     fit_thresholds,
     load_relation_model,
@@ -60,6 +61,17 @@ def tiny(**overrides: object) -> RelationConfig:
 @pytest.fixture(scope="module")
 def pairs() -> RelationData:
     return relation_pairs(64, n_points=128, seed=1)
+
+
+# The network the knowledge-base test trains (max pooling only: its thresholds were set on
+# it), once for the module: the joint-head test trains it again with a joint head beside it.
+KB_NET = {"descriptors": True, "steps": 300, "batch_size": 32, "eval_every": 100,
+          "mean_pool": False, "train_points": 96, "widths": (16, 32, 32, 64), "embed": 32}
+
+
+@pytest.fixture(scope="module")
+def kb_ltn(pairs: RelationData) -> RelationResult:
+    return train_relations(tiny(method="ltn", **KB_NET), pairs, pairs)
 
 
 def random_net(seed: int, **overrides: object) -> RelationNet:
@@ -119,13 +131,12 @@ def test_normalisation_is_unit_free_and_keeps_relative_position() -> None:
                               atol=1e-4)
 
 
-def test_training_satisfies_the_knowledge_base(pairs: RelationData) -> None:
+def test_training_satisfies_the_knowledge_base(pairs: RelationData,
+                                               kb_ltn: RelationResult) -> None:
     results = {}
     for method in ("ltn", "mlp"):
-        cfg = tiny(method=method, descriptors=True, steps=300, batch_size=32, eval_every=100,
-                   mean_pool=False,  # max pooling only: the thresholds below were set on it
-                   train_points=96, widths=(16, 32, 32, 64), embed=32)
-        res = train_relations(cfg, pairs, pairs)
+        cfg = tiny(method=method, **KB_NET)
+        res = kb_ltn if method == "ltn" else train_relations(cfg, pairs, pairs)
         pred = predict_relations(res.checkpoint, pairs)
         kb = knowledge_base(torch.from_numpy(pred.raw_ab), torch.from_numpy(pred.raw_ba),
                             torch.from_numpy(pairs.labels).float(), cfg)
@@ -375,7 +386,7 @@ def test_violations_and_calibration_error() -> None:
 
 
 def test_the_joint_head_learns_the_joint_and_answers_a_pair_and_its_swap_alike(
-        pairs: RelationData, tmp_path: Path) -> None:
+        pairs: RelationData, kb_ltn: RelationResult, tmp_path: Path) -> None:
     from models.relations import JOINTS
 
     conc, coin = IDX[Relation.CONCENTRIC], IDX[Relation.COINCIDENT]
@@ -384,8 +395,7 @@ def test_the_joint_head_learns_the_joint_and_answers_a_pair_and_its_swap_alike(
     assert {"planar", "cylindrical", "none"} <= set(named.tolist())
     joints = np.array([JOINTS.index(j) for j in named])
     data = RelationData(pairs.points, pairs.labels, pairs.mm, near=pairs.near, joints=joints)
-    cfg = tiny(method="ltn", joints=True, steps=300, batch_size=32, eval_every=100,
-               descriptors=True, train_points=96, widths=(16, 32, 32, 64), embed=32)
+    cfg = tiny(method="ltn", joints=True, **KB_NET)
     res = train_relations(cfg, data, data)
     assert res.history[-1]["val_joint_balanced"] > 0.9
     torch.manual_seed(0)
@@ -403,8 +413,8 @@ def test_the_joint_head_learns_the_joint_and_answers_a_pair_and_its_swap_alike(
                                torch.from_numpy(joints), torch.from_numpy(pred.raw_ab), cfg)
     assert sat.item() > 0.9
     # the head learns beside the relations without changing them: bit-identical predicates
-    bare = train_relations(dataclasses.replace(cfg, joints=False), data, data)
-    for name, weights in bare.model.state_dict().items():
+    # to the same network trained without it (the knowledge-base test's)
+    for name, weights in kb_ltn.model.state_dict().items():
         assert torch.equal(weights, res.model.state_dict()[name]), name
     path = save_relation_checkpoint(tmp_path / "joint.pt", res.checkpoint)
     again = predict_relations(path, data)

@@ -357,11 +357,12 @@ def test_every_output_keeps_hostile_names_as_data(output: str, night: Night,
 
 
 @pytest.mark.server
-def test_prefect_artifacts_carry_the_names_as_published(night: Night) -> None:
+def test_prefect_artifacts_carry_the_names_as_published(night: Night,
+                                                       prefect_api: dict[str, str]) -> None:
     """The artifacts read back from a real Prefect server are the report's, names intact."""
     from prefect import flow
     from prefect.artifacts import Artifact
-    from prefect.testing.utilities import prefect_test_harness
+    from prefect.settings import PREFECT_API_URL, temporary_settings
 
     from flows.nightly import publish
 
@@ -369,7 +370,7 @@ def test_prefect_artifacts_carry_the_names_as_published(night: Night) -> None:
     def published() -> None:
         publish(night.report)  # type: ignore[arg-type]
 
-    with prefect_test_harness(server_startup_timeout=180):
+    with temporary_settings({PREFECT_API_URL: prefect_api["PREFECT_API_URL"]}):
         published()
         table = Artifact.get("nightly-categories")
         markdown = Artifact.get("nightly-report")
