@@ -72,9 +72,13 @@ if [ "$(cat "$stamp" 2>/dev/null)" != "$lock" ] && [ "$(cat .venv/.installed-tes
   pip=(.venv/bin/python -m pip -q --disable-pip-version-check)
   { sed -n 's/^\([A-Za-z0-9_.-]*==[^ ;]*\).*/\1/p' constraints.txt; echo "setuptools>=68"; } \
     | xargs -P 8 -n 12 "${pip[@]}" download --no-deps "${index[@]}" -d "$fetched"
+  # cadquery-ocp and cadquery-ocp-novtk (build123d's) both write OCP's kernel module, with and
+  # without VTK; cadquery needs the one with VTK, so cadquery-ocp writes it again last.
+  uv=(.venv/bin/uv pip install -q --no-cache --python .venv/bin/python --no-index
+      --find-links "$fetched" -c constraints.txt)
   if ! { "${pip[@]}" install --no-compile --no-index --find-links "$fetched" -c constraints.txt uv \
-         && .venv/bin/uv pip install -q --no-cache --python .venv/bin/python --no-index \
-           --find-links "$fetched" -c constraints.txt -e "$target"; } 2>/dev/null; then
+         && "${uv[@]}" -e "$target" \
+         && "${uv[@]}" --reinstall-package cadquery-ocp cadquery-ocp; } 2>/dev/null; then
     echo "setup: the lock's packages alone do not install here; reading the index as well"
     "${pip[@]}" install --no-compile --find-links "$fetched" "${index[@]}" \
       -c constraints.txt -e "$target"
