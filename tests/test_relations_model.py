@@ -71,7 +71,12 @@ KB_NET = {"descriptors": True, "steps": 300, "batch_size": 32, "eval_every": 100
 
 @pytest.fixture(scope="module")
 def kb_ltn(pairs: RelationData) -> RelationResult:
-    return train_relations(tiny(method="ltn", **KB_NET), pairs, pairs)
+    before = torch.get_num_threads()
+    torch.set_num_threads(1)  # as the tests' own (``one_thread`` is set up after this)
+    try:
+        return train_relations(tiny(method="ltn", **KB_NET), pairs, pairs)
+    finally:
+        torch.set_num_threads(before)
 
 
 def random_net(seed: int, **overrides: object) -> RelationNet:
