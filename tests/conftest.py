@@ -2,7 +2,9 @@
 
 from __future__ import annotations
 
+import contextlib
 import os
+from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
@@ -205,6 +207,42 @@ ONE_THREAD = {name: "1" for name in THREAD_VARIABLES}
 TEST_INSPECTION = {"views": 1, "near_m": 0.0, "defects": False, "search": False}
 
 
+def _test_night(library: Path, workspace: Path, groups: dict[str, dict[str, object]]
+                ) -> dict[str, dict[str, object]]:
+    """A night's configuration with the small test settings, and ``groups`` on top."""
+    config: dict[str, dict[str, object]] = {
+        "library": {"path": str(library)}, "runtime": {"workspace": str(workspace)},
+        "capture": {"views_per_scene": 1, "pairs_per_relation": 1},
+        "inspection": TEST_INSPECTION, "thresholds": {"fail_on_threshold": False}}
+    for name, values in groups.items():
+        config.setdefault(name, {}).update(values)
+    return config
+
+
+@contextlib.contextmanager
+def served_by(env: dict[str, str]) -> Iterator[None]:
+    """Flows and ``mateqa`` commands of this process against the Prefect server of ``env``
+    (Prefect's settings, which it read when it was imported, and the variable the commands
+    read)."""
+    from prefect.settings import PREFECT_API_URL, temporary_settings
+
+    with pytest.MonkeyPatch.context() as patch, temporary_settings(
+            {PREFECT_API_URL: env["PREFECT_API_URL"]}):
+        patch.setenv("PREFECT_API_URL", env["PREFECT_API_URL"])
+        yield
+
+
+def run_night(library: Path, workspace: Path, env: dict[str, str],
+              **groups: dict[str, object]) -> None:
+    """``start_night``'s night run to its end in this process, which has imported what a night
+    process spends 10-15 s importing, and whose stage workers' fork server runs already."""
+    from flows.config import night_config
+    from flows.nightly import nightly
+
+    with served_by(env):
+        nightly(night_config(_test_night(library, workspace, groups)))
+
+
 def start_night(library: Path, workspace: Path, env: dict[str, str],
                 **groups: dict[str, object]):  # type: ignore[no-untyped-def]
     """The nightly flow on ``library`` in a child process (its own session, so that it and its
@@ -213,12 +251,7 @@ def start_night(library: Path, workspace: Path, env: dict[str, str],
     import subprocess
     import sys
 
-    config: dict[str, dict[str, object]] = {
-        "library": {"path": str(library)}, "runtime": {"workspace": str(workspace)},
-        "capture": {"views_per_scene": 1, "pairs_per_relation": 1},
-        "inspection": TEST_INSPECTION, "thresholds": {"fail_on_threshold": False}}
-    for name, values in groups.items():
-        config.setdefault(name, {}).update(values)
+    config = _test_night(library, workspace, groups)
     code = ("from flows.config import night_config; from flows.nightly import nightly; "
             f"nightly(night_config({config!r}))")
     log = Path(workspace).with_name(f"{Path(workspace).name}.log")
@@ -240,7 +273,7 @@ def local_night(small_library: Path, prefect_api: dict[str, str],
                 tmp_path_factory: pytest.TempPathFactory) -> Path:
     """The folder of an uninterrupted night on ``small_library`` (this machine's runner)."""
     workspace = tmp_path_factory.mktemp("local-night")
-    finish_night(start_night(small_library, workspace, prefect_api))
+    run_night(small_library, workspace, prefect_api)
     return (workspace / "runs" / "latest").resolve()
 
 

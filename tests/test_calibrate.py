@@ -180,7 +180,7 @@ def test_a_night_with_a_damaged_checkpoint_fails_calibrated_floors_not_the_shipp
     floor of 0.10, checked with the same min_n. (This library's one assembly gives a mates F1
     of 0.54 that the damage takes under the shipped 0.40; on the held-out night of 24 files the
     halved model passed every shipped floor.)"""
-    from conftest import finish_night, start_night
+    from conftest import run_night
 
     from models.evaluate import SHIPPED
 
@@ -190,10 +190,9 @@ def test_a_night_with_a_damaged_checkpoint_fails_calibrated_floors_not_the_shipp
     floors = read_thresholds(calibrated)
     assert floors.limit("completion_iou_shapes", "all").floor is not None
     workspace = local_night.parents[1]
-    finish_night(start_night(small_library, workspace, prefect_api,
-                             models={"completion": str(_damaged(SHIPPED, tmp_path / "damaged",
-                                                                0.5))},
-                             thresholds={"file": str(calibrated), "history": 0}))
+    run_night(small_library, workspace, prefect_api,
+              models={"completion": str(_damaged(SHIPPED, tmp_path / "damaged", 0.5))},
+              thresholds={"file": str(calibrated), "history": 0})
     damaged = max(p for p in (workspace / "runs").iterdir() if p.name > local_night.name
                   and not p.is_symlink())
     checks = pd.read_csv(damaged / "categories.csv")

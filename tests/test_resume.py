@@ -10,7 +10,7 @@ from pathlib import Path
 
 import pandas as pd
 import pytest
-from conftest import finish_night, start_night
+from conftest import run_night, start_night
 from test_bad_inputs import _flow_runs
 
 pytestmark = pytest.mark.server
@@ -38,7 +38,7 @@ def restarted(small_library: Path, prefect_api: dict[str, str],
     os.killpg(proc.pid, signal.SIGKILL)  # the flow and its CAD workers, mid-capture
     proc.wait()
     assert not list(killed.glob("runs/*/summary.json")), "killed after the run completed"
-    finish_night(start_night(small_library, killed, prefect_api))
+    run_night(small_library, killed, prefect_api)
     return killed
 
 
