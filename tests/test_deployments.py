@@ -229,11 +229,12 @@ def _schedule(env: dict[str, str], cwd: Path, *argv: str, console: bool = False)
     import contextlib
     import io
 
+    from conftest import served_by
+
     from flows.cli import main
 
     out, err = io.StringIO(), io.StringIO()
-    with pytest.MonkeyPatch.context() as patch:
-        patch.setenv("PREFECT_API_URL", env["PREFECT_API_URL"])
+    with served_by(env), pytest.MonkeyPatch.context() as patch:
         patch.chdir(cwd)
         with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
             code = main(["schedule", *argv])

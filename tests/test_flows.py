@@ -22,9 +22,9 @@ from reports.completion import read_completion_parts
 def harness(prefect_api: dict[str, str]) -> object:
     """This process's flows against the session's Prefect server (``prefect_api``): a
     temporary server of Prefect's test harness is a third server beside the two workers'."""
-    from prefect.settings import PREFECT_API_URL, temporary_settings
+    from conftest import served_by
 
-    with temporary_settings({PREFECT_API_URL: prefect_api["PREFECT_API_URL"]}):
+    with served_by(prefect_api):
         yield
 
 

@@ -362,7 +362,6 @@ def test_prefect_artifacts_carry_the_names_as_published(night: Night,
     """The artifacts read back from a real Prefect server are the report's, names intact."""
     from prefect import flow
     from prefect.artifacts import Artifact
-    from prefect.settings import PREFECT_API_URL, temporary_settings
 
     from flows.nightly import publish
 
@@ -370,7 +369,9 @@ def test_prefect_artifacts_carry_the_names_as_published(night: Night,
     def published() -> None:
         publish(night.report)  # type: ignore[arg-type]
 
-    with temporary_settings({PREFECT_API_URL: prefect_api["PREFECT_API_URL"]}):
+    from conftest import served_by
+
+    with served_by(prefect_api):
         published()
         table = Artifact.get("nightly-categories")
         markdown = Artifact.get("nightly-report")
