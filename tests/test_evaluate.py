@@ -24,6 +24,7 @@ from cadio.records import Mesh
 from models.checkpoint import save_checkpoint
 from models.evaluate import (
     complete,
+    learned_solids,
     load_models,
     part_inputs,
     register_completion,
@@ -83,6 +84,22 @@ def test_every_method_completes_the_same_example(examples: list[Path],
     assert all(p.shape == (32, 32, 32) and p.dtype == bool for p in preds.values())
     oracle = complete(models, read_example(examples[5]))
     assert set(oracle) == {"visible", "carve"}  # no oracle-box checkpoint in the folder
+
+
+def test_a_forward_pass_of_many_examples_gives_each_its_own_solid(examples: list[Path],
+                                                                  checkpoints: Path) -> None:
+    """The stage completes a folder's examples several to a forward pass (single views and
+    sequences of two, both protocols, mixed): each gets the solids it gets alone."""
+    from cadio.capture.examples import read_example
+
+    models = load_models(checkpoints)
+    read = [read_example(p) for p in examples]
+    together = learned_solids(models, read)
+    for example, solids in zip(read, together, strict=True):
+        [alone] = learned_solids(models, [example])
+        assert set(solids) == set(alone) == ({"gan_lstm", "ae", "r2n2"}
+                                             if example.protocol == "observed" else set())
+        assert all(np.array_equal(solids[m], alone[m]) for m in alone)
 
 
 def test_scores_cover_each_example_and_method_once(examples: list[Path], checkpoints: Path,
