@@ -164,11 +164,14 @@ class PairBatch:
         default_factory=dict, repr=False, compare=False)
 
     def nearest(self, points: npt.NDArray[np.float32]) -> npt.NDArray[np.float32]:
-        """(N, 2, k) ``nearest_of_pairs`` of ``points`` (the batch's or its observed ones)."""
+        """(N, 2, k) ``nearest_of_pairs`` of ``points`` (the batch's or its observed ones),
+        measured once for each distinct pair of clouds."""
         held = self._near.get(id(points))
         if held is None or held[0] is not points:
-            held = (points, nearest_of_pairs(np.asarray(points, dtype=np.float32),
-                                             np.asarray(self.mm_per_unit, dtype=np.float64)))
+            mm = np.asarray(self.mm_per_unit, dtype=np.float64)
+            first, back = distinct_rows(points, mm)
+            held = (points, nearest_of_pairs(np.asarray(points[first], dtype=np.float32),
+                                             mm[first])[back])
             self._near[id(points)] = held
         return held[1]
 
@@ -207,12 +210,42 @@ def decide(batch: PairBatch, method: RelationMethod | str,
     evidence = network_evidence(features, points, batch.centres, batch.tests)
     if batch.observed is not None and reads_observed(net.cfg.evidence):
         points, evidence = batch.observed[0], with_observed(evidence, batch.observed[1])
-    data = RelationData(points, np.zeros((len(points), len(RELATIONS)), dtype=bool),
-                        np.asarray(batch.mm_per_unit, dtype=np.float64), evidence,
-                        batch.nearest(points))
+    mm = np.asarray(batch.mm_per_unit, dtype=np.float64)
+    # the network decides each distinct input once: an exact input's clouds (CAD samples at
+    # a pose) are the same in every view of a pair, and so are their evidence
+    first, back = distinct_rows(points, evidence, mm)
+    data = RelationData(points[first], np.zeros((len(first), len(RELATIONS)), dtype=bool),
+                        mm[first], evidence[first], batch.nearest(points)[first])
     pred = predict_relations(net, data, decision=decision)
-    return (pred.decided, pred.confidence, violations(pred.raw_ab, pred.raw_ba),
-            pred.joint() or joints_of(pred.decided))
+    joints = pred.joint()
+    decided = pred.decided[back]
+    return (decided, pred.confidence[back], violations(pred.raw_ab[back], pred.raw_ba[back]),
+            [joints[i] for i in back] if joints is not None else joints_of(decided))
+
+
+def distinct_rows(*arrays: npt.NDArray[Any]) -> tuple[npt.NDArray[np.int64],
+                                                      npt.NDArray[np.int64]]:
+    """The rows that are distinct across ``arrays`` (each (N, ...), read row by row) and
+    where each row is among them: (first, back) with ``a[first][back]`` row for row ``a``
+    for every array, ``first`` ascending (each distinct row's first occurrence)."""
+    import hashlib
+
+    n = len(arrays[0])
+    if n == 0:
+        return np.zeros(0, dtype=np.int64), np.zeros(0, dtype=np.int64)
+    rows = [np.ascontiguousarray(a).reshape(n, -1).view(np.uint8).reshape(n, -1)
+            for a in arrays]
+    keys = [hashlib.blake2b(b"".join(r[i].tobytes() for r in rows), digest_size=16).digest()
+            for i in range(n)]
+    at: dict[bytes, int] = {}
+    first: list[int] = []
+    back = np.empty(n, dtype=np.int64)
+    for i, key in enumerate(keys):
+        if key not in at:
+            at[key] = len(first)
+            first.append(i)
+        back[i] = at[key]
+    return np.asarray(first, dtype=np.int64), back
 
 
 def joints_of(decided: npt.NDArray[np.bool_]) -> list[str]:

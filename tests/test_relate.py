@@ -284,3 +284,22 @@ def test_a_change_to_the_code_reading_pair_views_changes_the_relations_cache_key
     changed.write_bytes(Path(models.geometric.__file__).read_bytes() + b"\n# a tolerance\n")
     monkeypatch.setattr(models.geometric, "__file__", str(changed))
     assert reading_digest() != before
+
+
+def test_a_network_decides_a_repeated_pair_view_once_and_answers_each_alike() -> None:
+    """An exact input's pair shows the same clouds in every view: the network decides each
+    distinct one once, and every repeat gets its answers (decisions, confidences, joints)."""
+    from models.relate import PairBatch, decide, distinct_rows, load_relation_models
+
+    torch.set_num_threads(1)
+    data = relation_pairs(3, n_points=64, seed=5)
+    model = load_relation_models(SHIPPED_RELATIONS).models[("ltn", "truth")]
+    order = [0, 1, 0, 2, 1, 0]
+    first, back = distinct_rows(data.points[order], data.mm[order])
+    assert first.tolist() == [0, 1, 3] and back.tolist() == [0, 1, 0, 2, 1, 0]
+    repeated = decide(PairBatch(data.points[order], data.mm[order]), "ltn", model)
+    once = decide(PairBatch(data.points, data.mm), "ltn", model)
+    assert repeated is not None and once is not None
+    for got, want in zip(repeated[:3], once[:3], strict=True):
+        assert np.array_equal(got, want[order], equal_nan=got.dtype.kind == "f")
+    assert list(repeated[3]) == [once[3][i] for i in order]
