@@ -243,7 +243,7 @@ def score_files(paths: Iterable[Path], models: CompletionModels,
     return Scores(parts, registration, failed)
 
 
-def _by_folder(paths: Iterable[Path], most: int = 4 * PREDICT_BATCH) -> list[list[Path]]:
+def _by_folder(paths: Iterable[Path], most: int = 32) -> list[list[Path]]:
     """``paths`` in runs of the same folder, in their order, at most ``most`` a run (a
     corpus's flat folder of thousands is not read at once)."""
     runs: list[list[Path]] = []
